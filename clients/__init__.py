@@ -1,0 +1,1 @@
+"""Lightweight clients of the track service; they depend on service.wire only."""

@@ -1,0 +1,85 @@
+"""`track-display`: the live track table in a terminal, updated in place.
+
+Subscribes `<ns>/display/**`; a Zenoh delete on a track's key removes its row.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import threading
+import time
+from typing import Any
+
+import zenoh
+
+from service.wire import Keys, add_zenoh_args, open_session, unpack
+
+HEADER = f"{'id':<16}{'x m':>11}{'y m':>11}{'z m':>9}{'speed m/s':>11}{'sigma m':>9}" \
+         f"  {'status':<10}{'age s':>6}"
+
+
+def render(rows: dict[str, dict[str, Any]], ns: str, now_t: float | None) -> str:
+    lines = [f"track-display  ns={ns}  t={now_t if now_t is not None else '-':}  "
+             f"tracks={len(rows)}", HEADER]
+    for tid in sorted(rows):
+        m = rows[tid]
+        x, y, z = m["pos"]
+        speed = math.sqrt(sum(v * v for v in m["vel"]))
+        lines.append(f"{tid:<16.16}{x:>11.1f}{y:>11.1f}{z:>9.1f}{speed:>11.1f}"
+                     f"{m['sigma']:>9.1f}  {m['status']:<10}{m['age']:>6.1f}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="track-display", description=__doc__)
+    add_zenoh_args(p)
+    p.add_argument("--hz", type=float, default=4.0, help="screen refresh rate")
+    p.add_argument("--max-rows", type=int, default=40)
+    p.add_argument("--exit-after", type=float, default=0.0,
+                   help="print the table once after this many seconds of data and exit")
+    args = p.parse_args(argv)
+    keys = Keys(args.ns)
+    rows: dict[str, dict[str, Any]] = {}
+    lock = threading.Lock()
+    first = threading.Event()
+
+    def on_sample(s: Any) -> None:
+        tid = str(s.key_expr).rsplit("/", 1)[-1]
+        with lock:
+            if s.kind == zenoh.SampleKind.DELETE:
+                rows.pop(tid, None)
+                return
+            try:
+                msg = unpack(s.payload.to_bytes())
+                rows[tid] = {k: msg[k] for k in ("t", "pos", "vel", "sigma", "status", "age")}
+            except (ValueError, KeyError, TypeError):
+                return
+        first.set()
+
+    session = open_session(args)
+    sub = session.declare_subscriber(keys.display("*"), on_sample)
+    try:
+        if args.exit_after:
+            if first.wait(60):
+                time.sleep(args.exit_after)
+            with lock:
+                print(render(rows, args.ns, max((r["t"] for r in rows.values()), default=None)))
+            return
+        while True:
+            with lock:
+                shown = dict(sorted(rows.items())[: args.max_rows])
+                t = max((r["t"] for r in rows.values()), default=None)
+            sys.stdout.write("\x1b[H\x1b[2J" + render(shown, args.ns, t) + "\n")
+            sys.stdout.flush()
+            time.sleep(1.0 / args.hz)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sub.undeclare()
+        session.close()
+
+
+if __name__ == "__main__":
+    main()

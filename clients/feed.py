@@ -1,0 +1,96 @@
+"""`track-feed SCENARIO`: publish a reference scenario's labelled measurements.
+
+Measurements go to `<ns>/meas/<sensor>/<target>` with congestion control BLOCK (nothing
+is lost), as fast as possible or at the pace of simulation time (`--realtime`); the feed
+ends with a `<ns>/clock` message one scan after the last. `--truth` also publishes the
+true states on `<ns>/truth/<target>` (an extension key) for evaluation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Iterator
+
+import zenoh
+
+from service.wire import Keys, add_zenoh_args, open_session, pack, wait_for_tracker
+
+from . import scenarios
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="track-feed", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scenario", choices=[*scenarios.SCENARIOS, "swarm"],
+                   help="display (A, 30 Hz display), radar3d (B, CMKF vs EKF), "
+                        "maneuver (C, manoeuvring target), swarm (many straight targets)")
+    p.add_argument("--runs", type=int, default=1, help="Monte Carlo copies, one target each")
+    p.add_argument("--targets", type=int, default=100, help="swarm: number of targets")
+    p.add_argument("--duration", type=float, default=60.0, help="swarm: seconds simulated")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sensor", default="radar1", help="sensor chunk of the keys")
+    p.add_argument("--realtime", action="store_true", help="pace scans by simulation time")
+    p.add_argument("--t0", type=float, default=0.0, help="simulation time offset, s")
+    p.add_argument("--truth", action="store_true", help="also publish <ns>/truth/<target>")
+    p.add_argument("--trackers", type=int, default=1,
+                   help="wait for this many tracker liveliness tokens (0: do not wait)")
+    add_zenoh_args(p)
+    return p
+
+
+def scans(args: argparse.Namespace) -> Iterator[scenarios.Scan]:
+    if args.scenario == "swarm":
+        return scenarios.swarm(args.targets, args.seed, args.duration)
+    return scenarios.SCENARIOS[args.scenario](runs=args.runs, seed=args.seed)
+
+
+def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
+    """Publish every scan; return the number of measurements sent."""
+    keys = Keys(args.ns)
+    block = zenoh.CongestionControl.BLOCK
+    pubs: dict[str, zenoh.Publisher] = {}
+    truth_pubs: dict[str, zenoh.Publisher] = {}
+    sent, seq, t_last = 0, 0, args.t0
+    wall0 = time.monotonic()
+    for t, meas, truth in scans(args):
+        t += args.t0
+        if args.realtime:
+            delay = wall0 + (t - args.t0) - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)  # pacing to simulation time is the point here
+        if args.truth:
+            for target, state in truth:
+                pub = truth_pubs.get(target) or truth_pubs.setdefault(
+                    target, session.declare_publisher(keys.truth(target), congestion_control=block))
+                pub.put(pack({"t": t, **state}))
+        for target, m in meas:
+            pub = pubs.get(target) or pubs.setdefault(target, session.declare_publisher(
+                keys.meas(args.sensor, target), congestion_control=block))
+            pub.put(pack({"t": t, "seq": seq, **m}))
+            seq += 1
+            sent += 1
+        t_last = t
+    period = scenarios.PERIODS[args.scenario]
+    session.put(keys.clock, pack({"t": t_last + period}), congestion_control=block)
+    return sent
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parser().parse_args(argv)
+    session = open_session(args)
+    try:
+        if args.trackers and not wait_for_tracker(session, Keys(args.ns), args.trackers):
+            sys.exit(f"track-feed: no tracker alive on '{args.ns}' after 30 s "
+                     "(start track-service, or pass --trackers 0)")
+        start = time.monotonic()
+        n = publish(session, args)
+        print(f"track-feed: {args.scenario}: {n} measurements in "
+              f"{time.monotonic() - start:.2f} s", flush=True)
+    finally:
+        session.close()
+
+
+if __name__ == "__main__":
+    main()

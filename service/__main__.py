@@ -1,0 +1,76 @@
+"""`track-service` / `python -m service`: run one tracker instance."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import threading
+import uuid
+
+from . import __version__
+from .node import TrackService
+from .table import TableConfig, TrackTable
+from .wire import Keys, add_zenoh_args, open_session
+
+MODELS = {"cv": 2, "ca": 3}
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="track-service", description=__doc__)
+    add_zenoh_args(p)
+    p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
+                   help="display clock (default %(default)s)")
+    p.add_argument("--rate", type=float, default=30.0, help="display rate, Hz")
+    p.add_argument("--model", choices=sorted(MODELS), default="cv",
+                   help="motion model: nearly-constant velocity or acceleration")
+    p.add_argument("--q", type=float, default=None,
+                   help="process noise std per axis: m/s^2 for cv (default 1), "
+                        "m/s^3 for ca (default 0.5)")
+    p.add_argument("--init-speed", type=float, default=1000.0,
+                   help="prior velocity std at initiation, m/s")
+    p.add_argument("--init-accel", type=float, default=10.0,
+                   help="prior acceleration std at initiation (ca), m/s^2")
+    p.add_argument("--delete-after", type=float, default=30.0,
+                   help="delete a track after this many seconds without a measurement")
+    p.add_argument("--sr", type=float, default=10.0, help="default range noise std, m")
+    p.add_argument("--saz", type=float, default=math.radians(0.5),
+                   help="default azimuth noise std, rad")
+    p.add_argument("--sel", type=float, default=math.radians(0.5),
+                   help="default elevation noise std, rad")
+    p.add_argument("--sigma", type=float, default=1.0,
+                   help="default Cartesian noise std, m")
+    p.add_argument("--no-display-keys", action="store_true",
+                   help="publish only the `frame` key, not per-target display/ keys")
+    p.add_argument("--instance", default=None, help="liveliness instance name")
+    p.add_argument("-v", "--verbose", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    order = MODELS[args.model]
+    q = args.q if args.q is not None else {2: 1.0, 3: 0.5}[order]
+    table = TrackTable(TableConfig(order=order, q=q, init_speed=args.init_speed,
+                                   init_accel=args.init_accel, delete_after=args.delete_after))
+    session = open_session(args, serve=True)
+    svc = TrackService(session, Keys(args.ns), table, clock=args.clock, rate=args.rate,
+                       instance=args.instance or uuid.uuid4().hex[:8],
+                       defaults=(args.sr, args.saz, args.sel, args.sigma),
+                       per_target_display=not args.no_display_keys).start()
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    logging.getLogger("track-service").info("running: ns=%s clock=%s", args.ns, args.clock)
+    print(f"track-service {__version__}: ns={args.ns} clock={args.clock} rate={args.rate} Hz",
+          flush=True)
+    done.wait()
+    svc.close()
+    session.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,36 @@
+"""Linear Kalman update on stacked arrays, position-measurement form (H = [I 0 ...])."""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Floor added to the innovation covariance so an exact measurement of an exactly known
+# position (R = 0, P = 0) gives a zero gain instead of a division by zero (m^2).
+S_FLOOR = 1e-9
+
+
+def symmetrise(p: np.ndarray) -> np.ndarray:
+    return 0.5 * (p + p.transpose(0, 2, 1))
+
+
+def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Update rows (N, n) / (N, n, n) with position measurements z (N, d), R (N, d, d).
+
+    Joseph-form covariance (Bar-Shalom, Li & Kirubarajan 2001, eq. 5.2.3-18), symmetrised.
+    Returns the posterior x, P, the normalised innovation squared and a mask of rows
+    whose result is finite (the caller keeps the prior of the others).
+    """
+    n_rows, n = x.shape
+    d = z.shape[1]
+    nu = z - x[:, :d]
+    s = p[:, :d, :d] + r + S_FLOOR * np.eye(d)
+    pht = p[:, :, :d]
+    gain = np.linalg.solve(s, pht.transpose(0, 2, 1)).transpose(0, 2, 1)
+    xn = x + np.einsum("nij,nj->ni", gain, nu)
+    ikh = np.broadcast_to(np.eye(n), (n_rows, n, n)).copy()
+    ikh[:, :, :d] -= gain
+    pn = symmetrise(ikh @ p @ ikh.transpose(0, 2, 1) + gain @ r @ gain.transpose(0, 2, 1))
+    nis = np.einsum("ni,ni->n", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+    ok = np.isfinite(xn).all(1) & np.isfinite(pn).all((1, 2)) & np.isfinite(nis)
+    return xn, pn, nis, ok

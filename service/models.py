@@ -1,0 +1,60 @@
+"""Kinematic motion models on stacked arrays (no Zenoh, no per-track objects).
+
+State layout (PROTOCOL.md): position, velocity[, acceleration], each block `dim` long,
+so x = kron(derivative order, axis). A model of `order` 2 is nearly-constant velocity
+(CV), order 3 nearly-constant acceleration (CA). Process noise is the discrete
+piecewise-constant white noise of the next derivative (Bar-Shalom, Li & Kirubarajan
+2001, sec. 6.3.2-6.3.3): for CV the acceleration, for CA the jerk, of standard
+deviation `q` held constant over each step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def axis_transition(dt: np.ndarray, order: int) -> np.ndarray:
+    """Per-axis transition Phi (N, order, order): Phi[i, j] = dt^(j-i) / (j-i)!."""
+    dt = np.asarray(dt, dtype=float)
+    phi = np.zeros(dt.shape + (order, order))
+    for i in range(order):
+        for j in range(i, order):
+            phi[..., i, j] = dt ** (j - i) / math.factorial(j - i)
+    return phi
+
+
+def axis_noise_gain(dt: np.ndarray, order: int) -> np.ndarray:
+    """Gain Gamma (N, order) of a piecewise-constant derivative of order `order`."""
+    dt = np.asarray(dt, dtype=float)
+    return np.stack([dt ** (order - i) / math.factorial(order - i) for i in range(order)], -1)
+
+
+def expand(block: np.ndarray, dim: int) -> np.ndarray:
+    """kron(block, I_dim) over a leading batch axis: (N, a, b) -> (N, a*dim, b*dim)."""
+    n, a, b = block.shape
+    eye = np.eye(dim)
+    return (block[:, :, None, :, None] * eye[None, None, :, None, :]).reshape(n, a * dim, b * dim)
+
+
+def transition(dt: np.ndarray, order: int, dim: int) -> np.ndarray:
+    """Full transition matrices F (N, n, n), n = order * dim."""
+    return expand(axis_transition(dt, order), dim)
+
+
+def process_noise(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray) -> np.ndarray:
+    """Full process noise Q (N, n, n) = q^2 kron(Gamma Gamma', I)."""
+    g = axis_noise_gain(np.abs(dt), order)
+    q2 = np.asarray(q, dtype=float) ** 2
+    return expand(g[:, :, None] * g[:, None, :] * np.reshape(q2, (-1, 1, 1)), dim)
+
+
+def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+            q: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman prediction of every row by its own dt (dt may be negative: extrapolation
+    backwards uses |dt| for the noise)."""
+    f = transition(dt, order, dim)
+    xp = np.einsum("nij,nj->ni", f, x)
+    pp = f @ p @ f.transpose(0, 2, 1) + process_noise(dt, order, dim, q)
+    return xp, 0.5 * (pp + pp.transpose(0, 2, 1))

@@ -1,0 +1,262 @@
+"""The Zenoh adapter: subscribe inputs, run the pipeline on one worker thread, publish.
+
+Zenoh callbacks only enqueue; one worker thread owns the track table, so the table needs
+no locks. Data flows one way: wire -> validate -> table (convert, predict, update) ->
+clock -> publication.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from . import __version__
+from .clock import Lockstep, Realtime
+from .table import Snapshot, TrackTable
+from .validate import Measurement, Rejected, parse_clock, parse_measurement
+from .wire import CHUNK, Keys, pack
+
+log = logging.getLogger("track-service")
+MAX_BATCH = 20000
+
+
+@dataclass
+class Counters:
+    meas_accepted: int = 0
+    meas_rejected: int = 0
+    meas_lost: int = 0
+    frames_published: int = 0
+    frames_missed: int = 0
+    tracks_deleted: int = 0
+    states_withheld: int = 0
+    reasons: dict[str, int] = field(default_factory=dict)
+
+
+class TrackService:
+    """One tracker instance on one Zenoh session."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, table: TrackTable, *,
+                 clock: str = "lockstep", rate: float = 30.0, instance: str = "0",
+                 defaults: tuple[float, float, float, float] = (10.0, 0.01, 0.01, 1.0),
+                 per_target_display: bool = True) -> None:
+        self.session, self.keys, self.table = session, keys, table
+        self.realtime = clock == "realtime"
+        self.clock = Realtime(rate) if self.realtime else Lockstep(rate)
+        self.rate, self.instance, self.defaults = rate, instance, defaults
+        self.per_target_display = per_target_display
+        self.count = Counters()
+        self.started = time.monotonic()
+        self.inbox: queue.SimpleQueue[tuple] = queue.SimpleQueue()
+        self.last_seq: dict[str, int] = {}
+        self.stop = threading.Event()
+        cc = zenoh.CongestionControl
+        self.display_cc = cc.DROP if self.realtime else cc.BLOCK
+        self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc)
+        self.pubs: dict[str, tuple[Any, Any]] = {}
+        put = self.inbox.put
+        self.subs = [
+            session.declare_subscriber(keys.space("meas"), lambda s: put(
+                ("meas", str(s.key_expr), s.payload.to_bytes(), time.time()))),
+            session.declare_subscriber(keys.clock, lambda s: put(
+                ("clock", str(s.key_expr), s.payload.to_bytes(), time.time()))),
+            session.declare_queryable(keys.space("tracks"), lambda q: put(("tracks", q))),
+            session.declare_queryable(keys.status, lambda q: put(("status", q))),
+        ]
+        self.token = session.liveliness().declare_token(keys.alive(instance))
+        self.thread = threading.Thread(target=self._run, name="track-worker", daemon=True)
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> TrackService:
+        self.thread.start()
+        return self
+
+    def close(self) -> None:
+        self.stop.set()
+        self.inbox.put(("wake",))
+        self.thread.join(timeout=10)
+        self.token.undeclare()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            timeout = 0.5
+            if self.realtime:
+                deadline = self.clock.next_deadline(time.time())
+                if deadline is not None:
+                    timeout = min(max(deadline - time.time(), 0.0), 0.5)
+            batch = []
+            try:
+                batch.append(self.inbox.get(timeout=timeout))
+                while len(batch) < MAX_BATCH:
+                    batch.append(self.inbox.get_nowait())
+            except queue.Empty:
+                pass
+            try:
+                self._process(batch)
+                if self.realtime:
+                    self._tick()
+            except Exception:  # keep serving: one bad batch must not stop the service
+                log.exception("worker failed on a batch of %d inputs", len(batch))
+
+    # ------------------------------------------------------------ inputs
+    def _process(self, batch: list[tuple]) -> None:
+        pending: list[Measurement] = []
+        for item in batch:
+            kind = item[0]
+            if kind == "meas":
+                m = self._validate(item[1], item[2])
+                if m is None:
+                    continue
+                if self.realtime:
+                    self.clock.observe(m.t, item[3])
+                else:
+                    self._frames_before(m.t, pending)
+                pending.append(m)
+            elif kind == "clock":
+                try:
+                    t = parse_clock(item[2])
+                except Rejected as exc:
+                    self._reject(item[1], "clock", str(exc))
+                    continue
+                if self.realtime:
+                    self.clock.observe(t, item[3])
+                else:
+                    self._frames_before(t, pending)
+            elif kind in ("tracks", "status"):
+                self._flush(pending)
+                self._answer(kind, item[1])
+        self._flush(pending)
+
+    def _validate(self, key: str, payload: bytes) -> Measurement | None:
+        chunks = self.keys.chunks_after(key, "meas")
+        sensor = chunks[0] if chunks and chunks[0] else "unknown"
+        try:
+            if len(chunks) != 2:
+                raise Rejected("measurement key must be <ns>/meas/<sensor>/<target>")
+            m = parse_measurement(chunks[0], chunks[1], payload, self.defaults)
+        except Rejected as exc:
+            self._reject(key, sensor, str(exc))
+            return None
+        if m.seq is not None:
+            last = self.last_seq.get(m.sensor)
+            if last is not None and m.seq > last + 1:
+                self.count.meas_lost += m.seq - last - 1
+            self.last_seq[m.sensor] = m.seq if last is None else max(last, m.seq)
+        return m
+
+    def _reject(self, key: str, sensor: str, reason: str) -> None:
+        c = self.count
+        c.meas_rejected += 1
+        head = reason.split(":")[0]
+        c.reasons[head] = c.reasons.get(head, 0) + 1
+        log.warning("rejected %s: %s", key, reason)
+        self.session.put(self.keys.errors(sensor if CHUNK.match(sensor) else "unknown"),
+                         pack({"key": key, "reason": reason, "t_wall": time.time()}),
+                         congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def _flush(self, pending: list[Measurement]) -> None:
+        if not pending:
+            return
+        for out in self.table.apply(pending):
+            m = out.meas
+            if out.reason is not None:
+                self._reject(self.keys.meas(m.sensor, m.target), m.sensor, out.reason)
+                continue
+            self.count.meas_accepted += 1
+            self._publishers(m.target)[1].put(pack(self.table.state(m.target)))
+        pending.clear()
+
+    # ------------------------------------------------------------ outputs
+    def _publishers(self, track_id: str) -> tuple[Any, Any]:
+        pubs = self.pubs.get(track_id)
+        if pubs is None:
+            s, k = self.session, self.keys
+            pubs = (s.declare_publisher(k.display(track_id), congestion_control=self.display_cc),
+                    s.declare_publisher(k.tracks(track_id),
+                                        congestion_control=zenoh.CongestionControl.BLOCK))
+            self.pubs[track_id] = pubs
+        return pubs
+
+    def _frames_before(self, t: float, pending: list[Measurement]) -> None:
+        due = self.clock.due_before(t)
+        if due:
+            self._flush(pending)
+            for instant in due:
+                self._publish_frame(instant)
+
+    def _tick(self) -> None:
+        instant = self.clock.due(time.time())
+        if instant is not None:
+            self.count.frames_missed = self.clock.missed
+            self._publish_frame(instant)
+
+    def _publish_frame(self, t: float) -> None:
+        self._delete(self.table.stale(t))
+        snap = self.table.snapshot(t)
+        snap = self._finite(snap)
+        self.pub_frame.put(pack({
+            "t": t, "ids": snap.ids,
+            "pos": snap.pos.astype("<f8").tobytes(), "vel": snap.vel.astype("<f8").tobytes(),
+            "sigma": snap.sigma.astype("<f8").tobytes(),
+        }))
+        if self.per_target_display:
+            pos, vel = snap.pos.tolist(), snap.vel.tolist()
+            sig, age = snap.sigma.tolist(), snap.age.tolist()
+            for i, track_id in enumerate(snap.ids):
+                self._publishers(track_id)[0].put(pack({
+                    "t": t, "id": track_id, "pos": pos[i], "vel": vel[i], "sigma": sig[i],
+                    "status": snap.status[i], "age": age[i]}))
+        self.count.frames_published += 1
+
+    def _finite(self, snap: Snapshot) -> Snapshot:
+        """Withhold (and count) any track whose displayed state is not finite."""
+        ok = (np.isfinite(snap.pos).all(1) & np.isfinite(snap.vel).all(1)
+              & np.isfinite(snap.sigma))
+        if ok.all():
+            return snap
+        self.count.states_withheld += int((~ok).sum())
+        keep = np.flatnonzero(ok)
+        return Snapshot(snap.t, [snap.ids[i] for i in keep], snap.pos[keep], snap.vel[keep],
+                        snap.sigma[keep], snap.age[keep], [snap.status[i] for i in keep])
+
+    def _delete(self, ids: list[str]) -> None:
+        if not ids:
+            return
+        self.table.delete(ids)
+        for track_id in ids:
+            for pub in self.pubs.pop(track_id, ()):
+                pub.delete()
+                pub.undeclare()
+        self.count.tracks_deleted += len(ids)
+
+    # ------------------------------------------------------------ queries
+    def status(self) -> dict[str, Any]:
+        c = self.count
+        return {
+            "tracks": len(self.table), "meas_accepted": c.meas_accepted,
+            "meas_rejected": c.meas_rejected, "frames_published": c.frames_published,
+            "uptime_s": time.monotonic() - self.started, "version": __version__,
+            "protocol": 1, "instance": self.instance, "clock": type(self.clock).__name__.lower(),
+            "rate": self.rate, "meas_lost": c.meas_lost, "frames_missed": c.frames_missed,
+            "tracks_deleted": c.tracks_deleted, "states_withheld": c.states_withheld,
+            "reject_reasons": dict(c.reasons), "queue": self.inbox.qsize(),
+        }
+
+    def _answer(self, kind: str, query: Any) -> None:
+        try:
+            if kind == "status":
+                query.reply(self.keys.status, pack(self.status()))
+            else:
+                sel = zenoh.KeyExpr(str(query.key_expr))
+                for track_id in list(self.table.where):
+                    key = zenoh.KeyExpr(self.keys.tracks(track_id))
+                    if sel.intersects(key):
+                        query.reply(key, pack(self.table.state(track_id)))
+        finally:
+            query.drop()

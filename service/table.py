@@ -1,0 +1,279 @@
+"""The track table: every track's state and covariance in stacked arrays.
+
+Tracks with the same state layout (dimension 2 or 3, model order) live in one `Bank`;
+predicting all of them to a display instant, and updating a batch of them, are single
+vectorised operations. Names follow the tracking vocabulary: initiate, predict,
+update, confirm, coast, delete.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import convert, kalman, models
+from .validate import Measurement
+
+TIME_TOL = 1e-6  # s: measurements this close to the track time count as simultaneous
+
+
+@dataclass
+class TableConfig:
+    order: int = 2  # 2: nearly-constant velocity, 3: nearly-constant acceleration
+    q: float = 1.0  # process noise std: m/s^2 (CV) or m/s^3 (CA), per axis
+    init_speed: float = 1000.0  # prior std of velocity at initiation, m/s
+    init_accel: float = 10.0  # prior std of acceleration at initiation (CA), m/s^2
+    coast_after: float = 2.5  # coasting when age > coast_after x the track's scan interval
+    delete_after: float = 30.0  # s of simulation time without a measurement
+
+
+@dataclass
+class Snapshot:
+    """All tracks predicted to one instant, ready for the display keys."""
+
+    t: float
+    ids: list[str]
+    pos: np.ndarray  # (N, 3)
+    vel: np.ndarray  # (N, 3)
+    sigma: np.ndarray  # (N,)
+    age: np.ndarray  # (N,)
+    status: list[str]
+
+
+@dataclass
+class Outcome:
+    meas: Measurement
+    reason: str | None  # None: accepted
+    nis: float = float("nan")
+
+
+class Bank:
+    """Tracks of one layout: states x (cap, n), covariances P (cap, n, n)."""
+
+    def __init__(self, dim: int, order: int, capacity: int = 64) -> None:
+        self.dim, self.order, self.n = dim, order, dim * order
+        self.ids: list[str | None] = []
+        self.free: list[int] = []
+        self.x = np.zeros((0, self.n))
+        self.p = np.zeros((0, self.n, self.n))
+        self.t = np.zeros(0)  # time of the state (last update)
+        self.t_first = np.zeros(0)
+        self.updates = np.zeros(0, dtype=np.int64)
+        self.nis = np.zeros(0)
+        self.alive = np.zeros(0, dtype=bool)
+        self._grow(capacity)
+
+    def _grow(self, capacity: int) -> None:
+        old = len(self.ids)
+        extra = capacity - old
+        self.x = np.concatenate([self.x, np.zeros((extra, self.n))])
+        self.p = np.concatenate([self.p, np.zeros((extra, self.n, self.n))])
+        for name in ("t", "t_first", "nis"):
+            setattr(self, name, np.concatenate([getattr(self, name), np.zeros(extra)]))
+        self.updates = np.concatenate([self.updates, np.zeros(extra, dtype=np.int64)])
+        self.alive = np.concatenate([self.alive, np.zeros(extra, dtype=bool)])
+        self.ids.extend([None] * extra)
+        self.free.extend(range(capacity - 1, old - 1, -1))
+
+    def add(self, track_id: str) -> int:
+        if not self.free:
+            self._grow(2 * len(self.ids))
+        row = self.free.pop()
+        self.ids[row] = track_id
+        self.alive[row] = True
+        return row
+
+    def remove(self, row: int) -> None:
+        self.ids[row] = None
+        self.alive[row] = False
+        self.free.append(row)
+
+    def rows(self) -> np.ndarray:
+        return np.flatnonzero(self.alive)
+
+
+def measurement_arrays(meas: Sequence[Measurement], dim: int, pred: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Converted measurements z (N, dim) and covariances R (N, dim, dim) in the common
+    frame. Polar ones use the UCM, with R evaluated at the predicted position `pred`
+    (N, dim) when given, else at the converted point itself (initiation)."""
+    n = len(meas)
+    z = np.zeros((n, dim))
+    r = np.zeros((n, dim, dim))
+    origin = np.array([m.sensor_pos[:dim] for m in meas]).reshape(n, dim)
+    polar = np.array([m.polar for m in meas], dtype=bool)
+    cart = ~polar
+    if cart.any():
+        z[cart] = [m.values for m, c in zip(meas, cart, strict=True) if c]
+        sig = np.array([m.sigmas for m, c in zip(meas, cart, strict=True) if c])
+        r[cart] = sig[:, :, None] * np.eye(dim) * sig[:, None, :]
+    if polar.any():
+        vals = np.array([m.values for m, c in zip(meas, polar, strict=True) if c])
+        sig = np.array([m.sigmas for m, c in zip(meas, polar, strict=True) if c])
+        el, sel = (vals[:, 2], sig[:, 2]) if dim == 3 else (None, None)
+        rel = convert.unbiased(vals[:, 0], vals[:, 1], el, sig[:, 1], sel)
+        z[polar] = origin[polar] + rel
+        at = rel if pred is None else pred[polar] - origin[polar]
+        r[polar] = convert.ucm_covariance(at, sig[:, 0], sig[:, 1], sel)
+    return z, r
+
+
+class TrackTable:
+    """All tracks, keyed by target id, one CMKF state each."""
+
+    def __init__(self, config: TableConfig | None = None) -> None:
+        self.config = config or TableConfig()
+        self.banks: dict[int, Bank] = {}
+        self.where: dict[str, tuple[Bank, int]] = {}
+
+    def __len__(self) -> int:
+        return len(self.where)
+
+    def bank(self, dim: int) -> Bank:
+        if dim not in self.banks:
+            self.banks[dim] = Bank(dim, self.config.order)
+        return self.banks[dim]
+
+    # ------------------------------------------------------------ initiate / update
+    def apply(self, meas: Sequence[Measurement]) -> list[Outcome]:
+        """Initiate or update one track per measurement, in order. A target measured
+        twice in the batch is updated twice (the batch is split into rounds)."""
+        outcomes: list[Outcome | None] = [None] * len(meas)
+        pending = list(range(len(meas)))
+        while pending:
+            seen: set[str] = set()
+            now, later = [], []
+            for i in pending:
+                (later if meas[i].target in seen else now).append(i)
+                seen.add(meas[i].target)
+            for i, out in zip(now, self._apply_round([meas[i] for i in now]), strict=True):
+                outcomes[i] = out
+            pending = later
+        return outcomes  # type: ignore[return-value]
+
+    def _apply_round(self, meas: list[Measurement]) -> list[Outcome]:
+        out = [Outcome(m, None) for m in meas]
+        groups: dict[tuple[int, bool], list[int]] = {}
+        for i, m in enumerate(meas):
+            hit = self.where.get(m.target)
+            if hit is None:
+                groups.setdefault((m.dim, True), []).append(i)
+            elif hit[0].dim != m.dim:
+                out[i].reason = f"{m.dim}-D measurement for a {hit[0].dim}-D track"
+            elif m.t < hit[0].t[hit[1]] - TIME_TOL:
+                out[i].reason = (f"out of sequence: t={m.t:.6f} is before the track's last "
+                                 f"update at t={hit[0].t[hit[1]]:.6f}")
+            else:
+                groups.setdefault((m.dim, False), []).append(i)
+        for (dim, new), idx in groups.items():
+            sub = [meas[i] for i in idx]
+            res = self._initiate(dim, sub) if new else self._update(dim, sub)
+            for i, (reason, nis) in zip(idx, res, strict=True):
+                out[i].reason, out[i].nis = reason, nis
+        return out
+
+    def _initiate(self, dim: int, meas: list[Measurement]) -> list[tuple[str | None, float]]:
+        """One-point initiation: position from the converted measurement, velocity (and
+        acceleration) zero with a wide prior; the second measurement then gives the
+        two-point difference in the limit of a diffuse prior (Mallick & La Scala,
+        'Comparison of single-point and two-point difference track initiation', 2008)."""
+        bank, c = self.bank(dim), self.config
+        z, r = measurement_arrays(meas, dim, None)
+        if not (np.isfinite(z).all() and np.isfinite(r).all()):
+            return [("conversion gave a non-finite value", np.nan)] * len(meas)
+        prior = [c.init_speed**2, c.init_accel**2][: bank.order - 1]
+        for m, zi, ri in zip(meas, z, r, strict=True):
+            row = bank.add(m.target)
+            self.where[m.target] = (bank, row)
+            bank.x[row] = 0.0
+            bank.x[row, :dim] = zi
+            bank.p[row] = np.diag(np.repeat([0.0, *prior], dim))
+            bank.p[row, :dim, :dim] = ri
+            bank.t[row] = bank.t_first[row] = m.t
+            bank.updates[row] = 1
+            bank.nis[row] = 0.0
+        return [(None, 0.0)] * len(meas)
+
+    def _update(self, dim: int, meas: list[Measurement]) -> list[tuple[str | None, float]]:
+        bank, c = self.bank(dim), self.config
+        rows = np.array([self.where[m.target][1] for m in meas])
+        t = np.array([m.t for m in meas])
+        xp, pp = models.predict(bank.x[rows], bank.p[rows], t - bank.t[rows],
+                                bank.order, dim, c.q)
+        z, r = measurement_arrays(meas, dim, xp[:, :dim])
+        xn, pn, nis, ok = kalman.update(xp, pp, z, r)
+        good = rows[ok]
+        bank.x[good], bank.p[good], bank.nis[good] = xn[ok], pn[ok], nis[ok]
+        bank.t[good] = t[ok]
+        bank.updates[good] += 1
+        return [(None, float(v)) if k else ("update gave a non-finite state", np.nan)
+                for k, v in zip(ok, nis, strict=True)]
+
+    # ------------------------------------------------------------ display
+    def snapshot(self, t: float) -> Snapshot:
+        """Predict every track to instant t (no change to the table): position,
+        velocity, sigma = sqrt(trace of the predicted position covariance)."""
+        ids: list[str] = []
+        parts: list[tuple[np.ndarray, ...]] = []
+        status: list[str] = []
+        c = self.config
+        for bank in self.banks.values():
+            rows = bank.rows()
+            if not len(rows):
+                continue
+            d, o = bank.dim, bank.order
+            dt = t - bank.t[rows]
+            phi = models.axis_transition(dt, o)  # (N, o, o)
+            xs = np.einsum("nij,njd->nid", phi, bank.x[rows].reshape(-1, o, d))
+            blocks = bank.p[rows].reshape(-1, o, d, o, d)
+            tr = np.einsum("naibi->nab", blocks)
+            c0 = phi[:, 0, :]
+            g0 = models.axis_noise_gain(np.abs(dt), o)[:, 0]
+            var = np.einsum("na,nab,nb->n", c0, tr, c0) + d * (c.q * g0) ** 2
+            pos = np.zeros((len(rows), 3))
+            vel = np.zeros((len(rows), 3))
+            pos[:, :d], vel[:, :d] = xs[:, 0], xs[:, 1]
+            age = t - bank.t[rows]
+            interval = np.where(bank.updates[rows] > 1,
+                                (bank.t[rows] - bank.t_first[rows])
+                                / np.maximum(bank.updates[rows] - 1, 1), np.inf)
+            coasting = age > c.coast_after * interval
+            confirmed = bank.updates[rows] >= o
+            status += ["coasting" if k else "confirmed" if f else "tentative"
+                       for k, f in zip(coasting, confirmed, strict=True)]
+            ids += [bank.ids[i] for i in rows]  # type: ignore[misc]
+            parts.append((pos, vel, np.sqrt(np.maximum(var, 0.0)), age))
+        if not parts:
+            e = np.zeros((0, 3))
+            return Snapshot(t, [], e, e.copy(), np.zeros(0), np.zeros(0), [])
+        pos, vel, sig, age = (np.concatenate(p) for p in zip(*parts, strict=True))
+        return Snapshot(t, ids, pos, vel, sig, age, status)
+
+    # ------------------------------------------------------------ queries / delete
+    def state(self, track_id: str) -> dict:
+        """The filtered state of one track (the `tracks/<id>` message body)."""
+        bank, row = self.where[track_id]
+        d = bank.dim
+        x, p = bank.x[row], bank.p[row]
+        pos, vel = [0.0] * 3, [0.0] * 3
+        pos[:d], vel[:d] = x[:d].tolist(), x[d:2 * d].tolist()
+        return {"t": float(bank.t[row]), "id": track_id, "pos": pos, "vel": vel,
+                "x": x.tolist(), "P": p.ravel().tolist(),
+                "model": {2: "cv", 3: "ca"}[bank.order], "nis": float(bank.nis[row]),
+                "updates": int(bank.updates[row])}
+
+    def stale(self, t: float) -> list[str]:
+        """Ids of tracks with no measurement for longer than `delete_after`."""
+        out: list[str] = []
+        for bank in self.banks.values():
+            rows = bank.rows()
+            old = rows[t - bank.t[rows] > self.config.delete_after]
+            out += [bank.ids[i] for i in old]  # type: ignore[misc]
+        return out
+
+    def delete(self, ids: Iterable[str]) -> None:
+        for track_id in ids:
+            bank, row = self.where.pop(track_id)
+            bank.remove(row)

@@ -1,0 +1,116 @@
+"""Validation of input messages against the contract: bytes in, checked records out.
+
+Every rejection raises `Rejected` with a reason a feed's author can act on; nothing
+here touches a track.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from .wire import CHUNK, unpack
+
+
+class Rejected(ValueError):
+    """An input that breaks the contract."""
+
+
+@dataclass(frozen=True, slots=True)
+class Measurement:
+    """One labelled measurement, checked. Polar: values = (r, az[, el]); Cartesian: pos."""
+
+    sensor: str
+    target: str
+    t: float
+    dim: int  # 2 or 3: dimension of the track it feeds
+    polar: bool
+    values: tuple[float, ...]
+    sigmas: tuple[float, ...]  # polar: (sr, saz[, sel]); Cartesian: one per axis
+    sensor_pos: tuple[float, float, float]
+    seq: int | None
+
+
+def _num(msg: dict[str, Any], key: str, lo: float = -math.inf) -> float:
+    v = msg[key]
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise Rejected(f"field '{key}' must be a number, got {type(v).__name__}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise Rejected(f"field '{key}' is not finite ({v})")
+    if v < lo:
+        raise Rejected(f"field '{key}' must be >= {lo}, got {v}")
+    return v
+
+
+def _vec(msg: dict[str, Any], key: str, sizes: tuple[int, ...]) -> tuple[float, ...]:
+    v = msg[key]
+    if not isinstance(v, list | tuple) or len(v) not in sizes:
+        raise Rejected(f"field '{key}' must be a list of {' or '.join(map(str, sizes))} numbers")
+    return tuple(_num({key: x}, key) for x in v)
+
+
+def decode_map(payload: bytes) -> dict[str, Any]:
+    msg = unpack(payload) if payload else None
+    if not isinstance(msg, dict):
+        raise Rejected("payload must be a MessagePack map")
+    return msg
+
+
+def parse_measurement(
+    sensor: str, target: str, payload: bytes, defaults: tuple[float, float, float, float]
+) -> Measurement:
+    """Check one `<ns>/meas/<sensor>/<target>` payload.
+
+    `defaults` = (sr, saz, sel, sigma): the noise used when a message gives none.
+    """
+    for what, chunk in (("sensor", sensor), ("target", target)):
+        if not CHUNK.match(chunk):
+            raise Rejected(f"{what} chunk '{chunk}' must be letters, digits, '-' or '_'")
+    try:
+        msg = decode_map(payload)
+    except ValueError as exc:
+        raise Rejected(str(exc)) from None
+    if "t" not in msg:
+        raise Rejected("missing required field 't'")
+    t = _num(msg, "t")
+    polar, cart = "r" in msg or "az" in msg, "pos" in msg
+    if polar == cart:
+        raise Rejected("exactly one of polar (r, az[, el]) or 'pos' must be present")
+    sensor_pos = _vec(msg, "sensor_pos", (3,)) if "sensor_pos" in msg else (0.0, 0.0, 0.0)
+    seq = msg.get("seq")
+    if seq is not None and (isinstance(seq, bool) or not isinstance(seq, int)):
+        raise Rejected("field 'seq' must be an integer")
+    if polar:
+        if "r" not in msg or "az" not in msg:
+            raise Rejected("polar measurement needs both 'r' and 'az'")
+        values = (_num(msg, "r", 0.0), _num(msg, "az"))
+        sig = [msg.get("sr", defaults[0]), msg.get("saz", defaults[1])]
+        names = ["sr", "saz"]
+        if "el" in msg:
+            values += (_num(msg, "el"),)  # noise may carry el past 90 deg: still valid
+            sig.append(msg.get("sel", defaults[2]))
+            names.append("sel")
+        sigmas = tuple(_num({n: s}, n, 0.0) for n, s in zip(names, sig, strict=True))
+        return Measurement(sensor, target, t, len(values), True, values, sigmas, sensor_pos, seq)
+    pos = _vec(msg, "pos", (2, 3))
+    raw = msg.get("sigma", defaults[3])
+    if isinstance(raw, list | tuple):
+        if len(raw) not in (1, len(pos)):
+            raise Rejected(f"field 'sigma' must have 1 or {len(pos)} entries")
+        sig = tuple(_num({"sigma": s}, "sigma", 0.0) for s in raw)
+    else:
+        sig = (_num({"sigma": raw}, "sigma", 0.0),)
+    sigmas = sig * len(pos) if len(sig) == 1 else sig
+    return Measurement(sensor, target, t, len(pos), False, pos, sigmas, sensor_pos, seq)
+
+
+def parse_clock(payload: bytes) -> float:
+    try:
+        msg = decode_map(payload)
+    except ValueError as exc:
+        raise Rejected(str(exc)) from None
+    if "t" not in msg:
+        raise Rejected("clock message needs field 't'")
+    return _num(msg, "t")

@@ -1,0 +1,177 @@
+"""The wire contract (shared/PROTOCOL.md, version 1): keys, MessagePack codecs, Zenoh options.
+
+This is the one module that both the service and the clients import. It needs only
+msgpack and the standard library (Zenoh is imported lazily by `open_session`), so a
+display or a feed can be written against it without the estimation code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import struct
+from collections.abc import Sequence
+from typing import Any
+
+import msgpack
+
+PROTOCOL_VERSION = 1
+DEFAULT_NS = "track"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+CHUNK = re.compile(r"^[A-Za-z0-9_-]+$")
+STATUSES = ("tentative", "confirmed", "coasting")
+
+
+# ---------------------------------------------------------------- keys
+class Keys:
+    """Key expressions of one namespace."""
+
+    def __init__(self, ns: str = DEFAULT_NS) -> None:
+        self.ns = ns.strip("/")
+
+    def space(self, what: str) -> str:
+        """Everything under `<ns>/<what>/`, e.g. space("meas") = `<ns>/meas/**`."""
+        return f"{self.ns}/{what}/**"
+
+    def meas(self, sensor: str = "*", target: str = "*") -> str:
+        return f"{self.ns}/meas/{sensor}/{target}"
+
+    def plots(self, sensor: str = "*") -> str:
+        return f"{self.ns}/plots/{sensor}"
+
+    def display(self, target: str = "*") -> str:
+        return f"{self.ns}/display/{target}"
+
+    def tracks(self, target: str = "*") -> str:
+        return f"{self.ns}/tracks/{target}"
+
+    def truth(self, target: str = "*") -> str:
+        """Extension: ground truth published by simulation feeds for evaluation."""
+        return f"{self.ns}/truth/{target}"
+
+    def errors(self, sensor: str = "*") -> str:
+        return f"{self.ns}/errors/{sensor}"
+
+    def alive(self, instance: str = "*") -> str:
+        return f"{self.ns}/alive/tracker/{instance}"
+
+    @property
+    def frame(self) -> str:
+        return f"{self.ns}/frame"
+
+    @property
+    def clock(self) -> str:
+        return f"{self.ns}/clock"
+
+    @property
+    def status(self) -> str:
+        return f"{self.ns}/status"
+
+    def chunks_after(self, key: str, what: str) -> list[str]:
+        """The chunks of `key` after `<ns>/<what>/` (empty if the key is elsewhere)."""
+        prefix = f"{self.ns}/{what}/"
+        return key[len(prefix):].split("/") if key.startswith(prefix) else []
+
+
+# ---------------------------------------------------------------- codecs
+def pack(msg: dict[str, Any]) -> bytes:
+    return msgpack.packb(msg, use_bin_type=True)
+
+
+def unpack(data: bytes) -> Any:
+    """Decode one MessagePack payload; raises ValueError on malformed bytes."""
+    try:
+        return msgpack.unpackb(data, raw=False, strict_map_key=False)
+    except Exception as exc:  # msgpack raises several unrelated types
+        raise ValueError(f"payload is not valid MessagePack: {exc}") from None
+
+
+def f64_bin(values: Sequence[float]) -> bytes:
+    """Little-endian float64 bytes of a flat sequence (numpy arrays: use .astype('<f8'))."""
+    return struct.pack(f"<{len(values)}d", *values)
+
+
+def f64_list(data: bytes) -> list[float]:
+    return list(struct.unpack(f"<{len(data) // 8}d", data))
+
+
+def decode_frame(msg: dict[str, Any]) -> list[dict[str, Any]]:
+    """Split a `frame` message into per-track dicts {id, pos, vel, sigma}."""
+    ids = msg["ids"]
+    pos, vel, sig = (f64_list(msg[k]) for k in ("pos", "vel", "sigma"))
+    return [
+        {"id": i, "pos": pos[3 * n:3 * n + 3], "vel": vel[3 * n:3 * n + 3], "sigma": sig[n]}
+        for n, i in enumerate(ids)
+    ]
+
+
+# ---------------------------------------------------------------- zenoh options
+def add_zenoh_args(parser: argparse.ArgumentParser, ns: bool = True) -> None:
+    """Zenoh options in the style of the zenoh-python examples."""
+    g = parser.add_argument_group("zenoh")
+    g.add_argument("--mode", choices=("peer", "client", "router"), help="session mode")
+    g.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to connect to (repeatable)")
+    g.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to listen on (repeatable)")
+    g.add_argument("-c", "--config", metavar="FILE.json5", help="Zenoh configuration file")
+    if ns:
+        g.add_argument("--ns", default=DEFAULT_NS, help="key namespace (default %(default)s)")
+
+
+def zenoh_config(args: argparse.Namespace, serve: bool = False) -> Any:
+    """Build a zenoh.Config from parsed options.
+
+    Multicast scouting is off unless the config file turns it on. With no endpoint
+    given, a serving process (the tracker) listens on DEFAULT_ENDPOINT and a client
+    process connects to it; anything else listens on loopback only.
+    """
+    import zenoh
+
+    conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
+    if not args.config:
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    if args.mode:
+        conf.insert_json5("mode", json.dumps(args.mode))
+    connect, listen = list(args.connect), list(args.listen)
+    if not args.config and not connect and not listen:
+        (listen if serve else connect).append(DEFAULT_ENDPOINT)
+    if not args.config and not listen and (args.mode or "peer") != "client":
+        listen.append("tcp/127.0.0.1:0")
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    return conf
+
+
+def open_session(args: argparse.Namespace, serve: bool = False) -> Any:
+    import zenoh
+
+    return zenoh.open(zenoh_config(args, serve))
+
+
+def wait_for_tracker(session: Any, keys: Keys, count: int = 1, timeout: float = 30.0) -> bool:
+    """Block until `count` tracker liveliness tokens are alive, or `timeout` s pass."""
+    import threading
+
+    import zenoh
+
+    seen: set[str] = set()
+    ready = threading.Event()
+
+    def on_token(sample: Any) -> None:
+        key = str(sample.key_expr)
+        if sample.kind == zenoh.SampleKind.PUT:
+            seen.add(key)
+        else:
+            seen.discard(key)
+        if len(seen) >= count:
+            ready.set()
+
+    sub = session.liveliness().declare_subscriber(keys.alive("*"), on_token, history=True)
+    try:
+        return ready.wait(timeout)
+    finally:
+        sub.undeclare()

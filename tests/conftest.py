@@ -1,0 +1,101 @@
+"""Loopback fixtures: real service processes and real Zenoh sessions on 127.0.0.1."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+import zenoh
+
+from service.wire import Keys, unpack, wait_for_tracker
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def client_session(endpoint: str) -> zenoh.Session:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    return zenoh.open(conf)
+
+
+class Collector:
+    """Subscribes a key expression and keeps every sample (key, kind, decoded map)."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.samples: list[tuple[str, str, Any]] = []
+        self.cond = threading.Condition()
+        self.sub = session.declare_subscriber(key, self._on)
+
+    def _on(self, s: Any) -> None:
+        body = unpack(s.payload.to_bytes()) if s.kind == zenoh.SampleKind.PUT else None
+        with self.cond:
+            self.samples.append((str(s.key_expr), "PUT" if s.kind == zenoh.SampleKind.PUT else "DELETE", body))
+            self.cond.notify_all()
+
+    def wait_for(self, pred, timeout: float = 60.0) -> bool:
+        with self.cond:
+            return self.cond.wait_for(lambda: pred(self.samples), timeout)
+
+    def bodies(self) -> list[Any]:
+        with self.cond:
+            return [b for _, kind, b in self.samples if kind == "PUT"]
+
+
+class ServiceProc:
+    """`python -m service` as a separate process on a free loopback port."""
+
+    def __init__(self, *extra: str, ns: str = "track") -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.ns = ns
+        self.keys = Keys(ns)
+        cmd = [sys.executable, "-m", "service", "-l", self.endpoint, "--ns", ns, *extra]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+    def feed(self, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "clients.feed", *args, "-e", self.endpoint, "--ns", self.ns]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=True)
+
+    def stop(self) -> str:
+        self.proc.terminate()
+        try:
+            _, err = self.proc.communicate(timeout=15)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            _, err = self.proc.communicate()
+        return err
+
+
+@pytest.fixture
+def service_factory() -> Iterator:
+    procs: list[ServiceProc] = []
+    sessions: list[zenoh.Session] = []
+
+    def start(*extra: str, ns: str = "track") -> tuple[ServiceProc, zenoh.Session]:
+        svc = ServiceProc(*extra, ns=ns)
+        procs.append(svc)
+        session = client_session(svc.endpoint)
+        sessions.append(session)
+        if not wait_for_tracker(session, svc.keys, 1, timeout=30):
+            pytest.fail(f"service did not come up: {svc.stop()[-3000:]}")
+        return svc, session
+
+    yield start
+    for s in sessions:
+        s.close()
+    for p in procs:
+        p.stop()
