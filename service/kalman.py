@@ -13,6 +13,21 @@ def symmetrise(p: np.ndarray) -> np.ndarray:
     return 0.5 * (p + p.transpose(0, 2, 1))
 
 
+def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched solve of a x = b; a row whose matrix is singular gets NaN (flagged by the
+    caller's finiteness mask) instead of failing the whole batch."""
+    try:
+        return np.linalg.solve(a, b)
+    except np.linalg.LinAlgError:
+        out = np.full(np.broadcast_shapes(a.shape[:-2], b.shape[:-2]) + b.shape[-2:], np.nan)
+        for i in range(len(a)):
+            try:
+                out[i] = np.linalg.solve(a[i], b[i])
+            except np.linalg.LinAlgError:
+                pass
+        return out
+
+
 def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Update rows (N, n) / (N, n, n) with position measurements z (N, d), R (N, d, d).
@@ -26,11 +41,11 @@ def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray
     nu = z - x[:, :d]
     s = p[:, :d, :d] + r + S_FLOOR * np.eye(d)
     pht = p[:, :, :d]
-    gain = np.linalg.solve(s, pht.transpose(0, 2, 1)).transpose(0, 2, 1)
+    gain = solve(s, pht.transpose(0, 2, 1)).transpose(0, 2, 1)
     xn = x + np.einsum("nij,nj->ni", gain, nu)
     ikh = np.broadcast_to(np.eye(n), (n_rows, n, n)).copy()
     ikh[:, :, :d] -= gain
     pn = symmetrise(ikh @ p @ ikh.transpose(0, 2, 1) + gain @ r @ gain.transpose(0, 2, 1))
-    nis = np.einsum("ni,ni->n", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+    nis = np.einsum("ni,ni->n", nu, solve(s, nu[:, :, None])[:, :, 0])
     ok = np.isfinite(xn).all(1) & np.isfinite(pn).all((1, 2)) & np.isfinite(nis)
     return xn, pn, nis, ok

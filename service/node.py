@@ -61,13 +61,21 @@ class TrackService:
         self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc)
         self.pubs: dict[str, tuple[Any, Any]] = {}
         put = self.inbox.put
+
+        def direct(fn: Any) -> zenoh.handlers.Callback:
+            # run on Zenoh's receive thread: inputs keep their order across keys (an
+            # indirect callback has a thread per subscriber, so a clock message could
+            # overtake the measurements sent before it)
+            return zenoh.handlers.Callback(fn, indirect=False)
+
         self.subs = [
-            session.declare_subscriber(keys.space("meas"), lambda s: put(
-                ("meas", str(s.key_expr), s.payload.to_bytes(), time.time()))),
-            session.declare_subscriber(keys.clock, lambda s: put(
-                ("clock", str(s.key_expr), s.payload.to_bytes(), time.time()))),
-            session.declare_queryable(keys.space("tracks"), lambda q: put(("tracks", q))),
-            session.declare_queryable(keys.status, lambda q: put(("status", q))),
+            session.declare_subscriber(keys.space("meas"), direct(lambda s: put(
+                ("meas", str(s.key_expr), s.payload.to_bytes(), time.time())))),
+            session.declare_subscriber(keys.clock, direct(lambda s: put(
+                ("clock", str(s.key_expr), s.payload.to_bytes(), time.time())))),
+            session.declare_queryable(keys.space("tracks"),
+                                      direct(lambda q: put(("tracks", q)))),
+            session.declare_queryable(keys.status, direct(lambda q: put(("status", q)))),
         ]
         self.token = session.liveliness().declare_token(keys.alive(instance))
         self.thread = threading.Thread(target=self._run, name="track-worker", daemon=True)
@@ -156,7 +164,7 @@ class TrackService:
         head = reason.split(":")[0]
         c.reasons[head] = c.reasons.get(head, 0) + 1
         log.warning("rejected %s: %s", key, reason)
-        self.session.put(self.keys.errors(sensor if CHUNK.match(sensor) else "unknown"),
+        self.session.put(self.keys.errors(sensor if CHUNK.fullmatch(sensor) else "unknown"),
                          pack({"key": key, "reason": reason, "t_wall": time.time()}),
                          congestion_control=zenoh.CongestionControl.BLOCK)
 
@@ -169,7 +177,7 @@ class TrackService:
                 self._reject(self.keys.meas(m.sensor, m.target), m.sensor, out.reason)
                 continue
             self.count.meas_accepted += 1
-            self._publishers(m.target)[1].put(pack(self.table.state(m.target)))
+            self._publishers(m.target)[1].put(pack(out.state))
         pending.clear()
 
     # ------------------------------------------------------------ outputs
@@ -229,10 +237,12 @@ class TrackService:
         if not ids:
             return
         self.table.delete(ids)
+        block = zenoh.CongestionControl.BLOCK
         for track_id in ids:
             for pub in self.pubs.pop(track_id, ()):
-                pub.delete()
                 pub.undeclare()
+            for key in (self.keys.display(track_id), self.keys.tracks(track_id)):
+                self.session.delete(key, congestion_control=block)  # deletions never drop
         self.count.tracks_deleted += len(ids)
 
     # ------------------------------------------------------------ queries
@@ -244,8 +254,11 @@ class TrackService:
             "uptime_s": time.monotonic() - self.started, "version": __version__,
             "protocol": 1, "instance": self.instance, "clock": type(self.clock).__name__.lower(),
             "rate": self.rate, "meas_lost": c.meas_lost, "frames_missed": c.frames_missed,
-            "tracks_deleted": c.tracks_deleted, "states_withheld": c.states_withheld,
-            "reject_reasons": dict(c.reasons), "queue": self.inbox.qsize(),
+            "tracks_deleted": c.tracks_deleted,
+            "frames_skipped": getattr(self.clock, "skipped", 0),
+            "states_withheld": c.states_withheld,
+            "reject_reasons": dict(c.reasons),
+            "queue": self.inbox.qsize(),
         }
 
     def _answer(self, kind: str, query: Any) -> None:

@@ -47,6 +47,7 @@ class Outcome:
     meas: Measurement
     reason: str | None  # None: accepted
     nis: float = float("nan")
+    state: dict | None = None  # the track right after this update (tracks/ message)
 
 
 class Bank:
@@ -172,6 +173,9 @@ class TrackTable:
             res = self._initiate(dim, sub) if new else self._update(dim, sub)
             for i, (reason, nis) in zip(idx, res, strict=True):
                 out[i].reason, out[i].nis = reason, nis
+        for o in out:
+            if o.reason is None:
+                o.state = self.state(o.meas.target)
         return out
 
     def _initiate(self, dim: int, meas: list[Measurement]) -> list[tuple[str | None, float]]:
@@ -181,10 +185,11 @@ class TrackTable:
         'Comparison of single-point and two-point difference track initiation', 2008)."""
         bank, c = self.bank(dim), self.config
         z, r = measurement_arrays(meas, dim, None)
-        if not (np.isfinite(z).all() and np.isfinite(r).all()):
-            return [("conversion gave a non-finite value", np.nan)] * len(meas)
+        finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
         prior = [c.init_speed**2, c.init_accel**2][: bank.order - 1]
-        for m, zi, ri in zip(meas, z, r, strict=True):
+        for m, zi, ri, ok in zip(meas, z, r, finite, strict=True):
+            if not ok:
+                continue
             row = bank.add(m.target)
             self.where[m.target] = (bank, row)
             bank.x[row] = 0.0
@@ -194,7 +199,8 @@ class TrackTable:
             bank.t[row] = bank.t_first[row] = m.t
             bank.updates[row] = 1
             bank.nis[row] = 0.0
-        return [(None, 0.0)] * len(meas)
+        return [(None, 0.0) if ok else ("conversion gave a non-finite value", np.nan)
+                for ok in finite]
 
     def _update(self, dim: int, meas: list[Measurement]) -> list[tuple[str | None, float]]:
         bank, c = self.bank(dim), self.config
@@ -235,7 +241,7 @@ class TrackTable:
             pos = np.zeros((len(rows), 3))
             vel = np.zeros((len(rows), 3))
             pos[:, :d], vel[:, :d] = xs[:, 0], xs[:, 1]
-            age = t - bank.t[rows]
+            age = np.maximum(t - bank.t[rows], 0.0)
             interval = np.where(bank.updates[rows] > 1,
                                 (bank.t[rows] - bank.t_first[rows])
                                 / np.maximum(bank.updates[rows] - 1, 1), np.inf)

@@ -66,7 +66,7 @@ def parse_measurement(
     `defaults` = (sr, saz, sel, sigma): the noise used when a message gives none.
     """
     for what, chunk in (("sensor", sensor), ("target", target)):
-        if not CHUNK.match(chunk):
+        if not CHUNK.fullmatch(chunk):
             raise Rejected(f"{what} chunk '{chunk}' must be letters, digits, '-' or '_'")
     try:
         msg = decode_map(payload)

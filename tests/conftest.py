@@ -43,7 +43,8 @@ class Collector:
     def _on(self, s: Any) -> None:
         body = unpack(s.payload.to_bytes()) if s.kind == zenoh.SampleKind.PUT else None
         with self.cond:
-            self.samples.append((str(s.key_expr), "PUT" if s.kind == zenoh.SampleKind.PUT else "DELETE", body))
+            kind = "PUT" if s.kind == zenoh.SampleKind.PUT else "DELETE"
+            self.samples.append((str(s.key_expr), kind, body))
             self.cond.notify_all()
 
     def wait_for(self, pred, timeout: float = 60.0) -> bool:

@@ -1,0 +1,213 @@
+"""Unit tests of service.models against hand-computed CV / CA matrices.
+
+Bar-Shalom, Li & Kirubarajan (2001) sec. 6.3.2-6.3.3, per axis:
+  CV (order 2): F = [[1, dt], [0, 1]],  Gamma = [dt^2/2, dt]
+  CA (order 3): F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],  Gamma = [dt^3/6, dt^2/2, dt]
+  Q = q^2 Gamma Gamma'.
+The full matrices use the state layout of PROTOCOL.md (all positions, then all
+velocities, then all accelerations), i.e. kron(per-axis matrix, I_dim).
+
+All numbers below are worked out by hand for dt = 2 and q = 3 (q^2 = 9):
+  CV: F_axis = [[1, 2], [0, 1]]; Gamma = [2, 2]; Gamma Gamma' = [[4, 4], [4, 4]];
+      Q_axis = 9 * 4 = 36 in every entry.
+  CA: F_axis = [[1, 2, 2], [0, 1, 2], [0, 0, 1]]; Gamma = [8/6, 2, 2] = [4/3, 2, 2];
+      Gamma Gamma' = [[16/9, 8/3, 8/3], [8/3, 4, 4], [8/3, 4, 4]];
+      Q_axis = 9 * that = [[16, 24, 24], [24, 36, 36], [24, 36, 36]].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service import models
+
+DT = np.array([2.0])
+Q_STD = 3.0
+
+# --- CV, 2-D: state [x, y, vx, vy]
+F_CV2 = np.array([
+    [1, 0, 2, 0],
+    [0, 1, 0, 2],
+    [0, 0, 1, 0],
+    [0, 0, 0, 1],
+], dtype=float)
+Q_CV2 = np.array([
+    [36, 0, 36, 0],
+    [0, 36, 0, 36],
+    [36, 0, 36, 0],
+    [0, 36, 0, 36],
+], dtype=float)
+
+# --- CV, 3-D: state [x, y, z, vx, vy, vz]
+F_CV3 = np.array([
+    [1, 0, 0, 2, 0, 0],
+    [0, 1, 0, 0, 2, 0],
+    [0, 0, 1, 0, 0, 2],
+    [0, 0, 0, 1, 0, 0],
+    [0, 0, 0, 0, 1, 0],
+    [0, 0, 0, 0, 0, 1],
+], dtype=float)
+Q_CV3 = np.array([
+    [36, 0, 0, 36, 0, 0],
+    [0, 36, 0, 0, 36, 0],
+    [0, 0, 36, 0, 0, 36],
+    [36, 0, 0, 36, 0, 0],
+    [0, 36, 0, 0, 36, 0],
+    [0, 0, 36, 0, 0, 36],
+], dtype=float)
+
+# --- CA, 2-D: state [x, y, vx, vy, ax, ay]
+F_CA2 = np.array([
+    [1, 0, 2, 0, 2, 0],
+    [0, 1, 0, 2, 0, 2],
+    [0, 0, 1, 0, 2, 0],
+    [0, 0, 0, 1, 0, 2],
+    [0, 0, 0, 0, 1, 0],
+    [0, 0, 0, 0, 0, 1],
+], dtype=float)
+Q_CA2 = np.array([
+    [16, 0, 24, 0, 24, 0],
+    [0, 16, 0, 24, 0, 24],
+    [24, 0, 36, 0, 36, 0],
+    [0, 24, 0, 36, 0, 36],
+    [24, 0, 36, 0, 36, 0],
+    [0, 24, 0, 36, 0, 36],
+], dtype=float)
+
+# --- CA, 3-D: state [x, y, z, vx, vy, vz, ax, ay, az]
+F_CA3 = np.array([
+    [1, 0, 0, 2, 0, 0, 2, 0, 0],
+    [0, 1, 0, 0, 2, 0, 0, 2, 0],
+    [0, 0, 1, 0, 0, 2, 0, 0, 2],
+    [0, 0, 0, 1, 0, 0, 2, 0, 0],
+    [0, 0, 0, 0, 1, 0, 0, 2, 0],
+    [0, 0, 0, 0, 0, 1, 0, 0, 2],
+    [0, 0, 0, 0, 0, 0, 1, 0, 0],
+    [0, 0, 0, 0, 0, 0, 0, 1, 0],
+    [0, 0, 0, 0, 0, 0, 0, 0, 1],
+], dtype=float)
+Q_CA3 = np.array([
+    [16, 0, 0, 24, 0, 0, 24, 0, 0],
+    [0, 16, 0, 0, 24, 0, 0, 24, 0],
+    [0, 0, 16, 0, 0, 24, 0, 0, 24],
+    [24, 0, 0, 36, 0, 0, 36, 0, 0],
+    [0, 24, 0, 0, 36, 0, 0, 36, 0],
+    [0, 0, 24, 0, 0, 36, 0, 0, 36],
+    [24, 0, 0, 36, 0, 0, 36, 0, 0],
+    [0, 24, 0, 0, 36, 0, 0, 36, 0],
+    [0, 0, 24, 0, 0, 36, 0, 0, 36],
+], dtype=float)
+
+CASES = [
+    pytest.param(2, 2, F_CV2, Q_CV2, id="cv-2d"),
+    pytest.param(2, 3, F_CV3, Q_CV3, id="cv-3d"),
+    pytest.param(3, 2, F_CA2, Q_CA2, id="ca-2d"),
+    pytest.param(3, 3, F_CA3, Q_CA3, id="ca-3d"),
+]
+
+
+@pytest.mark.parametrize(("order", "dim", "f_ref", "q_ref"), CASES)
+def test_transition_matches_hand_computed(order, dim, f_ref, q_ref):
+    f = models.transition(DT, order, dim)
+    assert f.shape == (1, order * dim, order * dim)
+    np.testing.assert_allclose(f[0], f_ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(("order", "dim", "f_ref", "q_ref"), CASES)
+def test_process_noise_matches_hand_computed(order, dim, f_ref, q_ref):
+    q = models.process_noise(DT, order, dim, Q_STD)
+    assert q.shape == (1, order * dim, order * dim)
+    np.testing.assert_allclose(q[0], q_ref, rtol=1e-12, atol=1e-12)
+
+
+def test_noise_gain_per_axis():
+    # dt = 2: CV Gamma = [2^2/2, 2] = [2, 2]; CA Gamma = [2^3/6, 2^2/2, 2] = [4/3, 2, 2]
+    np.testing.assert_allclose(models.axis_noise_gain(DT, 2)[0], [2.0, 2.0], rtol=1e-15)
+    np.testing.assert_allclose(models.axis_noise_gain(DT, 3)[0], [4 / 3, 2.0, 2.0], rtol=1e-15)
+
+
+def test_batch_rows_use_their_own_dt():
+    # q = 1. Row 0: dt = 1 -> F_axis [[1, 1], [0, 1]], Gamma [1/2, 1],
+    #   Q_axis [[1/4, 1/2], [1/2, 1]]
+    # Row 1: dt = 2 -> F_axis [[1, 2], [0, 1]], Gamma [2, 2], Q_axis [[4, 4], [4, 4]]
+    # Row 2: dt = 0 -> identity F, zero Q
+    dt = np.array([1.0, 2.0, 0.0])
+    f = models.transition(dt, 2, 1)
+    q = models.process_noise(dt, 2, 1, 1.0)
+    np.testing.assert_allclose(f[0], [[1, 1], [0, 1]])
+    np.testing.assert_allclose(f[1], [[1, 2], [0, 1]])
+    np.testing.assert_allclose(f[2], np.eye(2))
+    np.testing.assert_allclose(q[0], [[0.25, 0.5], [0.5, 1.0]])
+    np.testing.assert_allclose(q[1], [[4, 4], [4, 4]])
+    np.testing.assert_allclose(q[2], np.zeros((2, 2)))
+
+
+def test_process_noise_per_row_q():
+    # q may be given per row: q = [1, 3] at dt = 2 gives Q_axis = q^2 [[4, 4], [4, 4]]
+    q = models.process_noise(np.array([2.0, 2.0]), 2, 1, np.array([1.0, 3.0]))
+    np.testing.assert_allclose(q[0], [[4, 4], [4, 4]])
+    np.testing.assert_allclose(q[1], [[36, 36], [36, 36]])
+
+
+def test_predict_forward_cv_2d():
+    # x = [10, 20, 1, 2], P = I, dt = 2, q = 1.
+    # F x = [10 + 2*1, 20 + 2*2, 1, 2] = [12, 24, 1, 2].
+    # F F' for one axis [[1, 2], [0, 1]] [[1, 0], [2, 1]] = [[5, 2], [2, 1]];
+    # + Q_axis [[4, 4], [4, 4]] = [[9, 6], [6, 5]].
+    x = np.array([[10.0, 20.0, 1.0, 2.0]])
+    p = np.eye(4)[None]
+    xp, pp = models.predict(x, p, np.array([2.0]), 2, 2, 1.0)
+    np.testing.assert_allclose(xp[0], [12, 24, 1, 2])
+    np.testing.assert_allclose(pp[0], [[9, 0, 6, 0], [0, 9, 0, 6], [6, 0, 5, 0], [0, 6, 0, 5]])
+
+
+def test_predict_negative_dt_uses_abs_dt_for_noise():
+    # Same as above but dt = -2 (extrapolation backwards):
+    # F x = [10 - 2, 20 - 4, 1, 2] = [8, 16, 1, 2].
+    # F F' per axis = [[1, -2], [0, 1]] [[1, 0], [-2, 1]] = [[5, -2], [-2, 1]].
+    # Noise with |dt| = 2: Q_axis = [[4, 4], [4, 4]] -> P = [[9, 2], [2, 5]].
+    # (A signed Gamma = [2, -2] would give Q_axis = [[4, -4], [-4, 4]] -> [[9, -6], [-6, 5]].)
+    x = np.array([[10.0, 20.0, 1.0, 2.0]])
+    p = np.eye(4)[None]
+    xp, pp = models.predict(x, p, np.array([-2.0]), 2, 2, 1.0)
+    np.testing.assert_allclose(xp[0], [8, 16, 1, 2])
+    np.testing.assert_allclose(pp[0], [[9, 0, 2, 0], [0, 9, 0, 2], [2, 0, 5, 0], [0, 2, 0, 5]])
+    np.testing.assert_allclose(models.process_noise(np.array([-2.0]), 2, 2, 1.0),
+                               models.process_noise(np.array([2.0]), 2, 2, 1.0))
+
+
+def test_process_noise_negative_dt_ca():
+    # CA at dt = -2 must equal CA at dt = +2 (Q_CA3 with q = 3); a signed Gamma
+    # [-4/3, 2, -2] would flip the sign of the position-velocity and velocity-accel terms.
+    q = models.process_noise(np.array([-2.0]), 3, 3, Q_STD)
+    np.testing.assert_allclose(q[0], Q_CA3, rtol=1e-12, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(q[0]) > -1e-9)
+
+
+def test_predict_ca_3d_state():
+    # CA 3-D, dt = 2: per axis p' = p + 2 v + 2 a, v' = v + 2 a, a' = a.
+    # x: p = [1, 2, 3], v = [4, 5, 6], a = [7, 8, 9]
+    # p' = [1 + 8 + 14, 2 + 10 + 16, 3 + 12 + 18] = [23, 28, 33]
+    # v' = [4 + 14, 5 + 16, 6 + 18] = [18, 21, 24]
+    x = np.arange(1.0, 10.0)[None]
+    p = np.zeros((1, 9, 9))
+    xp, pp = models.predict(x, p, DT, 3, 3, Q_STD)
+    np.testing.assert_allclose(xp[0], [23, 28, 33, 18, 21, 24, 7, 8, 9])
+    # with P = 0 the predicted covariance is exactly Q
+    np.testing.assert_allclose(pp[0], Q_CA3, rtol=1e-12, atol=1e-12)
+
+
+def test_predict_is_symmetric_and_matches_f_p_ft_plus_q():
+    rng = np.random.default_rng(7)
+    n = 6
+    a = rng.standard_normal((5, n, n))
+    p = a @ a.transpose(0, 2, 1)
+    x = rng.standard_normal((5, n))
+    dt = np.array([0.5, -1.0, 2.0, 0.0, 3.3])
+    xp, pp = models.predict(x, p, dt, 2, 3, 0.7)
+    f = models.transition(dt, 2, 3)
+    q = models.process_noise(dt, 2, 3, 0.7)
+    np.testing.assert_allclose(xp, np.einsum("nij,nj->ni", f, x), rtol=1e-12)
+    np.testing.assert_allclose(pp, f @ p @ f.transpose(0, 2, 1) + q, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(pp, pp.transpose(0, 2, 1))
