@@ -85,7 +85,10 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(f"track-feed: no tracker alive on '{args.ns}' after 30 s "
                      "(start track-service, or pass --trackers 0)")
         start = time.monotonic()
-        n = publish(session, args)
+        try:
+            n = publish(session, args)
+        except KeyboardInterrupt:
+            return
         print(f"track-feed: {args.scenario}: {n} measurements in "
               f"{time.monotonic() - start:.2f} s", flush=True)
     finally:
