@@ -74,3 +74,64 @@ def ucm_covariance(p: np.ndarray, sr: np.ndarray, saz: np.ndarray,
     out[:, 0, 2] = out[:, 2, 0] = h * le4 * s2e * np.sin(az)
     out[:, 1, 2] = out[:, 2, 1] = h * le4 * s2e * np.cos(az)
     return out - p[:, :, None] * p[:, None, :]
+
+
+def ucm_covariance_expected(mean: np.ndarray, cov: np.ndarray, sr: np.ndarray,
+                            saz: np.ndarray, sel: np.ndarray | None,
+                            az_meas: np.ndarray) -> np.ndarray:
+    """Covariance (N, d, d) of the UCM error for a target predicted at N(mean, cov)
+    (sensor-relative), given the measured azimuth.
+
+    R depends on where the target truly is, which only the prediction tells: averaging
+    R(p) over the prediction (2d-point spherical cubature, Arasaratnam & Haykin, IEEE TAC
+    54(6), 2009) instead of taking R(mean) keeps the filter consistent where R changes
+    fast across the predicted region: near the zenith, the overhead pass of scenario B.
+    There the prediction hardly knows the azimuth, which orients R, while the measured
+    azimuth knows it well; so each cubature point's azimuth is moved toward the measured
+    one by the weight w = var_pred / (var_pred + saz^2) of a scalar fusion of the two.
+    Far from the zenith w ~ 0 and R keeps no dependence on the measurement error (the
+    decorrelation of Bordonaro, Willett & Bar-Shalom, IEEE TAES 50(2), 2014).
+    """
+    n, d = mean.shape
+    chol = np.linalg.cholesky(cov + 1e-9 * np.eye(d))  # (N, d, d)
+    offsets = np.sqrt(d) * np.concatenate([chol, -chol], axis=2).transpose(0, 2, 1)
+    points = (mean[:, None, :] + offsets).reshape(n * 2 * d, d)
+
+    def rep(a: np.ndarray) -> np.ndarray:
+        return np.repeat(a, 2 * d)
+
+    x, y = mean[:, 0], mean[:, 1]
+    grad = np.stack([y, -x], 1) / (x**2 + y**2 + 1e-9)[:, None]  # d az / d (x, y)
+    var_az = np.einsum("ni,nij,nj->n", grad, cov[:, :2, :2], grad)
+    w = rep(var_az / (var_az + saz**2))
+    rho = np.hypot(points[:, 0], points[:, 1])
+    az = np.arctan2(points[:, 0], points[:, 1])
+    az = az + w * np.angle(np.exp(1j * (rep(az_meas) - az)))
+    points[:, 0], points[:, 1] = rho * np.sin(az), rho * np.cos(az)
+    r = ucm_covariance(points, rep(sr), rep(saz), None if sel is None else rep(sel))
+    return r.reshape(n, 2 * d, d, d).mean(axis=1)
+
+
+def polar_linearised(rel: np.ndarray, meas: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """EKF terms of a polar measurement at predicted sensor-relative positions rel (N, d):
+    predicted measurement h(rel) = (r, az[, el]), its Jacobian (N, d, d) with respect to
+    the position, and the measurement with its azimuth unwrapped to lie within pi of the
+    prediction. Near the zenith the 1/rho^2 azimuth terms blow up: that is the EKF's
+    weakness this baseline exists to show (SCENARIOS.md, B)."""
+    r, az, el = cartesian_to_polar(rel)
+    x, y = rel[:, 0], rel[:, 1]
+    rho2 = x**2 + y**2
+    d = rel.shape[1]
+    jac = np.zeros((len(rel), d, d))
+    jac[:, 0] = rel / r[:, None]
+    jac[:, 1, 0], jac[:, 1, 1] = y / rho2, -x / rho2
+    hx = np.stack([r, az] if el is None else [r, az, el], 1)
+    if el is not None:
+        rho = np.sqrt(rho2)
+        jac[:, 2, 0] = -x * rel[:, 2] / (r**2 * rho)
+        jac[:, 2, 1] = -y * rel[:, 2] / (r**2 * rho)
+        jac[:, 2, 2] = rho / r**2
+    z = meas.copy()
+    z[:, 1] = az + np.angle(np.exp(1j * (meas[:, 1] - az)))
+    return hx, jac, z

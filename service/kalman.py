@@ -28,23 +28,29 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return out
 
 
-def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray
+def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
+           h: np.ndarray | None = None, hx: np.ndarray | None = None
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Update rows (N, n) / (N, n, n) with position measurements z (N, d), R (N, d, d).
+    """Update rows (N, n) / (N, n, n) with measurements z (N, m) of covariance R (N, m, m).
 
-    Joseph-form covariance (Bar-Shalom, Li & Kirubarajan 2001, eq. 5.2.3-18), symmetrised.
-    Returns the posterior x, P, the normalised innovation squared and a mask of rows
-    whose result is finite (the caller keeps the prior of the others).
+    The measurement depends on position only: by default it is the position itself
+    (H = [I 0], the CMKF); an EKF passes the Jacobian `h` (N, m, d) with respect to the
+    position and the predicted measurement `hx` (N, m). Joseph-form covariance
+    (Bar-Shalom, Li & Kirubarajan 2001, eq. 5.2.3-18), symmetrised. Returns the posterior
+    x, P, the normalised innovation squared and a mask of rows whose result is finite
+    (the caller keeps the prior of the others).
     """
     n_rows, n = x.shape
-    d = z.shape[1]
-    nu = z - x[:, :d]
-    s = p[:, :d, :d] + r + S_FLOOR * np.eye(d)
-    pht = p[:, :, :d]
+    m = z.shape[1]
+    d = m if h is None else h.shape[2]
+    nu = z - (x[:, :d] if hx is None else hx)
+    pht = p[:, :, :d] if h is None else p[:, :, :d] @ h.transpose(0, 2, 1)  # (N, n, m)
+    hph = pht[:, :d] if h is None else h @ pht[:, :d]
+    s = hph + r + S_FLOOR * np.eye(m)
     gain = solve(s, pht.transpose(0, 2, 1)).transpose(0, 2, 1)
     xn = x + np.einsum("nij,nj->ni", gain, nu)
     ikh = np.broadcast_to(np.eye(n), (n_rows, n, n)).copy()
-    ikh[:, :, :d] -= gain
+    ikh[:, :, :d] -= gain if h is None else gain @ h
     pn = symmetrise(ikh @ p @ ikh.transpose(0, 2, 1) + gain @ r @ gain.transpose(0, 2, 1))
     nis = np.einsum("ni,ni->n", nu, solve(s, nu[:, :, None])[:, :, 0])
     ok = np.isfinite(xn).all(1) & np.isfinite(pn).all((1, 2)) & np.isfinite(nis)

@@ -22,6 +22,7 @@ TIME_TOL = 1e-6  # s: measurements this close to the track time count as simulta
 @dataclass
 class TableConfig:
     order: int = 2  # 2: nearly-constant velocity, 3: nearly-constant acceleration
+    update: str = "cmkf"  # polar measurements: "cmkf" (converted) or "ekf" (linearised)
     q: float = 1.0  # process noise std: m/s^2 (CV) or m/s^3 (CA), per axis
     init_speed: float = 1000.0  # prior std of velocity at initiation, m/s
     init_accel: float = 10.0  # prior std of acceleration at initiation (CA), m/s^2
@@ -95,11 +96,11 @@ class Bank:
         return np.flatnonzero(self.alive)
 
 
-def measurement_arrays(meas: Sequence[Measurement], dim: int, pred: np.ndarray | None
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def measurement_arrays(meas: Sequence[Measurement], dim: int, pred: np.ndarray | None,
+                       pred_cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Converted measurements z (N, dim) and covariances R (N, dim, dim) in the common
-    frame. Polar ones use the UCM, with R evaluated at the predicted position `pred`
-    (N, dim) when given, else at the converted point itself (initiation)."""
+    frame. Polar ones use the UCM, with R averaged over the predicted position
+    N(pred, pred_cov) when given, else evaluated at the converted point (initiation)."""
     n = len(meas)
     z = np.zeros((n, dim))
     r = np.zeros((n, dim, dim))
@@ -116,9 +117,32 @@ def measurement_arrays(meas: Sequence[Measurement], dim: int, pred: np.ndarray |
         el, sel = (vals[:, 2], sig[:, 2]) if dim == 3 else (None, None)
         rel = convert.unbiased(vals[:, 0], vals[:, 1], el, sig[:, 1], sel)
         z[polar] = origin[polar] + rel
-        at = rel if pred is None else pred[polar] - origin[polar]
-        r[polar] = convert.ucm_covariance(at, sig[:, 0], sig[:, 1], sel)
+        if pred is None or pred_cov is None:
+            r[polar] = convert.ucm_covariance(rel, sig[:, 0], sig[:, 1], sel)
+        else:
+            r[polar] = convert.ucm_covariance_expected(
+                pred[polar] - origin[polar], pred_cov[polar], sig[:, 0], sig[:, 1], sel,
+                vals[:, 1])
     return z, r
+
+
+def ekf_arrays(meas: Sequence[Measurement], dim: int, pred: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """EKF baseline: polar measurements kept polar (z, R = diag of the noise variances),
+    with the Jacobian h and predicted measurement hx at the predicted position; Cartesian
+    ones as in the CMKF (h = I, hx = position)."""
+    z, r = measurement_arrays(meas, dim, None)
+    h = np.broadcast_to(np.eye(dim), (len(meas), dim, dim)).copy()
+    hx = pred.copy()
+    polar = np.array([m.polar for m in meas], dtype=bool)
+    if polar.any():
+        sub = [m for m, k in zip(meas, polar, strict=True) if k]
+        origin = np.array([m.sensor_pos[:dim] for m in sub])
+        sig = np.array([m.sigmas for m in sub])
+        hx[polar], h[polar], z[polar] = convert.polar_linearised(
+            pred[polar] - origin, np.array([m.values for m in sub]))
+        r[polar] = sig[:, :, None] ** 2 * np.eye(dim)
+    return z, r, h, hx
 
 
 class TrackTable:
@@ -208,8 +232,12 @@ class TrackTable:
         t = np.array([m.t for m in meas])
         xp, pp = models.predict(bank.x[rows], bank.p[rows], t - bank.t[rows],
                                 bank.order, dim, c.q)
-        z, r = measurement_arrays(meas, dim, xp[:, :dim])
-        xn, pn, nis, ok = kalman.update(xp, pp, z, r)
+        if c.update == "ekf":
+            z, r, h, hx = ekf_arrays(meas, dim, xp[:, :dim])
+            xn, pn, nis, ok = kalman.update(xp, pp, z, r, h, hx)
+        else:
+            z, r = measurement_arrays(meas, dim, xp[:, :dim], pp[:, :dim, :dim])
+            xn, pn, nis, ok = kalman.update(xp, pp, z, r)
         good = rows[ok]
         bank.x[good], bank.p[good], bank.nis[good] = xn[ok], pn[ok], nis[ok]
         bank.t[good] = t[ok]
