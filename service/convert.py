@@ -46,8 +46,17 @@ def unbiased(r: np.ndarray, az: np.ndarray, el: np.ndarray | None,
 def ucm_covariance(p: np.ndarray, sr: np.ndarray, saz: np.ndarray,
                    sel: np.ndarray | None) -> np.ndarray:
     """Covariance (N, d, d) of the UCM error given the true sensor-relative position p
-    (N, d); called with the predicted position. d = 2 needs sel None."""
+    (N, d). d = 2 needs sel None."""
     r, az, el = cartesian_to_polar(p)
+    return ucm_covariance_polar(r, az, el, sr, saz, sel)
+
+
+def ucm_covariance_polar(r: np.ndarray, az: np.ndarray, el: np.ndarray | None,
+                         sr: np.ndarray, saz: np.ndarray, sel: np.ndarray | None
+                         ) -> np.ndarray:
+    """`ucm_covariance` given the true position in polar form (keeps the azimuth of a
+    point at the zenith, where Cartesian coordinates lose it)."""
+    p = polar_to_cartesian(r, az, el)
     lb = np.exp(-0.5 * saz**2)
     lb4 = lb**4
     big_b = r**2 + sr**2
@@ -93,23 +102,28 @@ def ucm_covariance_expected(mean: np.ndarray, cov: np.ndarray, sr: np.ndarray,
     decorrelation of Bordonaro, Willett & Bar-Shalom, IEEE TAES 50(2), 2014).
     """
     n, d = mean.shape
-    chol = np.linalg.cholesky(cov + 1e-9 * np.eye(d))  # (N, d, d)
-    offsets = np.sqrt(d) * np.concatenate([chol, -chol], axis=2).transpose(0, 2, 1)
+    bad = ~np.isfinite(cov).all((1, 2))
+    vals, vecs = np.linalg.eigh(np.where(bad[:, None, None], 0.0, cov))
+    root = vecs * np.sqrt(np.maximum(vals, 0.0))[:, None, :]  # root @ root' = cov, PSD-safe
+    offsets = np.sqrt(d) * np.concatenate([root, -root], axis=2).transpose(0, 2, 1)
     points = (mean[:, None, :] + offsets).reshape(n * 2 * d, d)
 
     def rep(a: np.ndarray) -> np.ndarray:
         return np.repeat(a, 2 * d)
 
     x, y = mean[:, 0], mean[:, 1]
-    grad = np.stack([y, -x], 1) / (x**2 + y**2 + 1e-9)[:, None]  # d az / d (x, y)
-    var_az = np.einsum("ni,nij,nj->n", grad, cov[:, :2, :2], grad)
+    rho2 = x**2 + y**2
+    tangent = np.stack([y, -x], 1) / np.sqrt(np.maximum(rho2, 1e-300))[:, None]
+    var_t = np.where(rho2 > 0, np.einsum("ni,nij,nj->n", tangent, cov[:, :2, :2], tangent),
+                     0.5 * np.trace(cov[:, :2, :2], axis1=1, axis2=2))
+    var_az = var_t / np.maximum(rho2, 1e-12)  # predicted azimuth variance, rad^2
     w = rep(var_az / (var_az + saz**2))
-    rho = np.hypot(points[:, 0], points[:, 1])
-    az = np.arctan2(points[:, 0], points[:, 1])
+    r, az, el = cartesian_to_polar(points)
     az = az + w * np.angle(np.exp(1j * (rep(az_meas) - az)))
-    points[:, 0], points[:, 1] = rho * np.sin(az), rho * np.cos(az)
-    r = ucm_covariance(points, rep(sr), rep(saz), None if sel is None else rep(sel))
-    return r.reshape(n, 2 * d, d, d).mean(axis=1)
+    r = ucm_covariance_polar(r, az, el, rep(sr), rep(saz), None if sel is None else rep(sel))
+    r = r.reshape(n, 2 * d, d, d).mean(axis=1)
+    r[bad] = np.nan  # flagged by the caller's finiteness check
+    return r
 
 
 def polar_linearised(rel: np.ndarray, meas: np.ndarray

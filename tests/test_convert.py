@@ -208,3 +208,39 @@ def test_unbiased_divides_by_bias_factors():
                                    r * math.sin(el) / le], rtol=1e-13)
     z2 = convert.unbiased(np.array([r]), np.array([az]), None, np.array([saz]), None)[0]
     np.testing.assert_allclose(z2, [r * math.sin(az) / lb, r * math.cos(az) / lb], rtol=1e-13)
+
+
+def test_expected_covariance_tends_to_r_at_mean_for_a_tight_prediction():
+    # With a prediction much tighter than the measurement, the average over the prediction
+    # equals R at the predicted point (the decorrelated UCM of Bordonaro et al.).
+    p = np.array([[3000.0, -8000.0, 4000.0]])
+    args = (np.array([50.0]), np.array([0.01]), np.array([0.01]))
+    r0 = convert.ucm_covariance(p, *args)
+    r1 = convert.ucm_covariance_expected(p, np.eye(3)[None] * 1e-4, *args,
+                                         np.array([2.0]))
+    np.testing.assert_allclose(r1, r0, rtol=1e-6)
+
+
+def test_expected_covariance_near_zenith_matches_monte_carlo():
+    # Overhead with a wide prediction: the conversion error covariance given the measured
+    # azimuth is oriented by that azimuth. Monte Carlo: truths drawn from the prediction,
+    # measured, and binned by measured azimuth near 30 deg; the cubature R must be close to
+    # the sample covariance of those errors (within 10 % of the error scale).
+    rng = np.random.default_rng(3)
+    n = 400_000
+    mean = np.array([0.0, 0.0, 10_000.0])
+    cov = np.diag([60.0**2, 60.0**2, 10.0**2])
+    truth = mean + rng.standard_normal((n, 3)) @ np.sqrt(cov)
+    sr, sa = 50.0, np.radians(0.5)
+    r, az, el = convert.cartesian_to_polar(truth)
+    rm, am, em = (r + sr * rng.standard_normal(n), az + sa * rng.standard_normal(n),
+                  el + sa * rng.standard_normal(n))
+    z = convert.unbiased(rm, am, em, np.full(n, sa), np.full(n, sa))
+    sel = np.abs(np.angle(np.exp(1j * (am - np.radians(30))))) < np.radians(2)
+    err = (z - truth)[sel]
+    mc = np.cov(err.T)
+    got = convert.ucm_covariance_expected(mean[None], cov[None], np.array([sr]),
+                                          np.array([sa]), np.array([sa]),
+                                          np.array([np.radians(30)]))[0]
+    scale = np.sqrt(np.trace(mc))
+    assert np.abs(got - mc).max() < 0.10 * scale**2 / 3

@@ -112,8 +112,9 @@ def test_polar_initiation_uses_ucm_and_sensor_position():
 
 
 def test_polar_update_evaluates_r_at_prediction():
-    # Second polar measurement: R = UCM covariance at the predicted sensor-relative point,
-    # and the result equals a hand-assembled predict + Kalman update.
+    # Second polar measurement: R = UCM covariance averaged over the predicted sensor-relative
+    # position (convert.ucm_covariance_expected), and the result equals a hand-assembled
+    # predict + Kalman update.
     cfg = TableConfig(order=2, q=2.0)
     table = TrackTable(cfg)
     table.apply([polar("p", 0.0, 4000.0, -2.0, sr=15.0, saz=0.03, sensor_pos=(5.0, 7.0, 0.0))])
@@ -123,8 +124,9 @@ def test_polar_update_evaluates_r_at_prediction():
     xp, pp = models.predict(x0[None], p0[None], np.array([1.5]), 2, 2, 2.0)
     z = convert.unbiased(np.array([4100.0]), np.array([-1.98]), None, np.array([0.03]), None)
     z = z + [5.0, 7.0]
-    r = convert.ucm_covariance(xp[:, :2] - [5.0, 7.0], np.array([15.0]), np.array([0.03]),
-                               None)
+    r = convert.ucm_covariance_expected(xp[:, :2] - [5.0, 7.0], pp[:, :2, :2],
+                                        np.array([15.0]), np.array([0.03]), None,
+                                        np.array([-1.98]))
     s = pp[0, :2, :2] + r[0]
     k = pp[0, :, :2] @ np.linalg.inv(s)
     x_exp = xp[0] + k @ (z[0] - xp[0, :2])
