@@ -14,7 +14,8 @@ from .node import TrackService
 from .table import TableConfig, TrackTable
 from .wire import Keys, add_zenoh_args, open_session
 
-MODELS = {"cv": 2, "ca": 3}
+# filter name -> (model order, polar update)
+FILTERS = {"cv": (2, "cmkf"), "ca": (3, "cmkf"), "ekf": (2, "ekf")}
 
 
 def parser() -> argparse.ArgumentParser:
@@ -23,8 +24,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
                    help="display clock (default %(default)s)")
     p.add_argument("--rate", type=float, default=30.0, help="display rate, Hz")
-    p.add_argument("--model", choices=sorted(MODELS), default="cv",
-                   help="motion model: nearly-constant velocity or acceleration")
+    p.add_argument("--filter", choices=sorted(FILTERS), default="cv",
+                   help="cv: CMKF, nearly-constant velocity (default); ca: CMKF, nearly-"
+                        "constant acceleration; ekf: EKF on polar measurements, CV (baseline)")
     p.add_argument("--q", type=float, default=None,
                    help="process noise std per axis: m/s^2 for cv (default 1), "
                         "m/s^3 for ca (default 0.5)")
@@ -52,9 +54,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    order = MODELS[args.model]
+    order, update = FILTERS[args.filter]
     q = args.q if args.q is not None else {2: 1.0, 3: 0.5}[order]
-    table = TrackTable(TableConfig(order=order, q=q, init_speed=args.init_speed,
+    table = TrackTable(TableConfig(order=order, q=q, update=update, init_speed=args.init_speed,
                                    init_accel=args.init_accel, delete_after=args.delete_after))
     session = open_session(args, serve=True)
     svc = TrackService(session, Keys(args.ns), table, clock=args.clock, rate=args.rate,

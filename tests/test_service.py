@@ -53,7 +53,7 @@ def test_radar3d_lockstep_accuracy_and_frames(service_factory):
 def test_frames_between_scans_are_predictions(service_factory):
     """Scenario A (exact positions, CA model): frames at scan instants equal the
     measurement; frames between scans are predictions from the earlier scan."""
-    svc, s = service_factory("--clock", "lockstep", "--model", "ca")
+    svc, s = service_factory("--clock", "lockstep", "--filter", "ca")
     frames = Collector(s, "track/frame")
     display = Collector(s, "track/display/*")
     truth = Collector(s, "track/truth/*")

@@ -1,0 +1,328 @@
+"""`track-eval SCENARIO`: measure the service's accuracy and consistency over Zenoh.
+
+Runs a reference scenario through a real service on loopback (lockstep clock; each
+Monte Carlo run is a separate target, so all runs go through at once), collects
+`tracks/*` and `frame` against the scenario's truth, and prints position and velocity
+RMSE per window or phase, the posterior Cramér-Rao bound and the ratio to it, average
+NEES and NIS with their 95 % chi-square intervals, and for display frames the RMS and
+maximum error and the largest visual jump.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from service.wire import Keys, decode_frame, unpack, wait_for_tracker
+
+from . import feed, metrics, scenarios
+
+START = {"display": 3.0, "radar3d": 20.0, "maneuver": 20.0}  # s: after initiation
+
+
+@dataclass
+class Collected:
+    tracks: dict[tuple[str, float], dict] = field(default_factory=dict)
+    frames: list[tuple[float, list[dict]]] = field(default_factory=list)
+
+
+def free_endpoint() -> str:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def client_config(endpoint: str) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    return conf
+
+
+def run_through_service(scenario: str, runs: int, seed: int, service_args: list[str],
+                        endpoint: str | None = None, ns: str | None = None) -> Collected:
+    """Start a lockstep service (unless `endpoint` names a running one), publish the
+    scenario to it and collect what it publishes."""
+    ns = ns or f"eval{uuid.uuid4().hex[:8]}"
+    proc = None
+    if endpoint is None:
+        endpoint = free_endpoint()
+        proc = subprocess.Popen([sys.executable, "-m", "service", "--clock", "lockstep",
+                                 "-l", endpoint, "--ns", ns, *service_args])
+    keys = Keys(ns)
+    out = Collected()
+    done = threading.Event()
+    scans = list(scenarios.SCENARIOS[scenario](runs=runs, seed=seed))
+    t_end = scans[-1][0] + scenarios.PERIODS[scenario] - 1.5 / 30
+
+    def on_track(s: Any) -> None:
+        if s.kind == zenoh.SampleKind.PUT:
+            m = unpack(s.payload.to_bytes())
+            out.tracks[(m["id"], round(m["t"], 6))] = m
+
+    def on_frame(s: Any) -> None:
+        m = unpack(s.payload.to_bytes())
+        out.frames.append((m["t"], decode_frame(m)))
+        if m["t"] >= t_end:
+            done.set()
+
+    session = zenoh.open(client_config(endpoint))
+    try:
+        subs = [session.declare_subscriber(keys.space("tracks"), on_track),
+                session.declare_subscriber(keys.frame, on_frame)]
+        if not wait_for_tracker(session, keys, 1, timeout=30):
+            raise SystemExit(f"track-eval: no tracker on {endpoint} ns={ns}")
+        args = feed.parser().parse_args([scenario, "--runs", str(runs), "--seed", str(seed),
+                                         "--ns", ns])
+        feed.publish(session, args)
+        if not done.wait(600):
+            raise SystemExit("track-eval: the service did not publish the last frame")
+        deadline = time.monotonic() + 30
+        while len(out.tracks) < runs * len(scans) and time.monotonic() < deadline:
+            time.sleep(0.05)  # tracks/ and frame travel on separate keys
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        session.close()
+        if proc is not None:
+            proc.terminate()
+            proc.wait(timeout=15)
+    return out
+
+
+# ---------------------------------------------------------------- truth
+def truth_arrays(scenario: str, runs: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Scan times (K,) and true [pos(3), vel(3)] (runs, K, 6)."""
+    ts, states = [], []
+    for t, _, truth in scenarios.SCENARIOS[scenario](runs=runs, seed=seed):
+        ts.append(t)
+        states.append([(tr["pos"] + [0.0] * (3 - len(tr["pos"])))
+                       + (tr["vel"] + [0.0] * (3 - len(tr["vel"]))) for _, tr in truth])
+    return np.array(ts), np.array(states).transpose(1, 0, 2)
+
+
+def truth_at(scenario: str, ts: np.ndarray, states: np.ndarray, t: float) -> np.ndarray:
+    """True positions (runs, 3) at any instant: scenario A from its flight model, B and C
+    exactly by their piecewise-constant accelerations between scans."""
+    if scenario == "display":
+        return np.repeat(scenarios.FlightA().state(t)[0], states.shape[0], axis=0)
+    k = int(np.clip(np.searchsorted(ts, t + 1e-9) - 1, 0, len(ts) - 1))
+    tau = t - ts[k]
+    p, v = states[:, k, :3], states[:, k, 3:]
+    a = (states[:, k + 1, 3:] - v) / (ts[k + 1] - ts[k]) if k + 1 < len(ts) else 0.0 * v
+    return p + v * tau + 0.5 * a * tau**2
+
+
+# ---------------------------------------------------------------- evaluation
+def windows(scenario: str, ts: np.ndarray) -> list[tuple[str, float, float]]:
+    """Report windows (name, t0, t1): 20-scan windows for B, the phases for A and C."""
+    if scenario == "radar3d":
+        return [(f"{a}-{a + 19}", ts[a], ts[a + 19] + 1e-9) for a in range(20, len(ts), 20)]
+    phases = scenarios.FlightA.phases if scenario == "display" else scenarios.ManeuverC.phases
+    return [(n, max(a, START[scenario]), b) for n, a, b in phases]
+
+
+def evaluate(scenario: str, runs: int, seed: int, got: Collected) -> dict[str, Any]:
+    ts, truth = truth_arrays(scenario, runs, seed)
+    dim = 2 if scenario == "maneuver" else 3
+    n = 2 * dim
+    ids = sorted({tid for tid, _ in got.tracks})
+    est = np.full((runs, len(ts), n), np.nan)
+    cov = np.full((runs, len(ts), n, n), np.nan)
+    nis = np.full((runs, len(ts)), np.nan)
+    for i, tid in enumerate(ids):
+        for k, t in enumerate(ts):
+            m = got.tracks.get((tid, round(float(t), 6)))
+            if m is None:
+                continue
+            size = len(m["x"])
+            est[i, k] = m["x"][:n]
+            cov[i, k] = np.reshape(m["P"], (size, size))[:n, :n]
+            nis[i, k] = m["nis"]
+    tru = np.concatenate([truth[..., :dim], truth[..., 3:3 + dim]], -1)
+    err = est - tru
+    sq_pos, sq_vel = (err[..., :dim] ** 2).sum(-1), (err[..., dim:] ** 2).sum(-1)
+    ok = np.isfinite(cov).all((2, 3))
+    nees = np.full((runs, len(ts)), np.nan)
+    nees[ok] = metrics.nees(err[ok], cov[ok])
+    bound_p = bound_v = None
+    if scenario == "radar3d":
+        bound_p, bound_v = metrics.scenario_b_bound(runs, seed)
+    lo, hi = metrics.chi2_interval(n, runs)
+    nis_lo, nis_hi = metrics.chi2_interval(dim, runs)
+
+    def row(name: str, t0: float, t1: float) -> dict[str, Any]:
+        sel = (ts >= t0) & (ts < t1)
+        r = {"window": name, "t0": float(t0), "t1": float(t1),
+             "pos_rmse": float(np.sqrt(np.nanmean(sq_pos[:, sel]))),
+             "vel_rmse": float(np.sqrt(np.nanmean(sq_vel[:, sel]))),
+             "pos_peak": float(np.nanmax(np.sqrt(np.nanmean(sq_pos[:, sel], axis=0)))),
+             "nees": float(np.nanmean(nees[:, sel])),
+             "nees_max_scan": float(np.nanmax(np.nanmean(nees[:, sel], axis=0))),
+             "nis": float(np.nanmean(nis[:, sel]))}
+        if bound_p is not None:
+            r["pos_bound"] = float(np.sqrt(np.mean(bound_p[sel] ** 2)))
+            r["vel_bound"] = float(np.sqrt(np.mean(bound_v[sel] ** 2)))
+            r["pos_ratio"] = r["pos_rmse"] / r["pos_bound"]
+            r["vel_ratio"] = r["vel_rmse"] / r["vel_bound"]
+        return r
+
+    start = START[scenario]
+    report = {
+        "scenario": scenario, "runs": runs, "seed": seed, "state_dim": n,
+        "nees_interval": [lo, hi], "nis_interval": [nis_lo, nis_hi],
+        "overall": row(f"t {start:g}-{ts[-1]:g}", start, ts[-1] + 1e-9),
+        "windows": [row(*w) for w in windows(scenario, ts)],
+        "per_scan": {"t": ts.tolist(),
+                     "pos_rmse": np.sqrt(np.nanmean(sq_pos, axis=0)).tolist(),
+                     "nees": np.nanmean(nees, axis=0).tolist(),
+                     "pos_bound": None if bound_p is None else bound_p.tolist()},
+        "display": display_quality(scenario, ts, truth, got, start),
+    }
+    return report
+
+
+def display_quality(scenario: str, ts: np.ndarray, truth: np.ndarray, got: Collected,
+                    start: float) -> dict[str, Any]:
+    """Per-frame error against truth at the frame instant; largest jump = the largest
+    frame-to-frame displacement beyond the true displacement."""
+    frames = sorted((f for f in got.frames if f[0] >= start), key=lambda f: f[0])
+    errs, jumps, prev = [], [], None
+    for t, tracks in frames:
+        true = truth_at(scenario, ts, truth, t)
+        shown = {tr["id"]: np.array(tr["pos"]) for tr in tracks}
+        idx = {tid: int(tid.rsplit("-", 1)[1]) for tid in shown}
+        e = [np.linalg.norm(shown[tid] - true[i]) for tid, i in idx.items()]
+        errs.append(e)
+        if prev is not None:
+            pt, ptrue, pshown = prev
+            for tid, i in idx.items():
+                if tid in pshown:
+                    jumps.append(np.linalg.norm((shown[tid] - pshown[tid]) - (true[i] - ptrue[i])))
+        prev = (t, true, shown)
+    flat = np.concatenate([np.asarray(e) for e in errs]) if errs else np.zeros(0)
+    return {"frames": len(frames), "rms": float(np.sqrt(np.mean(flat**2))) if flat.size else None,
+            "max": float(flat.max()) if flat.size else None,
+            "max_jump": float(max(jumps)) if jumps else None,
+            "t": [f[0] for f in frames][:: max(1, len(frames) // 2000)]}
+
+
+# ---------------------------------------------------------------- output
+def table(report: dict[str, Any], label: str) -> str:
+    lo, hi = report["nees_interval"]
+    has_bound = "pos_bound" in report["overall"]
+    head = f"{'window':<16}{'pos RMSE':>10}{'vel RMSE':>10}"
+    if has_bound:
+        head += f"{'pos CRB':>9}{'ratio':>7}{'vel CRB':>9}{'ratio':>7}"
+    head += f"{'NEES':>8}{'max/scan':>10}{'NIS':>7}"
+    lines = [f"{report['scenario']} / {label}: {report['runs']} runs, seed {report['seed']}; "
+             f"NEES of the {report['state_dim']}-D state, 95 % interval [{lo:.2f}, {hi:.2f}]",
+             head]
+    for r in [*report["windows"], report["overall"]]:
+        s = f"{r['window']:<16}{r['pos_rmse']:>10.2f}{r['vel_rmse']:>10.3f}"
+        if has_bound:
+            s += (f"{r['pos_bound']:>9.2f}{r['pos_ratio']:>7.3f}{r['vel_bound']:>9.3f}"
+                  f"{r['vel_ratio']:>7.3f}")
+        s += f"{r['nees']:>8.2f}{r['nees_max_scan']:>10.2f}{r['nis']:>7.2f}"
+        lines.append(s)
+    d = report["display"]
+    if d["rms"] is not None:
+        lines.append(f"display frames: {d['frames']} instants, error RMS {d['rms']:.3f} m, "
+                     f"max {d['max']:.3f} m, largest jump beyond true motion "
+                     f"{d['max_jump']:.3f} m")
+    return "\n".join(lines)
+
+
+def plot(reports: dict[str, dict[str, Any]], got: dict[str, Collected], outdir: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    os.makedirs(outdir, exist_ok=True)
+    first = next(iter(reports.values()))
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for label, rep in reports.items():
+        ps = rep["per_scan"]
+        ax[0].plot(ps["t"], ps["pos_rmse"], label=f"{label} RMSE")
+        ax[1].plot(ps["t"], ps["nees"], label=label)
+    if first["per_scan"]["pos_bound"] is not None:
+        ax[0].plot(first["per_scan"]["t"], first["per_scan"]["pos_bound"], "k--", label="PCRB")
+    lo, hi = first["nees_interval"]
+    ax[1].axhspan(lo, hi, color="0.85", label="95 % interval")
+    ax[0].set_ylabel("position RMSE, m")
+    ax[1].set_ylabel("average NEES")
+    ax[1].set_yscale("log")
+    ax[1].set_xlabel("t, s")
+    ax[0].legend()
+    ax[1].legend()
+    fig.suptitle(f"{first['scenario']}: {first['runs']} runs")
+    fig.savefig(os.path.join(outdir, f"{first['scenario']}_errors.png"), dpi=120)
+    plt.close(fig)
+    label, col = next(iter(got.items()))
+    sc = first["scenario"]
+    ts, truth = truth_arrays(sc, 1, first["seed"])
+    run0 = sorted({tid for tid, _ in col.tracks})[0]
+    fr = [(t, next((x for x in trs if x["id"] == run0), None)) for t, trs in col.frames]
+    fr = [(t, x) for t, x in fr if x is not None]
+    fig, ax = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for i, name in enumerate(("East", "North", "Up")):
+        ax[i].plot([t for t, _ in fr], [x["pos"][i] for _, x in fr], label=f"{label} 30 Hz")
+        ax[i].plot(ts, truth[0, :, i], "k.", ms=2, label="truth at scans")
+        ax[i].set_ylabel(f"{name}, m")
+    ax[0].legend()
+    ax[2].set_xlabel("t, s")
+    fig.suptitle(f"{sc}: track {run0} against truth")
+    fig.savefig(os.path.join(outdir, f"{sc}_track.png"), dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
+    p.add_argument("scenario", choices=sorted(scenarios.SCENARIOS))
+    p.add_argument("--runs", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--filter", action="append", default=[],
+                   help="service filter(s) to compare (repeatable; default cv, or ca for "
+                        "display)")
+    p.add_argument("--service-arg", action="append", default=[],
+                   help="extra argument passed to every service (repeatable)")
+    p.add_argument("-e", "--connect", default=None,
+                   help="use a running lockstep service at this endpoint instead")
+    p.add_argument("--ns", default=None, help="namespace of that running service")
+    p.add_argument("--json", action="store_true", help="print the reports as JSON")
+    p.add_argument("--plot", metavar="DIR", help="write PNG figures here")
+    args = p.parse_args(argv)
+    filters = args.filter or (["ca"] if args.scenario == "display" else ["cv"])
+    reports, collected = {}, {}
+    for name in filters:
+        got = run_through_service(args.scenario, args.runs, args.seed,
+                                  ["--filter", name, *args.service_arg], args.connect, args.ns)
+        collected[name] = got
+        reports[name] = evaluate(args.scenario, args.runs, args.seed, got)
+    if args.json:
+        print(json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "per_scan"}
+                          for k, v in reports.items()}, indent=1))
+    else:
+        print("\n\n".join(table(r, k) for k, r in reports.items()))
+    if args.plot:
+        plot(reports, collected, args.plot)
+
+
+if __name__ == "__main__":
+    main()
