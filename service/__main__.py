@@ -45,6 +45,10 @@ def parser() -> argparse.ArgumentParser:
                    help="default Cartesian noise std, m")
     p.add_argument("--no-display-keys", action="store_true",
                    help="publish only the `frame` key, not per-target display/ keys")
+    p.add_argument("--meas", action="append", default=[], metavar="KEYEXPR",
+                   help="measurement key expression(s) this instance tracks (repeatable; "
+                        "default <ns>/meas/**): a shard takes its part of the key space, "
+                        "e.g. 'track/meas/radar-a/**' or 'track/meas/*/swarm-0$*'")
     p.add_argument("--instance", default=None, help="liveliness instance name")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -62,7 +66,8 @@ def main(argv: list[str] | None = None) -> None:
     svc = TrackService(session, Keys(args.ns), table, clock=args.clock, rate=args.rate,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        defaults=(args.sr, args.saz, args.sel, args.sigma),
-                       per_target_display=not args.no_display_keys).start()
+                       per_target_display=not args.no_display_keys,
+                       meas_keys=args.meas or None).start()
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

@@ -45,7 +45,7 @@ class TrackService:
     def __init__(self, session: zenoh.Session, keys: Keys, table: TrackTable, *,
                  clock: str = "lockstep", rate: float = 30.0, instance: str = "0",
                  defaults: tuple[float, float, float, float] = (10.0, 0.01, 0.01, 1.0),
-                 per_target_display: bool = True) -> None:
+                 per_target_display: bool = True, meas_keys: list[str] | None = None) -> None:
         self.session, self.keys, self.table = session, keys, table
         self.realtime = clock == "realtime"
         self.clock = Realtime(rate) if self.realtime else Lockstep(rate)
@@ -69,8 +69,10 @@ class TrackService:
             return zenoh.handlers.Callback(fn, indirect=False)
 
         self.subs = [
-            session.declare_subscriber(keys.space("meas"), direct(lambda s: put(
-                ("meas", str(s.key_expr), s.payload.to_bytes(), time.time())))),
+            session.declare_subscriber(k, direct(lambda s: put(
+                ("meas", str(s.key_expr), s.payload.to_bytes(), time.time()))))
+            for k in (meas_keys or [keys.space("meas")])
+        ] + [
             session.declare_subscriber(keys.clock, direct(lambda s: put(
                 ("clock", str(s.key_expr), s.payload.to_bytes(), time.time())))),
             session.declare_queryable(keys.space("tracks"),
