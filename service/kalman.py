@@ -31,14 +31,22 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
            h: np.ndarray | None = None, hx: np.ndarray | None = None
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`update_full` without the likelihood."""
+    return update_full(x, p, z, r, h, hx)[:4]
+
+
+def update_full(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
+                h: np.ndarray | None = None, hx: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Update rows (N, n) / (N, n, n) with measurements z (N, m) of covariance R (N, m, m).
 
     The measurement depends on position only: by default it is the position itself
     (H = [I 0], the CMKF); an EKF passes the Jacobian `h` (N, m, d) with respect to the
     position and the predicted measurement `hx` (N, m). Joseph-form covariance
     (Bar-Shalom, Li & Kirubarajan 2001, eq. 5.2.3-18), symmetrised. Returns the posterior
-    x, P, the normalised innovation squared and a mask of rows whose result is finite
-    (the caller keeps the prior of the others).
+    x, P, the normalised innovation squared, a mask of rows whose result is finite
+    (the caller keeps the prior of the others) and the Gaussian log-likelihood of the
+    innovation (for model probabilities).
     """
     n_rows, n = x.shape
     m = z.shape[1]
@@ -54,4 +62,7 @@ def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
     pn = symmetrise(ikh @ p @ ikh.transpose(0, 2, 1) + gain @ r @ gain.transpose(0, 2, 1))
     nis = np.einsum("ni,ni->n", nu, solve(s, nu[:, :, None])[:, :, 0])
     ok = np.isfinite(xn).all(1) & np.isfinite(pn).all((1, 2)) & np.isfinite(nis)
-    return xn, pn, nis, ok
+    sign, logdet = np.linalg.slogdet(s)
+    loglik = -0.5 * (nis + logdet + m * np.log(2 * np.pi))
+    loglik[sign <= 0] = -np.inf
+    return xn, pn, nis, ok, loglik

@@ -58,3 +58,36 @@ def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
     xp = np.einsum("nij,nj->ni", f, x)
     pp = f @ p @ f.transpose(0, 2, 1) + process_noise(dt, order, dim, q)
     return xp, 0.5 * (pp + pp.transpose(0, 2, 1))
+
+
+def motion(kind: str, dt: np.ndarray, order: int, dim: int, q: float | np.ndarray,
+           omega: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """F and Q (N, n, n) of one motion model in a state of `order` (2 or 3).
+
+    "ca" needs order 3. "cv" in an order-3 state holds the acceleration at zero (the
+    padding of Bar-Shalom et al. 2001, sec. 11.6.7, for IMMs mixing CV and CA). "ct" is a
+    coordinated turn at the known rate `omega` (rad/s, counter-clockwise in the x-y plane;
+    same book, sec. 11.7.1), with the other axes nearly-constant velocity.
+    """
+    if kind == "ca" or (kind == "cv" and order == 2):
+        return transition(dt, order, dim), process_noise(dt, order, dim, q)
+    if order != 3 or kind not in ("cv", "ct"):
+        raise ValueError(f"no {kind!r} model in an order-{order} state")
+    phi = axis_transition(dt, 3)
+    phi[..., 2] = 0.0
+    phi[..., 2, :] = 0.0
+    f = expand(phi, dim)
+    g = np.zeros(np.shape(dt) + (3,))
+    g[..., :2] = axis_noise_gain(np.abs(dt), 2)
+    q2 = np.reshape(np.asarray(q, dtype=float) ** 2, (-1, 1, 1))
+    qm = expand(g[..., :, None] * g[..., None, :] * q2, dim)
+    if kind == "ct":
+        w = omega
+        wt = w * np.asarray(dt, dtype=float)
+        s, c = np.sin(wt), np.cos(wt)
+        sw = s / w if w else np.asarray(dt, dtype=float)
+        cw = (1 - c) / w if w else np.zeros_like(wt)
+        x, y, vx, vy = 0, 1, dim, dim + 1
+        f[:, x, vx], f[:, x, vy], f[:, y, vx], f[:, y, vy] = sw, -cw, cw, sw
+        f[:, vx, vx], f[:, vx, vy], f[:, vy, vx], f[:, vy, vy] = c, -s, s, c
+    return f, qm

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from . import convert, kalman, models
+from . import convert, filters, models
 from .validate import Measurement
 
 TIME_TOL = 1e-6  # s: measurements this close to the track time count as simultaneous
@@ -23,6 +24,7 @@ TIME_TOL = 1e-6  # s: measurements this close to the track time count as simulta
 class TableConfig:
     order: int = 2  # 2: nearly-constant velocity, 3: nearly-constant acceleration
     update: str = "cmkf"  # polar measurements: "cmkf" (converted) or "ekf" (linearised)
+    filter: Any = None  # a filters.IMM or filters.VDF; None: one model of `order`
     q: float = 1.0  # process noise std: m/s^2 (CV) or m/s^3 (CA), per axis
     init_speed: float = 1000.0  # prior std of velocity at initiation, m/s
     init_accel: float = 10.0  # prior std of acceleration at initiation (CA), m/s^2
@@ -52,31 +54,37 @@ class Outcome:
 
 
 class Bank:
-    """Tracks of one layout: states x (cap, n), covariances P (cap, n, n)."""
+    """Tracks of one layout: states x (cap, n), covariances P (cap, n, n), bookkeeping,
+    and the per-row arrays a filter asks for (`extra`: name -> (shape code, modes))."""
 
-    def __init__(self, dim: int, order: int, capacity: int = 64) -> None:
+    def __init__(self, dim: int, order: int, extra: dict[str, tuple] | None = None,
+                 capacity: int = 64) -> None:
         self.dim, self.order, self.n = dim, order, dim * order
+        n = self.n
+        codes = {"": (), "n": (n,), "nn": (n, n), "d": (dim,), "dd": (dim, dim)}
+        self.shapes: dict[str, tuple[int, ...]] = {
+            "x": (n,), "p": (n, n), "t": (), "t_first": (), "nis": (), "updates": (),
+            "alive": ()}
+        for name, (code, modes) in (extra or {}).items():
+            self.shapes[name] = ((modes,) if modes else ()) + codes[code]
         self.ids: list[str | None] = []
         self.free: list[int] = []
-        self.x = np.zeros((0, self.n))
-        self.p = np.zeros((0, self.n, self.n))
-        self.t = np.zeros(0)  # time of the state (last update)
-        self.t_first = np.zeros(0)
-        self.updates = np.zeros(0, dtype=np.int64)
-        self.nis = np.zeros(0)
-        self.alive = np.zeros(0, dtype=bool)
+        for name, shape in self.shapes.items():
+            setattr(self, name, np.zeros((0, *shape), dtype=self._dtype(name)))
         self._grow(capacity)
+
+    @staticmethod
+    def _dtype(name: str) -> type:
+        return bool if name == "alive" else np.int64 if name == "updates" else float
 
     def _grow(self, capacity: int) -> None:
         old = len(self.ids)
-        extra = capacity - old
-        self.x = np.concatenate([self.x, np.zeros((extra, self.n))])
-        self.p = np.concatenate([self.p, np.zeros((extra, self.n, self.n))])
-        for name in ("t", "t_first", "nis"):
-            setattr(self, name, np.concatenate([getattr(self, name), np.zeros(extra)]))
-        self.updates = np.concatenate([self.updates, np.zeros(extra, dtype=np.int64)])
-        self.alive = np.concatenate([self.alive, np.zeros(extra, dtype=bool)])
-        self.ids.extend([None] * extra)
+        for name, shape in self.shapes.items():
+            a = getattr(self, name)
+            grown = np.zeros((capacity, *shape), dtype=a.dtype)
+            grown[:old] = a
+            setattr(self, name, grown)
+        self.ids.extend([None] * (capacity - old))
         self.free.extend(range(capacity - 1, old - 1, -1))
 
     def add(self, track_id: str) -> int:
@@ -149,7 +157,9 @@ class TrackTable:
     """All tracks, keyed by target id, one CMKF state each."""
 
     def __init__(self, config: TableConfig | None = None) -> None:
-        self.config = config or TableConfig()
+        self.config = c = config or TableConfig()
+        self.filter = c.filter or filters.Single({2: "cv", 3: "ca"}[c.order], c.q, c.order)
+        c.order = self.filter.order
         self.banks: dict[int, Bank] = {}
         self.where: dict[str, tuple[Bank, int]] = {}
 
@@ -158,7 +168,7 @@ class TrackTable:
 
     def bank(self, dim: int) -> Bank:
         if dim not in self.banks:
-            self.banks[dim] = Bank(dim, self.config.order)
+            self.banks[dim] = Bank(dim, self.config.order, self.filter.fields)
         return self.banks[dim]
 
     # ------------------------------------------------------------ initiate / update
@@ -211,10 +221,12 @@ class TrackTable:
         z, r = measurement_arrays(meas, dim, None)
         finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
         prior = [c.init_speed**2, c.init_accel**2][: bank.order - 1]
+        rows = []
         for m, zi, ri, ok in zip(meas, z, r, finite, strict=True):
             if not ok:
                 continue
             row = bank.add(m.target)
+            rows.append(row)
             self.where[m.target] = (bank, row)
             bank.x[row] = 0.0
             bank.x[row, :dim] = zi
@@ -223,21 +235,21 @@ class TrackTable:
             bank.t[row] = bank.t_first[row] = m.t
             bank.updates[row] = 1
             bank.nis[row] = 0.0
+        self.filter.initiate(bank, np.array(rows, dtype=int))
         return [(None, 0.0) if ok else ("conversion gave a non-finite value", np.nan)
                 for ok in finite]
 
     def _update(self, dim: int, meas: list[Measurement]) -> list[tuple[str | None, float]]:
         bank, c = self.bank(dim), self.config
-        rows = np.array([self.where[m.target][1] for m in meas])
+        rows = np.array([self.where[m.target][1] for m in meas], dtype=int)
         t = np.array([m.t for m in meas])
-        xp, pp = models.predict(bank.x[rows], bank.p[rows], t - bank.t[rows],
-                                bank.order, dim, c.q)
-        if c.update == "ekf":
-            z, r, h, hx = ekf_arrays(meas, dim, xp[:, :dim])
-            xn, pn, nis, ok = kalman.update(xp, pp, z, r, h, hx)
-        else:
-            z, r = measurement_arrays(meas, dim, xp[:, :dim], pp[:, :dim, :dim])
-            xn, pn, nis, ok = kalman.update(xp, pp, z, r)
+
+        def conversion(xp: np.ndarray, pp: np.ndarray) -> tuple:
+            if c.update == "ekf":
+                return ekf_arrays(meas, dim, xp[:, :dim])
+            return measurement_arrays(meas, dim, xp[:, :dim], pp[:, :dim, :dim])
+
+        xn, pn, nis, ok = self.filter.update(bank, rows, t - bank.t[rows], conversion)
         good = rows[ok]
         bank.x[good], bank.p[good], bank.nis[good] = xn[ok], pn[ok], nis[ok]
         bank.t[good] = t[ok]
@@ -295,7 +307,7 @@ class TrackTable:
         pos[:d], vel[:d] = x[:d].tolist(), x[d:2 * d].tolist()
         return {"t": float(bank.t[row]), "id": track_id, "pos": pos, "vel": vel,
                 "x": x.tolist(), "P": p.ravel().tolist(),
-                "model": {2: "cv", 3: "ca"}[bank.order], "nis": float(bank.nis[row]),
+                "model": self.filter.label(bank, row), "nis": float(bank.nis[row]),
                 "updates": int(bank.updates[row])}
 
     def stale(self, t: float) -> list[str]:
