@@ -30,6 +30,9 @@ from service.wire import Keys, decode_frame, unpack, wait_for_tracker
 from . import feed, metrics, scenarios
 
 START = {"display": 3.0, "radar3d": 20.0, "maneuver": 20.0}  # s: after initiation
+# service options per scenario: scenario C's target has no process noise, only two
+# turns, so the filters' white-noise level is set low (CV/CT acceleration, CA jerk)
+SERVICE_ARGS = {"display": [], "radar3d": [], "maneuver": ["--q", "0.003"]}
 
 
 @dataclass
@@ -222,6 +225,21 @@ def display_quality(scenario: str, ts: np.ndarray, truth: np.ndarray, got: Colle
 
 
 # ---------------------------------------------------------------- output
+def comparison(reports: dict[str, dict[str, Any]]) -> str:
+    """Position RMSE (and the peak of the per-scan RMSE) per window, filters side by side."""
+    names = list(reports)
+    lines = ["position RMSE / peak per-scan RMSE, m",
+             f"{'window':<16}" + "".join(f"{n:>20}" for n in names)]
+    first = reports[names[0]]
+    for i, w in enumerate([*first["windows"], first["overall"]]):
+        cells = []
+        for n in names:
+            r = [*reports[n]["windows"], reports[n]["overall"]][i]
+            cells.append(f"{r['pos_rmse']:>11.1f} / {r['pos_peak']:<6.1f}")
+        lines.append(f"{w['window']:<16}" + "".join(f"{c:>20}" for c in cells))
+    return "\n".join(lines)
+
+
 def table(report: dict[str, Any], label: str) -> str:
     lo, hi = report["nees_interval"]
     has_bound = "pos_bound" in report["overall"]
@@ -311,7 +329,9 @@ def main(argv: list[str] | None = None) -> None:
     reports, collected = {}, {}
     for name in filters:
         got = run_through_service(args.scenario, args.runs, args.seed,
-                                  ["--filter", name, *args.service_arg], args.connect, args.ns)
+                                  ["--filter", name, "--no-display-keys",
+                                   *SERVICE_ARGS[args.scenario], *args.service_arg],
+                                  args.connect, args.ns)
         collected[name] = got
         reports[name] = evaluate(args.scenario, args.runs, args.seed, got)
     if args.json:
@@ -319,6 +339,8 @@ def main(argv: list[str] | None = None) -> None:
                           for k, v in reports.items()}, indent=1))
     else:
         print("\n\n".join(table(r, k) for k, r in reports.items()))
+        if len(reports) > 1:
+            print("\n" + comparison(reports))
     if args.plot:
         plot(reports, collected, args.plot)
 

@@ -9,13 +9,27 @@ import signal
 import threading
 import uuid
 
-from . import __version__
+from . import __version__, filters
 from .node import TrackService
 from .table import TableConfig, TrackTable
 from .wire import Keys, add_zenoh_args, open_session
 
-# filter name -> (model order, polar update)
-FILTERS = {"cv": (2, "cmkf"), "ca": (3, "cmkf"), "ekf": (2, "ekf")}
+FILTERS = ("cv", "ca", "ekf", "vdf", "imm")
+
+
+def make_filter(args: argparse.Namespace) -> tuple[int, str, object | None, float]:
+    """(order, polar update, filter object or None, q) for the --filter choice."""
+    q = args.q if args.q is not None else 1.0
+    if args.filter == "imm":
+        w = math.radians(args.imm_turn)
+        modes = (("cv", "cv", q, 0.0), ("ca", "ca", q, 0.0),
+                 ("ct+", "ct", args.imm_ct_q * q, w), ("ct-", "ct", args.imm_ct_q * q, -w))
+        return 3, "cmkf", filters.IMM(modes, args.imm_sojourn), q
+    if args.filter == "vdf":
+        return 3, "cmkf", filters.VDF(detect=args.vdf_detect, settle=args.vdf_settle), 0.0
+    order = 3 if args.filter == "ca" else 2
+    q = args.q if args.q is not None else {2: 1.0, 3: 0.5}[order]
+    return order, "ekf" if args.filter == "ekf" else "cmkf", None, q
 
 
 def parser() -> argparse.ArgumentParser:
@@ -24,9 +38,19 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
                    help="display clock (default %(default)s)")
     p.add_argument("--rate", type=float, default=30.0, help="display rate, Hz")
-    p.add_argument("--filter", choices=sorted(FILTERS), default="cv",
-                   help="cv: CMKF, nearly-constant velocity (default); ca: CMKF, nearly-"
-                        "constant acceleration; ekf: EKF on polar measurements, CV (baseline)")
+    p.add_argument("--filter", choices=FILTERS, default="imm",
+                   help="imm (default): IMM of CV, CA and two coordinated turns on converted "
+                        "measurements; cv: CMKF, nearly-constant velocity; ca: CMKF, nearly-"
+                        "constant acceleration; ekf: EKF on polar measurements, CV (baseline); "
+                        "vdf: variable-dimension CV/CA (scenario C's method)")
+    p.add_argument("--imm-ct-q", type=float, default=3.0,
+                   help="IMM: turn models' noise as a multiple of --q (CV: --q m/s^2, CA: "
+                        "--q m/s^3)")
+    p.add_argument("--imm-turn", type=float, default=1.8, help="IMM turn rate, deg/s")
+    p.add_argument("--imm-sojourn", type=float, default=200.0,
+                   help="IMM mean time in one mode, s (staying probability exp(-dt/sojourn))")
+    p.add_argument("--vdf-detect", type=float, default=35.0, help="VDF detection threshold")
+    p.add_argument("--vdf-settle", type=float, default=13.0, help="VDF return threshold")
     p.add_argument("--q", type=float, default=None,
                    help="process noise std per axis: m/s^2 for cv (default 1), "
                         "m/s^3 for ca (default 0.5)")
@@ -58,9 +82,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    order, update = FILTERS[args.filter]
-    q = args.q if args.q is not None else {2: 1.0, 3: 0.5}[order]
-    table = TrackTable(TableConfig(order=order, q=q, update=update, init_speed=args.init_speed,
+    order, update, filt, q = make_filter(args)
+    table = TrackTable(TableConfig(order=order, q=q, update=update, filter=filt,
+                                   init_speed=args.init_speed,
                                    init_accel=args.init_accel, delete_after=args.delete_after))
     session = open_session(args, serve=True)
     svc = TrackService(session, Keys(args.ns), table, clock=args.clock, rate=args.rate,

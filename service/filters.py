@@ -97,7 +97,7 @@ class IMM:
         w = pi * mu[:, :, None] / np.maximum(c[:, None, :], 1e-300)  # mixing mu_{i|j}
         x0 = np.einsum("nij,nix->njx", w, mx)
         d = mx[:, :, None, :] - x0[:, None, :, :]  # (N, i, j, n)
-        p0 = np.einsum("nij,nixy->njxy", w, mp[:, :, None] + d[..., :, None] * d[..., None, :])
+        p0 = np.einsum("nij,nijxy->njxy", w, mp[:, :, None] + d[..., :, None] * d[..., None, :])
         xps, pps = [], []
         for j, (_, kind, q, omega) in enumerate(self.modes):
             f, qm = models.motion(kind, dt, self.order, bank.dim, q, omega)

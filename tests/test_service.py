@@ -25,7 +25,7 @@ def by_key(collector: Collector) -> dict[tuple[str, float], dict]:
 
 
 def test_radar3d_lockstep_accuracy_and_frames(service_factory):
-    svc, s = service_factory("--clock", "lockstep")
+    svc, s = service_factory("--clock", "lockstep", "--filter", "cv")
     tracks = Collector(s, "track/tracks/*")
     truth = Collector(s, "track/truth/*")
     frames = Collector(s, "track/frame")
