@@ -70,7 +70,9 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
     out = Collected()
     done = threading.Event()
     scans = list(scenarios.SCENARIOS[scenario](runs=runs, seed=seed))
-    t_end = scans[-1][0] + scenarios.PERIODS[scenario] - 1.5 / 30
+    rate = float(service_args[service_args.index("--rate") + 1]) \
+        if "--rate" in service_args else 30.0
+    t_end = scans[-1][0] + scenarios.PERIODS[scenario] - 1.5 / rate
 
     def on_track(s: Any) -> None:
         if s.kind == zenoh.SampleKind.PUT:
@@ -147,6 +149,7 @@ def evaluate(scenario: str, runs: int, seed: int, got: Collected) -> dict[str, A
     est = np.full((runs, len(ts), n), np.nan)
     cov = np.full((runs, len(ts), n, n), np.nan)
     nis = np.full((runs, len(ts)), np.nan)
+    manoeuvre = np.full((runs, len(ts)), np.nan)  # 1 - P(cv), or 1 when a VDF is in CA
     for i, tid in enumerate(ids):
         for k, t in enumerate(ts):
             m = got.tracks.get((tid, round(float(t), 6)))
@@ -156,6 +159,9 @@ def evaluate(scenario: str, runs: int, seed: int, got: Collected) -> dict[str, A
             est[i, k] = m["x"][:n]
             cov[i, k] = np.reshape(m["P"], (size, size))[:n, :n]
             nis[i, k] = m["nis"]
+            model = m["model"]
+            manoeuvre[i, k] = (1.0 - model.get("cv", 0.0)) if isinstance(model, dict) \
+                else float(model != "cv")
     tru = np.concatenate([truth[..., :dim], truth[..., 3:3 + dim]], -1)
     err = est - tru
     sq_pos, sq_vel = (err[..., :dim] ** 2).sum(-1), (err[..., dim:] ** 2).sum(-1)
@@ -176,7 +182,9 @@ def evaluate(scenario: str, runs: int, seed: int, got: Collected) -> dict[str, A
              "pos_peak": float(np.nanmax(np.sqrt(np.nanmean(sq_pos[:, sel], axis=0)))),
              "nees": float(np.nanmean(nees[:, sel])),
              "nees_max_scan": float(np.nanmax(np.nanmean(nees[:, sel], axis=0))),
-             "nis": float(np.nanmean(nis[:, sel]))}
+             "nis": float(np.nanmean(nis[:, sel])),
+             "manoeuvre": float(np.nanmean(manoeuvre[:, sel])),
+             "manoeuvre_detected": float(np.mean(np.nanmax(manoeuvre[:, sel], axis=1) > 0.5))}
         if bound_p is not None:
             r["pos_bound"] = float(np.sqrt(np.mean(bound_p[sel] ** 2)))
             r["vel_bound"] = float(np.sqrt(np.mean(bound_v[sel] ** 2)))
@@ -193,6 +201,7 @@ def evaluate(scenario: str, runs: int, seed: int, got: Collected) -> dict[str, A
         "per_scan": {"t": ts.tolist(),
                      "pos_rmse": np.sqrt(np.nanmean(sq_pos, axis=0)).tolist(),
                      "nees": np.nanmean(nees, axis=0).tolist(),
+                     "manoeuvre": np.nanmean(manoeuvre, axis=0).tolist(),
                      "pos_bound": None if bound_p is None else bound_p.tolist()},
         "display": display_quality(scenario, ts, truth, got, start),
     }
