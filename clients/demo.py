@@ -28,7 +28,8 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     py = sys.executable
-    service = subprocess.Popen([py, "-m", "service", "-l", endpoint, "--clock", "realtime"])
+    service = subprocess.Popen([py, "-m", "service", "-l", endpoint, "--clock", "realtime",
+                                "--blend", "1"])
     feed_args = ["--targets", str(args.targets), "--duration", str(args.duration)] \
         if args.scenario == "swarm" else ["--runs", str(args.runs)]
     feed = subprocess.Popen([py, "-m", "clients.feed", args.scenario, "--realtime",

@@ -67,6 +67,13 @@ def parser() -> argparse.ArgumentParser:
                    help="default elevation noise std, rad")
     p.add_argument("--sigma", type=float, default=1.0,
                    help="default Cartesian noise std, m")
+    p.add_argument("--blend", type=float, default=0.0, metavar="SECONDS",
+                   help="when a correction lands, converge the drawn state to it over this "
+                        "period instead of stepping (projective velocity blending; 0: plain "
+                        "prediction, the contract's lockstep semantics; default)")
+    p.add_argument("--lag", type=float, default=0.0, metavar="SECONDS",
+                   help="publish frames for now - lag, smoothed between the two filtered "
+                        "states that bracket the instant (accuracy rather than latency)")
     p.add_argument("--no-display-keys", action="store_true",
                    help="publish only the `frame` key, not per-target display/ keys")
     p.add_argument("--meas", action="append", default=[], metavar="KEYEXPR",
@@ -84,7 +91,7 @@ def main(argv: list[str] | None = None) -> None:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     order, update, filt, q = make_filter(args)
     table = TrackTable(TableConfig(order=order, q=q, update=update, filter=filt,
-                                   init_speed=args.init_speed,
+                                   init_speed=args.init_speed, blend=args.blend, lag=args.lag,
                                    init_accel=args.init_accel, delete_after=args.delete_after))
     session = open_session(args, serve=True)
     svc = TrackService(session, Keys(args.ns), table, clock=args.clock, rate=args.rate,

@@ -194,14 +194,14 @@ class TrackService:
         return pubs
 
     def _frames_before(self, t: float, pending: list[Measurement]) -> None:
-        due = self.clock.due_before(t)
+        due = self.clock.due_before(t - self.table.config.lag)
         if due:
             self._flush(pending)
             for instant in due:
                 self._publish_frame(instant)
 
     def _tick(self) -> None:
-        instant = self.clock.due(time.time())
+        instant = self.clock.due(time.time() - self.table.config.lag)
         if instant is not None:
             self.count.frames_missed = self.clock.missed
             self._publish_frame(instant)
@@ -221,7 +221,7 @@ class TrackService:
             for i, track_id in enumerate(snap.ids):
                 self._publishers(track_id)[0].put(pack({
                     "t": t, "id": track_id, "pos": pos[i], "vel": vel[i], "sigma": sig[i],
-                    "status": snap.status[i], "age": age[i]}))
+                    "status": snap.status[i], "age": age[i], "shown": snap.shown[i]}))
         self.count.frames_published += 1
 
     def _finite(self, snap: Snapshot) -> Snapshot:
@@ -233,7 +233,8 @@ class TrackService:
         self.count.states_withheld += int((~ok).sum())
         keep = np.flatnonzero(ok)
         return Snapshot(snap.t, [snap.ids[i] for i in keep], snap.pos[keep], snap.vel[keep],
-                        snap.sigma[keep], snap.age[keep], [snap.status[i] for i in keep])
+                        snap.sigma[keep], snap.age[keep], [snap.status[i] for i in keep],
+                        [snap.shown[i] for i in keep])
 
     def _delete(self, ids: list[str]) -> None:
         if not ids:

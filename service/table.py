@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from . import convert, filters, models
+from . import convert, display, filters
 from .validate import Measurement
 
 TIME_TOL = 1e-6  # s: measurements this close to the track time count as simultaneous
@@ -28,6 +28,8 @@ class TableConfig:
     q: float = 1.0  # process noise std: m/s^2 (CV) or m/s^3 (CA), per axis
     init_speed: float = 1000.0  # prior std of velocity at initiation, m/s
     init_accel: float = 10.0  # prior std of acceleration at initiation (CA), m/s^2
+    blend: float = 0.0  # s: converge to a correction over this period (0: plain prediction)
+    lag: float = 0.0  # s: display instants lag the clock; shown smoothed when bracketed
     coast_after: float = 2.5  # coasting when age > coast_after x the track's scan interval
     delete_after: float = 30.0  # s of simulation time without a measurement
 
@@ -43,6 +45,7 @@ class Snapshot:
     sigma: np.ndarray  # (N,)
     age: np.ndarray  # (N,)
     status: list[str]
+    shown: list[str]  # per track: "prediction", "blend" or "smoothed"
 
 
 @dataclass
@@ -64,7 +67,11 @@ class Bank:
         codes = {"": (), "n": (n,), "nn": (n, n), "d": (dim,), "dd": (dim, dim)}
         self.shapes: dict[str, tuple[int, ...]] = {
             "x": (n,), "p": (n, n), "t": (), "t_first": (), "nis": (), "updates": (),
-            "alive": ()}
+            "alive": (),
+            # the state drawn when the last correction landed (display blending)
+            "bp": (dim,), "bv": (dim,), "bt": (),
+            # the previous filtered state (display smoothing)
+            "px": (n,), "pp": (n, n), "pt": ()}
         for name, (code, modes) in (extra or {}).items():
             self.shapes[name] = ((modes,) if modes else ()) + codes[code]
         self.ids: list[str | None] = []
@@ -232,7 +239,9 @@ class TrackTable:
             bank.x[row, :dim] = zi
             bank.p[row] = np.diag(np.repeat([0.0, *prior], dim))
             bank.p[row, :dim, :dim] = ri
-            bank.t[row] = bank.t_first[row] = m.t
+            bank.t[row] = bank.t_first[row] = bank.bt[row] = bank.pt[row] = m.t
+            bank.bp[row], bank.bv[row] = zi, 0.0
+            bank.px[row], bank.pp[row] = bank.x[row], bank.p[row]
             bank.updates[row] = 1
             bank.nis[row] = 0.0
         self.filter.initiate(bank, np.array(rows, dtype=int))
@@ -251,6 +260,11 @@ class TrackTable:
 
         xn, pn, nis, ok = self.filter.update(bank, rows, t - bank.t[rows], conversion)
         good = rows[ok]
+        if c.blend > 0:  # anchor the blend at what was drawn when the correction lands
+            shown = self._drawn(bank, good, t[ok])
+            bank.bp[good], bank.bv[good] = shown[0], shown[1]
+            bank.bt[good] = t[ok]
+        bank.px[good], bank.pp[good], bank.pt[good] = bank.x[good], bank.p[good], bank.t[good]
         bank.x[good], bank.p[good], bank.nis[good] = xn[ok], pn[ok], nis[ok]
         bank.t[good] = t[ok]
         bank.updates[good] += 1
@@ -258,44 +272,56 @@ class TrackTable:
                 for k, v in zip(ok, nis, strict=True)]
 
     # ------------------------------------------------------------ display
+    def _drawn(self, bank: Bank, rows: np.ndarray, t: np.ndarray | float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+        """Position, velocity, position variance and kind of what the display shows."""
+        c = self.config
+        xs, var = display.predicted(bank, rows, t, c.q)
+        pos, vel = xs[:, 0], xs[:, 1]
+        shown = np.full(len(rows), "prediction", dtype=object)
+        if c.blend > 0:
+            bpos, bvel, mask = display.blended(bank, rows, t, xs, c.blend)
+            pos, vel = np.where(mask[:, None], bpos, pos), np.where(mask[:, None], bvel, vel)
+            shown[mask] = "blend"
+        if c.lag > 0 and np.ndim(t) == 0:
+            spos, svel, mask = display.smoothed(bank, rows, float(t), c.q)
+            pos, vel = np.where(mask[:, None], spos, pos), np.where(mask[:, None], svel, vel)
+            shown[mask] = "smoothed"
+        return pos, vel, var, shown.tolist()
+
     def snapshot(self, t: float) -> Snapshot:
-        """Predict every track to instant t (no change to the table): position,
-        velocity, sigma = sqrt(trace of the predicted position covariance)."""
+        """Every track as the display shows it at instant t (no change to the table):
+        position, velocity, sigma = sqrt(trace of the predicted position covariance)."""
         ids: list[str] = []
         parts: list[tuple[np.ndarray, ...]] = []
         status: list[str] = []
+        shown: list[str] = []
         c = self.config
         for bank in self.banks.values():
             rows = bank.rows()
             if not len(rows):
                 continue
-            d, o = bank.dim, bank.order
-            dt = t - bank.t[rows]
-            phi = models.axis_transition(dt, o)  # (N, o, o)
-            xs = np.einsum("nij,njd->nid", phi, bank.x[rows].reshape(-1, o, d))
-            blocks = bank.p[rows].reshape(-1, o, d, o, d)
-            tr = np.einsum("naibi->nab", blocks)
-            c0 = phi[:, 0, :]
-            g0 = models.axis_noise_gain(np.abs(dt), o)[:, 0]
-            var = np.einsum("na,nab,nb->n", c0, tr, c0) + d * (c.q * g0) ** 2
+            d = bank.dim
+            p, v, var, kinds = self._drawn(bank, rows, t)
             pos = np.zeros((len(rows), 3))
             vel = np.zeros((len(rows), 3))
-            pos[:, :d], vel[:, :d] = xs[:, 0], xs[:, 1]
+            pos[:, :d], vel[:, :d] = p, v
             age = np.maximum(t - bank.t[rows], 0.0)
             interval = np.where(bank.updates[rows] > 1,
                                 (bank.t[rows] - bank.t_first[rows])
                                 / np.maximum(bank.updates[rows] - 1, 1), np.inf)
             coasting = age > c.coast_after * interval
-            confirmed = bank.updates[rows] >= o
+            confirmed = bank.updates[rows] >= bank.order
             status += ["coasting" if k else "confirmed" if f else "tentative"
                        for k, f in zip(coasting, confirmed, strict=True)]
+            shown += kinds
             ids += [bank.ids[i] for i in rows]  # type: ignore[misc]
             parts.append((pos, vel, np.sqrt(np.maximum(var, 0.0)), age))
         if not parts:
             e = np.zeros((0, 3))
-            return Snapshot(t, [], e, e.copy(), np.zeros(0), np.zeros(0), [])
+            return Snapshot(t, [], e, e.copy(), np.zeros(0), np.zeros(0), [], [])
         pos, vel, sig, age = (np.concatenate(p) for p in zip(*parts, strict=True))
-        return Snapshot(t, ids, pos, vel, sig, age, status)
+        return Snapshot(t, ids, pos, vel, sig, age, status, shown)
 
     # ------------------------------------------------------------ queries / delete
     def state(self, track_id: str) -> dict:

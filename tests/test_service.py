@@ -102,7 +102,7 @@ def test_status_query_errors_and_recovery(service_factory):
     assert st["tracks"] == 1 and st["meas_accepted"] == 6 and st["meas_rejected"] == 4
     assert st["frames_published"] == 5 * 30  # instants before t = 5
     got = [unpack(r.ok.payload.to_bytes()) for r in s.get("track/tracks/**", timeout=10)]
-    assert [g["id"] for g in got] == ["tgt"] and len(got[0]["P"]) == 36
+    assert [g["id"] for g in got] == ["tgt"] and len(got[0]["P"]) == len(got[0]["x"]) ** 2
 
 
 def test_stale_track_deleted(service_factory):
