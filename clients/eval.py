@@ -28,6 +28,7 @@ import zenoh
 from service.wire import Keys, decode_frame, unpack, wait_for_tracker
 
 from . import feed, metrics, scenarios
+from .intercept import Interceptors, Law, summary_line
 
 START = {"display": 3.0, "radar3d": 20.0, "maneuver": 20.0}  # s: after initiation
 # service options per scenario: scenario C's target has no process noise, only two
@@ -39,6 +40,7 @@ SERVICE_ARGS = {"display": [], "radar3d": [], "maneuver": ["--q", "0.003"]}
 class Collected:
     tracks: dict[tuple[str, float], dict] = field(default_factory=dict)
     frames: list[tuple[float, list[dict]]] = field(default_factory=list)
+    interception: dict[str, dict] = field(default_factory=dict)  # guidance -> summary
 
 
 def free_endpoint() -> str:
@@ -57,9 +59,11 @@ def client_config(endpoint: str) -> zenoh.Config:
 
 
 def run_through_service(scenario: str, runs: int, seed: int, service_args: list[str],
-                        endpoint: str | None = None, ns: str | None = None) -> Collected:
+                        endpoint: str | None = None, ns: str | None = None,
+                        intercept: list[str] | None = None) -> Collected:
     """Start a lockstep service (unless `endpoint` names a running one), publish the
-    scenario to it and collect what it publishes."""
+    scenario to it and collect what it publishes; with `intercept` (guidance laws), fly
+    one interceptor per target and law on the display keys, in lockstep."""
     ns = ns or f"eval{uuid.uuid4().hex[:8]}"
     proc = None
     if endpoint is None:
@@ -93,9 +97,16 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
                 session.declare_subscriber(keys.frame, on_frame)]
         if not wait_for_tracker(session, keys, 1, timeout=30):
             raise SystemExit(f"track-eval: no tracker on {endpoint} ns={ns}")
+        flights = [Interceptors(Law(guidance=g), name=f"interceptor-{g}").attach(
+            session, keys, like=f"{scenario}-", truth=True, publish=False)
+            for g in intercept or []]
         args = feed.parser().parse_args([scenario, "--runs", str(runs), "--seed", str(seed),
-                                         "--ns", ns])
+                                         "--ns", ns, *(["--truth"] if flights else [])])
         feed.publish(session, args)
+        for g, ic in zip(intercept or [], flights, strict=True):
+            ic.wait(timeout=600)
+            out.interception[g] = ic.summary()
+            ic.detach()
         if not done.wait(600):
             raise SystemExit("track-eval: the service did not publish the last frame")
         deadline = time.monotonic() + 30
@@ -346,18 +357,23 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("-e", "--connect", default=None,
                    help="use a running lockstep service at this endpoint instead")
     p.add_argument("--ns", default=None, help="namespace of that running service")
+    p.add_argument("--intercept", action="append", default=[],
+                   choices=("pure", "pn", "intercept"),
+                   help="also fly interceptors with this guidance (repeatable; scenario C)")
     p.add_argument("--json", action="store_true", help="print the reports as JSON")
     p.add_argument("--plot", metavar="DIR", help="write PNG figures here")
     args = p.parse_args(argv)
     filters = args.filter or (["ca"] if args.scenario == "display" else ["cv"])
     reports, collected = {}, {}
     for name in filters:
+        display_keys = [] if args.intercept else ["--no-display-keys"]
         got = run_through_service(args.scenario, args.runs, args.seed,
-                                  ["--filter", name, "--no-display-keys",
+                                  ["--filter", name, *display_keys,
                                    *SERVICE_ARGS[args.scenario], *args.service_arg],
-                                  args.connect, args.ns)
+                                  args.connect, args.ns, args.intercept)
         collected[name] = got
         reports[name] = evaluate(args.scenario, args.runs, args.seed, got)
+        reports[name]["interception"] = got.interception
     if args.json:
         print(json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "per_scan"}
                           for k, v in reports.items()}, indent=1))
@@ -365,6 +381,9 @@ def main(argv: list[str] | None = None) -> None:
         print("\n\n".join(table(r, k) for k, r in reports.items()))
         if len(reports) > 1:
             print("\n" + comparison(reports))
+        for name, r in reports.items():
+            for g, summ in r["interception"].items():
+                print(f"interception, filter {name}, guidance {g}: {summary_line(summ)}")
     if args.plot:
         plot(reports, collected, args.plot)
 
