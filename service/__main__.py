@@ -68,8 +68,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--sigma", type=float, default=1.0,
                    help="default Cartesian noise std, m")
     p.add_argument("--blend", type=float, default=0.0, metavar="SECONDS",
-                   help="when a correction lands, converge the drawn state to it over this "
-                        "period instead of stepping (projective velocity blending; 0: plain "
+                   help="when a correction lands, absorb it into the drawn position over "
+                        "this period instead of stepping (0: plain "
                         "prediction, the contract's lockstep semantics; default)")
     p.add_argument("--lag", type=float, default=0.0, metavar="SECONDS",
                    help="publish frames for now - lag, smoothed between the two filtered "

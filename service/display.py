@@ -1,9 +1,8 @@
 """What the display shows between updates: prediction, blended correction, or smoothing.
 
 Pure NumPy over rows of a track bank. `predicted` dead-reckons the filtered state to the
-display instant. `blended` keeps the drawn position continuous when a correction lands
-(projective velocity blending, C. Murphy, "Believable Dead Reckoning for Networked
-Games", Game Engine Gems 2, 2011). `smoothed` serves a lagged display: the fixed-interval
+display instant. `blended` keeps the drawn position continuous when a correction lands,
+absorbing it over a set period. `smoothed` serves a lagged display: the fixed-interval
 (Rauch-Tung-Striebel) smoother between the two filtered states that bracket the instant.
 """
 
@@ -32,23 +31,22 @@ def predicted(bank: Any, rows: np.ndarray, t: np.ndarray | float, q: float
 
 def blended(bank: Any, rows: np.ndarray, t: np.ndarray | float, xs: np.ndarray,
             period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Position and velocity drawn at t while converging, over `period` seconds, from
-    the state drawn when the last correction landed (anchor bp, bv at time bt) to the
-    new estimate's prediction xs. Returns pos, vel (N, dim) and a mask of rows still
-    blending."""
+    """Position drawn at t while a correction is absorbed: the new estimate's prediction
+    xs minus the correction (new position - drawn position bp, both at the correction
+    time bt) decaying linearly to zero over `period`. Returns pos, vel (N, dim) and a mask
+    of rows still blending.
+
+    The drawn position is continuous and moves at most correction/(period x rate) beyond
+    the estimate per frame. Linear decay is the fastest that keeps each frame's step under
+    that bound. Unlike projective velocity blending (Murphy, Game Engine Gems 2, 2011),
+    which also blends the velocity, the new velocity is taken at once, so the old
+    trajectory's velocity error stops counting straight away: 10-15 % less frame error
+    for the same largest step on scenario A (docs/accuracy.md)."""
     tau = np.broadcast_to(np.asarray(t - bank.bt[rows], dtype=float), rows.shape)
     s = np.clip(tau / period, 0.0, 1.0)
-    s = np.where(bank.updates[rows] > 1, s, 1.0)[:, None]
-    acc = xs[:, 2] if bank.order > 2 else 0.0
-    d = bank.dim
-    v_new0 = bank.x[rows, d:2 * d]  # new velocity at the correction instant
-    vb = bank.bv[rows] + (v_new0 - bank.bv[rows]) * s
-    tt = tau[:, None]
-    p_old = bank.bp[rows] + vb * tt + 0.5 * acc * tt**2
-    pos = p_old + (xs[:, 0] - p_old) * s
-    vel = vb + acc * tt
-    vel = vel + (xs[:, 1] - vel) * s
-    return pos, vel, s[:, 0] < 1.0
+    s = np.where(bank.updates[rows] > 1, s, 1.0)
+    offset = bank.bp[rows] - bank.x[rows, :bank.dim]  # drawn - estimate at the correction
+    return xs[:, 0] + offset * (1.0 - s)[:, None], xs[:, 1], s < 1.0
 
 
 def smoothed(bank: Any, rows: np.ndarray, t: float, q: float

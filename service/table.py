@@ -69,7 +69,7 @@ class Bank:
             "x": (n,), "p": (n, n), "t": (), "t_first": (), "nis": (), "updates": (),
             "alive": (),
             # the state drawn when the last correction landed (display blending)
-            "bp": (dim,), "bv": (dim,), "bt": (),
+            "bp": (dim,), "bt": (),
             # the previous filtered state (display smoothing)
             "px": (n,), "pp": (n, n), "pt": ()}
         for name, (code, modes) in (extra or {}).items():
@@ -240,7 +240,7 @@ class TrackTable:
             bank.p[row] = np.diag(np.repeat([0.0, *prior], dim))
             bank.p[row, :dim, :dim] = ri
             bank.t[row] = bank.t_first[row] = bank.bt[row] = bank.pt[row] = m.t
-            bank.bp[row], bank.bv[row] = zi, 0.0
+            bank.bp[row] = zi
             bank.px[row], bank.pp[row] = bank.x[row], bank.p[row]
             bank.updates[row] = 1
             bank.nis[row] = 0.0
@@ -262,7 +262,7 @@ class TrackTable:
         good = rows[ok]
         if c.blend > 0:  # anchor the blend at what was drawn when the correction lands
             shown = self._drawn(bank, good, t[ok])
-            bank.bp[good], bank.bv[good] = shown[0], shown[1]
+            bank.bp[good] = shown[0]
             bank.bt[good] = t[ok]
         bank.px[good], bank.pp[good], bank.pt[good] = bank.x[good], bank.p[good], bank.t[good]
         bank.x[good], bank.p[good], bank.nis[good] = xn[ok], pn[ok], nis[ok]

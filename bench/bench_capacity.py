@@ -1,0 +1,632 @@
+"""Capacity benchmark: the real service over Zenoh, in real time, on loopback.
+
+    python bench/bench_capacity.py [--sizes 1000 5000 10000] [--modes frame display]
+                                   [--duration 30] [--warmup 6]
+    python bench/bench_capacity.py --minutes 10 --memory-targets 2000   # memory flatness
+
+For each N and each display mode this starts, as separate processes on 127.0.0.1 (free
+port, multicast scouting off):
+
+    python -m service --clock realtime --filter cv -l tcp/127.0.0.1:PORT [--no-display-keys]
+    python -m clients.feed swarm --targets N --realtime --duration D -e tcp/127.0.0.1:PORT
+
+(N targets, one radar measurement each per second, sent as one burst per scan) and
+observes them from this process's own Zenoh session:
+
+- input: `<ns>/status` queried once a second, half-way between two scans (all of a
+  scan's measurements have arrived by then if the service keeps up): measurements
+  accepted per second over the steady window (after --warmup s), the inbox `queue` depth,
+  frames_published / frames_missed. The offered rate is measured too, from the arrivals
+  of the sampled measurement keys at this process (the feed can fall behind its pace).
+- frames: a subscriber of `<ns>/frame` reads only the head of each message (t and the
+  number of ids): inter-arrival jitter, the fraction of display instants n/30 that never
+  arrived (missed by the service or dropped by Zenoh, congestion control DROP), and the
+  lateness of each frame against its display instant (instant - offset, the offset
+  estimated as the service does: max(t - arrival) of the measurements seen here).
+- latency: `<ns>/tracks/<id>` and `<ns>/meas/*/<id>` of a sample of the targets (ids
+  ending in fixed digits, `swarm-$*0`, so the sample is spread over each burst; at most
+  --sample targets) are subscribed here; each tracks/ message is paired with the
+  measurement of the same (id, t) and latency = arrival of the track - arrival of the
+  measurement, both stamped by this process's clock on Zenoh's receive thread. That is
+  the service's own latency (queueing, batch step, publication) plus one loopback hop,
+  independent of the feed's pacing.
+- display/ keys (mode `display`): `<ns>/display/**` is subscribed with a ring channel
+  of one (Zenoh delivers every message to this process, which drops them in Rust), and
+  a Python subscriber of --display-sample targets counts the display instants received
+  per target.
+- resources of the service process from /proc: CPU (user + sys, all threads, % of one
+  core), CPU of its hottest Python thread (the worker), RSS (VmRSS); and the whole
+  machine's busy fraction (/proc/stat), since the feed, this process and anything else
+  running share the same cores.
+
+A run is "sustained" when accepted >= 99 % of offered, status frames_missed <= 1 % of
+the display instants and the inbox does not keep a backlog of a whole scan. Otherwise the
+table says which limit was hit.
+
+--minutes M runs one long run (N = --memory-targets, frame only unless --memory-mode
+display), samples RSS every 10 s and reports its growth after --memory-warmup s.
+Everything runs on 127.0.0.1; every process started is terminated (then killed) on the
+way out, and each run is bounded by its duration plus fixed timeouts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import platform
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+import zenoh
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # run from a checkout
+
+from service.wire import Keys, unpack, wait_for_tracker  # noqa: E402
+
+CLK = os.sysconf("SC_CLK_TCK")
+RATE = 30.0
+
+
+# ---------------------------------------------------------------- /proc
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stat_fields(path: str) -> list[str]:
+    with open(path) as f:
+        text = f.read()
+    return text[text.rindex(")") + 2:].split()  # fields from `state` on (comm may hold spaces)
+
+
+def cpu_seconds(pid: int) -> float:
+    f = _stat_fields(f"/proc/{pid}/stat")
+    return (int(f[11]) + int(f[12])) / CLK  # utime + stime, all threads
+
+
+def thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
+    out = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{tid}/comm") as f:
+                comm = f.read().strip()
+            fl = _stat_fields(f"/proc/{pid}/task/{tid}/stat")
+            out[int(tid)] = (comm, (int(fl[11]) + int(fl[12])) / CLK)
+        except (FileNotFoundError, ProcessLookupError):
+            pass
+    return out
+
+
+def rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def machine_jiffies() -> tuple[int, int]:
+    """(busy, total) jiffies of all CPUs."""
+    with open("/proc/stat") as f:
+        v = [int(x) for x in f.readline().split()[1:]]
+    idle = v[3] + v[4]
+    total = sum(v[:8])
+    return total - idle, total
+
+
+# ---------------------------------------------------------------- helpers
+def head(payload: bytes) -> tuple[float, int]:
+    """t (and the length of the second field if it is an array) from the head of a map
+    whose first key is "t": frame, tracks/, meas/ and display/ messages all start so."""
+    up = msgpack.Unpacker(raw=False)
+    up.feed(payload[:96])
+    up.read_map_header()
+    up.skip()
+    t = up.unpack()
+    n = -1
+    try:
+        up.skip()
+        n = up.read_array_header()
+    except Exception:  # not an array (tracks/, meas/): no count
+        pass
+    return float(t), n
+
+
+def pct(a: np.ndarray | list, q: float) -> float:
+    a = np.asarray(a, float)
+    return float(np.percentile(a, q)) if a.size else float("nan")
+
+
+def stop(proc: subprocess.Popen | None, timeout: float = 10.0) -> None:
+    """Terminate, wait, then kill."""
+    if proc is None or proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=timeout)
+
+
+def sample_suffix(n: int, sample: int) -> tuple[str, int]:
+    """Id pattern of a sample of at most `sample` of the ids swarm-00000 ... swarm-<n-1>,
+    by fixed last digits (spread over the burst), and its size."""
+    for digits in range(0, 6):
+        size = len([i for i in range(n) if i % 10**digits == 0])
+        if size <= sample:
+            return ("*" if digits == 0 else "swarm-$*" + "0" * digits), size
+    return "swarm-00000", 1
+
+
+def session_open(endpoint: str) -> zenoh.Session:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    return zenoh.open(conf)
+
+
+def direct(fn: Any) -> zenoh.handlers.Callback:
+    # run on Zenoh's receive thread: arrival stamps are not delayed by a handler thread
+    return zenoh.handlers.Callback(fn, indirect=False)
+
+
+# ---------------------------------------------------------------- one run
+class Observer:
+    """Subscribers and samplers of one run; everything stamped with time.time()."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, pattern: str, display: bool,
+                 display_pattern: str) -> None:
+        self.keys = keys
+        self.frames: list[tuple[float, float, int]] = []  # (arrival, t, ids)
+        self.meas: list[tuple[str, float, float]] = []  # (id, t, arrival)
+        self.tracks: list[tuple[str, float, float]] = []
+        self.disp: list[tuple[str, float, float]] = []
+        self.subs = [
+            session.declare_subscriber(keys.frame, direct(self._on_frame)),
+            session.declare_subscriber(keys.tracks(pattern), direct(self._on(self.tracks))),
+            session.declare_subscriber(keys.meas("*", pattern), direct(self._on(self.meas))),
+        ]
+        if display:
+            # every display/ message delivered to this process, dropped in Rust
+            self.subs.append(session.declare_subscriber(keys.display("*"),
+                                                        zenoh.handlers.RingChannel(1)))
+            self.subs.append(session.declare_subscriber(keys.display(display_pattern),
+                                                        direct(self._on(self.disp))))
+
+    def _on_frame(self, s: Any) -> None:
+        now = time.time()
+        if s.kind != zenoh.SampleKind.PUT:
+            return
+        t, n = head(s.payload.to_bytes())
+        self.frames.append((now, t, n))
+
+    def _on(self, out: list) -> Any:
+        def cb(s: Any) -> None:
+            now = time.time()
+            if s.kind != zenoh.SampleKind.PUT:
+                return
+            key = str(s.key_expr)
+            out.append((key[key.rindex("/") + 1:], head(s.payload.to_bytes())[0], now))
+        return cb
+
+    def close(self) -> None:
+        for s in self.subs:
+            try:
+                s.undeclare()
+            except Exception:
+                pass
+
+
+class Sampler(threading.Thread):
+    """Every `period` s: service CPU / RSS / threads, machine busy, feed CPU."""
+
+    def __init__(self, pid: int, period: float = 1.0) -> None:
+        super().__init__(daemon=True)
+        self.pid, self.period = pid, period
+        self.feed_pid: int | None = None
+        self.rows: list[dict[str, Any]] = []
+        self.halt = threading.Event()
+
+    def run(self) -> None:
+        nxt = time.time()
+        while not self.halt.is_set():
+            try:
+                busy, total = machine_jiffies()
+                row = {"wall": time.time(), "cpu": cpu_seconds(self.pid),
+                       "rss": rss_mb(self.pid), "threads": thread_cpu(self.pid),
+                       "busy": busy, "total": total, "feed_cpu": None}
+                if self.feed_pid:
+                    try:
+                        row["feed_cpu"] = cpu_seconds(self.feed_pid)
+                    except (FileNotFoundError, ProcessLookupError):
+                        pass
+                self.rows.append(row)
+            except (FileNotFoundError, ProcessLookupError):
+                return
+            nxt += self.period
+            self.halt.wait(max(0.0, nxt - time.time()))
+
+
+class StatusPoller(threading.Thread):
+    """Queries <ns>/status once a second at phase `phase` of the scan period, once the
+    scan clock (wall time of scan 0 at this process) is known."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, scan0: Any, phase: float = 0.5):
+        super().__init__(daemon=True)
+        self.session, self.keys, self.scan0, self.phase = session, keys, scan0, phase
+        self.rows: list[tuple[float, float, dict | None]] = []  # (asked, answered, status)
+        self.halt = threading.Event()
+
+    def ask(self, timeout: float = 2.0) -> tuple[float, float, dict | None]:
+        asked = time.time()
+        body = None
+        try:
+            for r in self.session.get(self.keys.status, timeout=timeout):
+                if r.ok is not None:
+                    body = unpack(r.ok.payload.to_bytes())
+        except Exception:
+            body = None
+        return asked, time.time(), body
+
+    def run(self) -> None:
+        while not self.halt.is_set():
+            w0 = self.scan0()
+            now = time.time()
+            if w0 is None:
+                nxt = now + 0.2
+            else:
+                k = math.floor(now - w0 - self.phase) + 1
+                nxt = w0 + k + self.phase
+            if self.halt.wait(max(0.0, nxt - time.time())):
+                return
+            self.rows.append(self.ask())
+
+
+def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
+            warmup: float, log: Any) -> dict[str, Any]:
+    ns = f"cap{uuid.uuid4().hex[:8]}"
+    keys = Keys(ns)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    pattern, n_sample = sample_suffix(n, args.sample)
+    dpattern, _ = sample_suffix(n, args.display_sample)
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    svc_cmd = [sys.executable, "-m", "service", "--clock", "realtime", "--filter", args.filter,
+               "-l", endpoint, "--ns", ns] + ([] if display else ["--no-display-keys"])
+    feed_cmd = [sys.executable, "-m", "clients.feed", "swarm", "--targets", str(n),
+                "--realtime", "--duration", str(duration), "-e", endpoint, "--ns", ns]
+    svc = feed = session = obs = sampler = poller = None
+    svc_log = tempfile.TemporaryFile(mode="w+")
+    feed_log = tempfile.TemporaryFile(mode="w+")
+    res: dict[str, Any] = {"n": n, "mode": "display" if display else "frame",
+                           "duration": duration, "sample": n_sample, "pattern": pattern,
+                           "cmd_service": " ".join(svc_cmd[1:]), "cmd_feed": " ".join(feed_cmd[1:])}
+    try:
+        svc = subprocess.Popen(svc_cmd, cwd=ROOT, env=env, stdout=svc_log, stderr=svc_log)
+        session = session_open(endpoint)
+        if not wait_for_tracker(session, keys, 1, timeout=30):
+            raise RuntimeError("service did not come up")
+        obs = Observer(session, keys, pattern, display, dpattern)
+        sampler = Sampler(svc.pid, args.proc_period)
+        sampler.start()
+
+        def scan0() -> float | None:
+            m = obs.meas
+            if not m:
+                return None
+            return min(a - t for _, t, a in m[:200])  # wall of scan 0 at this process
+
+        poller = StatusPoller(session, keys, scan0)
+        poller.start()
+        time.sleep(1.0)
+        feed = subprocess.Popen(feed_cmd, cwd=ROOT, env=env, stdout=feed_log, stderr=feed_log)
+        sampler.feed_pid = feed.pid
+        try:
+            feed.wait(timeout=duration + args.feed_timeout)
+        except subprocess.TimeoutExpired:
+            res["feed_timeout"] = True
+            stop(feed)
+        feed_end = time.time()
+        time.sleep(args.tail)  # let the service drain what it has queued
+        res["final_status"] = poller.ask(timeout=10)[2]
+        poller.halt.set()
+        sampler.halt.set()
+        poller.join(timeout=15)
+        sampler.join(timeout=5)
+        feed_log.seek(0)
+        res["feed_out"] = feed_log.read().strip()[-500:]
+        res.update(analyse(n, display, obs, sampler, poller, duration, feed_end, warmup,
+                           n_sample))
+    finally:
+        if obs is not None:
+            obs.close()
+        if poller is not None:
+            poller.halt.set()
+        if sampler is not None:
+            sampler.halt.set()
+        stop(feed)
+        stop(svc)
+        if session is not None:
+            session.close()
+        if svc is not None and svc.returncode not in (0, -15, None):
+            svc_log.seek(0)
+            log(f"# service exited {svc.returncode}: {svc_log.read()[-2000:]}")
+        svc_log.close()
+        feed_log.close()
+    return res
+
+
+# ---------------------------------------------------------------- analysis
+def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: StatusPoller,
+            duration: float, feed_end: float, warmup: float, n_sample: int) -> dict[str, Any]:
+    r: dict[str, Any] = {}
+    meas, tracks, frames = list(obs.meas), list(obs.tracks), list(obs.frames)
+    if not meas:
+        r["error"] = "no measurement seen"
+        return r
+    wall0 = min(a - t for _, t, a in meas)  # scan 0 left the feed no earlier than this
+    offset = max(t - a for _, t, a in meas)  # the service's estimate, from this process
+    # the steady window, aligned half-way between scans: scans ceil(warmup) + 1 ... D - 1
+    # (the feed's closing clock message, one scan after the last, is left outside: it
+    # moves the service's realtime offset by up to one second)
+    lo = wall0 + math.ceil(warmup) + 0.5
+    hi = min(wall0 + round(duration) - 0.5, feed_end)
+    r["window"] = hi - lo
+    if hi - lo < 2:
+        r["error"] = "window too short (duration - warmup)"
+        return r
+
+    # offered rate (sampled measurement arrivals, scaled) and the feed's pacing
+    m_in = [(t, a) for _, t, a in meas if lo <= a < hi]
+    r["offered"] = len(m_in) / (hi - lo) * n / n_sample if m_in else float("nan")
+    r["feed_lag_p99"] = pct([a - (wall0 + t) for t, a in m_in], 99)
+
+    # status: accepted per second between the first and last answer in the window
+    inside = [(asked, ans, s) for asked, ans, s in poller.rows
+              if lo - 0.2 <= asked <= hi + 0.2]
+    st = [x for x in inside if x[2] is not None]
+    r["status_timeouts"] = len(inside) - len(st)
+    if len(st) >= 2:
+        (a0, _, s0), (a1, _, s1) = st[0], st[-1]
+        dt = a1 - a0
+        r["accepted"] = (s1["meas_accepted"] - s0["meas_accepted"]) / dt
+        r["frames_pub"] = (s1["frames_published"] - s0["frames_published"]) / dt
+        r["frames_missed"] = s1["frames_missed"] - s0["frames_missed"]
+        r["frames_missed_frac"] = r["frames_missed"] / (dt * RATE)
+        q = [s["queue"] for _, _, s in st]
+        r["queue_max"], r["queue_last"] = max(q), q[-1]
+        r["status_delay_p99"] = pct([b - a for a, b, _ in st], 99)
+
+    # frames at the subscriber
+    fr = [(a, t, k) for a, t, k in frames if lo <= a < hi]
+    if len(fr) >= 2:
+        arr = np.array([a for a, _, _ in fr])
+        ts = np.array([t for _, t, _ in fr])
+        nn = np.rint(ts * RATE).astype(int)
+        span = nn.max() - nn.min() + 1
+        r["frames_recv"] = len(fr) / (hi - lo)
+        r["frames_skipped_frac"] = 1 - len(np.unique(nn)) / span
+        d = np.diff(arr)
+        r["jitter_std_ms"] = float(np.std(d) * 1e3)
+        r["interarrival_p99_ms"] = pct(d * 1e3, 99)
+        r["interarrival_max_ms"] = float(d.max() * 1e3)
+        late = arr - (ts - offset)
+        r["frame_late_p50_ms"] = pct(late * 1e3, 50)
+        r["frame_late_p99_ms"] = pct(late * 1e3, 99)
+        r["frames_late_frac"] = float(np.mean(late > 1 / RATE))
+        r["frame_ids"] = int(np.median([k for _, _, k in fr]))
+
+    # latency: tracks/ arrival - meas/ arrival of the same (id, t)
+    sent = {(i, round(t, 6)): a for i, t, a in meas}
+    lat, seen = [], set()
+    for i, t, a in tracks:
+        key = (i, round(t, 6))
+        m = sent.get(key)
+        if m is not None and lo <= m < hi and key not in seen:
+            seen.add(key)
+            lat.append(a - m)
+    n_meas_win = sum(1 for _, _, a in meas if lo <= a < hi)
+    r["lat_n"] = len(lat)
+    r["lat_unpaired_frac"] = 1 - len(lat) / n_meas_win if n_meas_win else float("nan")
+    r["lat_p50_ms"] = pct(np.array(lat) * 1e3, 50)
+    r["lat_p99_ms"] = pct(np.array(lat) * 1e3, 99)
+    r["lat_max_ms"] = float(max(lat) * 1e3) if lat else float("nan")
+
+    # display/ keys at the sampled subscriber
+    if display:
+        dd = [(i, t) for i, t, a in obs.disp if lo <= a < hi]
+        ids = {i for i, _ in dd}
+        if ids:
+            per = len(dd) / len(ids) / (hi - lo)
+            r["display_rate"] = per  # display messages per second per target
+            r["display_skipped_frac"] = max(0.0, 1 - per / RATE)
+
+    # resources over the window
+    rows = [x for x in sampler.rows if lo <= x["wall"] < hi]
+    if len(rows) >= 2:
+        a, b = rows[0], rows[-1]
+        dt = b["wall"] - a["wall"]
+        r["cpu_pct"] = (b["cpu"] - a["cpu"]) / dt * 100
+        per_s = [(y["cpu"] - x["cpu"]) / (y["wall"] - x["wall"]) * 100
+                 for x, y in zip(rows, rows[1:])]
+        r["cpu_pct_max1s"] = max(per_s)
+        comm0 = a["threads"].get(sampler.pid, ("python", 0))[0]
+        worker = 0.0
+        for tid, (comm, c1) in b["threads"].items():
+            if tid == sampler.pid or comm != comm0 or tid not in a["threads"]:
+                continue
+            worker = max(worker, (c1 - a["threads"][tid][1]) / dt * 100)
+        r["worker_cpu_pct"] = worker
+        r["machine_busy_pct"] = (b["busy"] - a["busy"]) / max(1, b["total"] - a["total"]) * 100
+        r["machine_cores"] = os.cpu_count()
+        if a["feed_cpu"] is not None and b["feed_cpu"] is not None:
+            r["feed_cpu_pct"] = (b["feed_cpu"] - a["feed_cpu"]) / dt * 100
+        r["rss_mb"] = b["rss"]
+        r["rss_max_mb"] = max(x["rss"] for x in rows)
+    r["rss_series"] = [(round(x["wall"] - wall0, 1), round(x["rss"], 1)) for x in sampler.rows]
+    r["verdict"] = verdict(n, r)
+    return r
+
+
+def verdict(n: int, r: dict[str, Any]) -> str:
+    why = []
+    off = r.get("offered", float("nan"))
+    if off < 0.97 * n:
+        why.append(f"feed paced {off / n:.0%} of N")
+    if r.get("accepted", 0) < 0.99 * min(off, n):
+        why.append(f"input {r.get('accepted', 0) / n:.0%} of N")
+    if r.get("queue_max", 0) >= n:
+        why.append(f"inbox backlog {r.get('queue_max')}")
+    if r.get("frames_missed_frac", 0) > 0.01:
+        why.append(f"frames missed {r['frames_missed_frac']:.0%}")
+    if r.get("frames_skipped_frac", 0) > 0.01:
+        why.append(f"instants not received {r['frames_skipped_frac']:.0%}")
+    if r.get("status_timeouts", 0):
+        why.append(f"{r['status_timeouts']} status timeouts")
+    if not why:
+        return "sustained"
+    if r.get("worker_cpu_pct", 0) > 85:
+        why.append(f"worker thread {r['worker_cpu_pct']:.0f}% of a core")
+    if r.get("machine_busy_pct", 0) > 90:
+        why.append(f"machine {r['machine_busy_pct']:.0f}% busy")
+    return "SATURATED: " + ", ".join(why)
+
+
+# ---------------------------------------------------------------- output
+def fmt(x: Any, spec: str) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return format(x, spec)
+
+
+def table(results: list[dict[str, Any]]) -> str:
+    head_ = (f"{'N':>6} {'mode':>7} {'offered':>8} {'accept/s':>8} {'queue':>6} "
+             f"{'fr/s':>5} {'missed':>6} {'skip%':>5} {'jit ms':>6} {'late99':>6} "
+             f"{'lat50':>6} {'lat99':>6} {'cpu%':>5} {'wrk%':>5} {'mach%':>5} {'RSS MB':>6}")
+    lines = [head_]
+    for r in results:
+        lines.append(
+            f"{r['n']:>6} {r['mode']:>7} {fmt(r.get('offered'), '8.0f')} "
+            f"{fmt(r.get('accepted'), '8.0f')} {fmt(r.get('queue_max'), '6d')} "
+            f"{fmt(r.get('frames_pub'), '5.1f')} {fmt(r.get('frames_missed'), '6d')} "
+            f"{fmt(100 * r.get('frames_skipped_frac', float('nan')), '5.1f')} "
+            f"{fmt(r.get('jitter_std_ms'), '6.1f')} {fmt(r.get('frame_late_p99_ms'), '6.0f')} "
+            f"{fmt(r.get('lat_p50_ms'), '6.0f')} {fmt(r.get('lat_p99_ms'), '6.0f')} "
+            f"{fmt(r.get('cpu_pct'), '5.0f')} {fmt(r.get('worker_cpu_pct'), '5.0f')} "
+            f"{fmt(r.get('machine_busy_pct'), '5.0f')} {fmt(r.get('rss_mb'), '6.0f')}")
+    lines.append(
+        "  offered / accept/s: measurements per second sent by the feed / accepted by the "
+        "service\n  (steady window); queue: max inbox depth; fr/s: frames published per s; "
+        "missed: status\n  frames_missed in the window; skip%: display instants never "
+        "received by the frame subscriber;\n  jit ms: std of frame inter-arrival; late99: "
+        "p99 frame arrival after its instant, ms;\n  lat50/lat99: tracks/ arrival - meas/ "
+        "arrival, same (id, t), ms; cpu%: service process,\n  all threads, % of one core; "
+        "wrk%: its hottest Python thread (the worker); mach%: all\n  cores busy (feed, "
+        "observer and other load included); RSS: service VmRSS at the end")
+    for r in results:
+        extra = ""
+        if r["mode"] == "display" and "display_rate" in r:
+            extra = f"; display/ msgs per target {r['display_rate']:.1f}/s"
+        lines.append(f"  N={r['n']} {r['mode']}: {r.get('verdict', r.get('error'))}"
+                     f" (sample {r['sample']} ids '{r['pattern']}', {r.get('lat_n', 0)} pairs, "
+                     f"unpaired {fmt(100 * r.get('lat_unpaired_frac', float('nan')), '.1f')}%; "
+                     f"feed CPU {fmt(r.get('feed_cpu_pct'), '.0f')}%, feed lag p99 "
+                     f"{fmt(r.get('feed_lag_p99'), '.2f')} s{extra})")
+    return "\n".join(lines)
+
+
+def memory_report(r: dict[str, Any], warmup: float, every: float = 10.0) -> str:
+    series = r["rss_series"]
+    pts, nxt = [], 0.0
+    for t, v in series:
+        if t >= nxt:
+            pts.append((t, v))
+            nxt = (math.floor(t / every) + 1) * every
+    after = [(t, v) for t, v in pts if t >= warmup and t <= r["duration"]]
+    lines = ["RSS of the service every 10 s (s since scan 0: MB)",
+             "  " + "  ".join(f"{t:.0f}:{v:.1f}" for t, v in pts)]
+    if len(after) >= 2:
+        t0, v0 = after[0]
+        t1, v1 = after[-1]
+        slope = np.polyfit([t for t, _ in after], [v for _, v in after], 1)[0] * 60
+        lines.append(f"  after warm-up ({t0:.0f} s .. {t1:.0f} s): {v0:.1f} MB -> {v1:.1f} MB, "
+                     f"growth {100 * (v1 - v0) / v0:+.2f} %, least-squares slope "
+                     f"{slope:+.3f} MB/min; max {max(v for _, v in after):.1f} MB")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------- main
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000, 10000])
+    p.add_argument("--modes", nargs="+", choices=("frame", "display"),
+                   default=["frame", "display"],
+                   help="frame: --no-display-keys; display: per-target display/ keys too")
+    p.add_argument("--duration", type=float, default=30.0, help="feed duration per run, s")
+    p.add_argument("--warmup", type=float, default=6.0, help="s after scan 0 not measured")
+    p.add_argument("--filter", default="cv")
+    p.add_argument("--sample", type=int, default=1000,
+                   help="at most this many targets' tracks/ and meas/ keys subscribed")
+    p.add_argument("--display-sample", type=int, default=10,
+                   help="display/ keys of this many targets counted in Python")
+    p.add_argument("--tail", type=float, default=3.0, help="s after the feed ends")
+    p.add_argument("--feed-timeout", type=float, default=90.0,
+                   help="s allowed beyond --duration for the feed to finish")
+    p.add_argument("--proc-period", type=float, default=1.0)
+    p.add_argument("--minutes", type=float, default=0.0,
+                   help="memory-flatness run of this many minutes instead of the sweep")
+    p.add_argument("--memory-targets", type=int, default=2000)
+    p.add_argument("--memory-mode", choices=("frame", "display"), default="frame")
+    p.add_argument("--memory-warmup", type=float, default=60.0)
+    p.add_argument("--json", metavar="FILE", help="write the raw results here")
+    args = p.parse_args(argv)
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # run the finally blocks
+
+    def log(msg: str) -> None:
+        print(msg, flush=True)
+
+    log(f"# {datetime.datetime.now().isoformat(timespec='seconds')}; CPython "
+        f"{platform.python_version()}, numpy {np.__version__}, eclipse-zenoh "
+        f"{getattr(zenoh, '__version__', '?')}, {platform.machine()}, {os.cpu_count()} CPUs, "
+        f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    results = []
+    if args.minutes:
+        d = args.minutes * 60
+        log(f"# memory run: N={args.memory_targets} {args.memory_mode}, {d:.0f} s")
+        r = run_one(args.memory_targets, args.memory_mode == "display", args, d,
+                    args.memory_warmup, log)
+        results.append(r)
+        log(table(results))
+        log(memory_report(r, args.memory_warmup))
+    else:
+        for n in args.sizes:
+            for mode in args.modes:
+                r = run_one(n, mode == "display", args, args.duration, args.warmup, log)
+                results.append(r)
+                log(f"# N={n} {mode}: {r.get('verdict', r.get('error'))}")
+        log(table(results))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1, default=str))
+
+
+if __name__ == "__main__":
+    main()
