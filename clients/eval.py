@@ -350,6 +350,36 @@ def plot(reports: dict[str, dict[str, Any]], got: dict[str, Collected], outdir: 
     plt.close(fig)
 
 
+def plot_display(collected: dict[str, Collected], outdir: str,
+                 spans: tuple[tuple[float, float], ...] = ((4.5, 8.5), (17.5, 33.5))) -> None:
+    """Scenario A: drawn position minus truth (East, North, Up) around the end of the first
+    acceleration and through the turn, one curve per display variant."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    os.makedirs(outdir, exist_ok=True)
+    flight = scenarios.FlightA()
+    fig, ax = plt.subplots(3, len(spans), figsize=(10, 7), sharex="col")
+    for label, col in collected.items():
+        fr = sorted((t, trs[0]["pos"]) for t, trs in col.frames if trs)
+        t = np.array([f[0] for f in fr])
+        err = np.array([f[1] for f in fr]) - flight.state(t)[0]
+        for j, (a, b) in enumerate(spans):
+            sel = (t >= a) & (t <= b)
+            for i in range(3):
+                ax[i, j].plot(t[sel], err[sel, i], ".-", ms=2, lw=0.8, label=label)
+    for i, name in enumerate(("East", "North", "Up")):
+        ax[i, 0].set_ylabel(f"{name} error, m")
+    for j in range(len(spans)):
+        ax[2, j].set_xlabel("t, s")
+    ax[0, 0].legend()
+    fig.suptitle("scenario A: 30 Hz frames minus truth (scans every 1 s)")
+    fig.savefig(os.path.join(outdir, "display_frames.png"), dpi=100)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
     p.add_argument("scenario", choices=sorted(scenarios.SCENARIOS))
@@ -366,11 +396,26 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--intercept", action="append", default=[],
                    choices=("pure", "pn", "intercept"),
                    help="also fly interceptors with this guidance (repeatable; scenario C)")
+    p.add_argument("--display-variants", action="store_true",
+                   help="scenario A: compare plain prediction, --blend 0.35 and --lag 1 "
+                        "(with the first --filter) and plot the frames around corrections")
     p.add_argument("--json", action="store_true", help="print the reports as JSON")
     p.add_argument("--plot", metavar="DIR", help="write PNG figures here")
     args = p.parse_args(argv)
     filters = args.filter or (["ca"] if args.scenario == "display" else ["cv"])
     reports, collected = {}, {}
+    if args.display_variants:
+        variants = {"prediction": [], "blend 0.35 s": ["--blend", "0.35"],
+                    "lag 1 s": ["--lag", "1"]}
+        for label, extra in variants.items():
+            collected[label] = run_through_service(
+                args.scenario, args.runs, args.seed,
+                ["--filter", filters[0], "--no-display-keys", *extra], args.connect, args.ns)
+            reports[label] = evaluate(args.scenario, args.runs, args.seed, collected[label])
+            reports[label]["interception"] = {}
+        filters = []
+        if args.plot:
+            plot_display(collected, args.plot)
     for name in filters:
         display_keys = [] if args.intercept else ["--no-display-keys"]
         got = run_through_service(args.scenario, args.runs, args.seed,
@@ -390,7 +435,7 @@ def main(argv: list[str] | None = None) -> None:
         for name, r in reports.items():
             for g, summ in r["interception"].items():
                 print(f"interception, filter {name}, guidance {g}: {summary_line(summ)}")
-    if args.plot:
+    if args.plot and not args.display_variants:
         plot(reports, collected, args.plot)
 
 

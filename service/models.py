@@ -31,11 +31,19 @@ def axis_noise_gain(dt: np.ndarray, order: int) -> np.ndarray:
     return np.stack([dt ** (order - i) / math.factorial(order - i) for i in range(order)], -1)
 
 
+def axis_noise(dt: np.ndarray, order: int, q: float | np.ndarray) -> np.ndarray:
+    """Per-axis process noise (N, order, order) = q^2 Gamma Gamma' with Gamma at |dt|."""
+    g = axis_noise_gain(np.abs(dt), order)
+    return g[:, :, None] * g[:, None, :] * np.reshape(np.asarray(q, dtype=float) ** 2, (-1, 1, 1))
+
+
 def expand(block: np.ndarray, dim: int) -> np.ndarray:
     """kron(block, I_dim) over a leading batch axis: (N, a, b) -> (N, a*dim, b*dim)."""
     n, a, b = block.shape
-    eye = np.eye(dim)
-    return (block[:, :, None, :, None] * eye[None, None, :, None, :]).reshape(n, a * dim, b * dim)
+    out = np.zeros((n, a, dim, b, dim))
+    axis = np.arange(dim)
+    out[:, :, axis, :, axis] = block  # the `dim` diagonals of every (a, b) block entry
+    return out.reshape(n, a * dim, b * dim)
 
 
 def transition(dt: np.ndarray, order: int, dim: int) -> np.ndarray:
@@ -45,18 +53,28 @@ def transition(dt: np.ndarray, order: int, dim: int) -> np.ndarray:
 
 def process_noise(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray) -> np.ndarray:
     """Full process noise Q (N, n, n) = q^2 kron(Gamma Gamma', I)."""
-    g = axis_noise_gain(np.abs(dt), order)
-    q2 = np.asarray(q, dtype=float) ** 2
-    return expand(g[:, :, None] * g[:, None, :] * np.reshape(q2, (-1, 1, 1)), dim)
+    return expand(axis_noise(dt, order, q), dim)
 
 
 def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
             q: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Kalman prediction of every row by its own dt (dt may be negative: extrapolation
     backwards uses |dt| for the noise)."""
-    f = transition(dt, order, dim)
-    xp = np.einsum("nij,nj->ni", f, x)
-    pp = f @ p @ f.transpose(0, 2, 1) + process_noise(dt, order, dim, q)
+    dt = np.asarray(dt, dtype=float)
+    blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
+    xp, fp = x.copy(), p.copy()
+    # F = kron(Phi, I) is unit upper block-triangular: F P adds dt^k/k! times block row i+k
+    # to block row i, and (F P) F' does the same on the block columns.
+    steps = [(i, j, dt ** (j - i) / math.factorial(j - i))
+             for i in range(order) for j in range(i + 1, order)]
+    for i, j, c in steps:
+        xp[:, blk[i]] += c[:, None] * x[:, blk[j]]
+        fp[:, blk[i]] += c[:, None, None] * p[:, blk[j]]
+    pp = fp.copy()
+    for i, j, c in steps:
+        pp[:, :, blk[i]] += c[:, None, None] * fp[:, :, blk[j]]
+    axis = np.arange(dim)
+    pp.reshape(len(pp), order, dim, order, dim)[:, :, axis, :, axis] += axis_noise(dt, order, q)
     return xp, 0.5 * (pp + pp.transpose(0, 2, 1))
 
 
@@ -77,10 +95,9 @@ def motion(kind: str, dt: np.ndarray, order: int, dim: int, q: float | np.ndarra
     phi[..., 2] = 0.0
     phi[..., 2, :] = 0.0
     f = expand(phi, dim)
-    g = np.zeros(np.shape(dt) + (3,))
-    g[..., :2] = axis_noise_gain(np.abs(dt), 2)
-    q2 = np.reshape(np.asarray(q, dtype=float) ** 2, (-1, 1, 1))
-    qm = expand(g[..., :, None] * g[..., None, :] * q2, dim)
+    qm = np.zeros(np.shape(dt) + (3, 3))
+    qm[..., :2, :2] = axis_noise(dt, 2, q)
+    qm = expand(qm, dim)
     if kind == "ct":
         w = omega
         wt = w * np.asarray(dt, dtype=float)
