@@ -9,12 +9,15 @@ import signal
 import threading
 import uuid
 
+import zenoh
+
 from . import __version__, filters
 from .node import TrackService
 from .table import TableConfig, TrackTable
-from .wire import Keys, add_zenoh_args, open_session
+from .wire import Keys, add_zenoh_args, zenoh_config
 
 FILTERS = ("cv", "ca", "ekf", "vdf", "imm")
+LOCKSTEP_BLOCK_US = 600_000_000  # 10 minutes
 
 
 def make_filter(args: argparse.Namespace) -> tuple[int, str, object | None, float]:
@@ -93,7 +96,13 @@ def main(argv: list[str] | None = None) -> None:
     table = TrackTable(TableConfig(order=order, q=q, update=update, filter=filt,
                                    init_speed=args.init_speed, blend=args.blend, lag=args.lag,
                                    init_accel=args.init_accel, delete_after=args.delete_after))
-    session = open_session(args, serve=True)
+    conf = zenoh_config(args, serve=True)
+    if args.clock == "lockstep" and not args.config:
+        # lockstep must drop nothing (PROTOCOL.md): wait for a slow subscriber instead of
+        # closing its link after Zenoh's default 5 s of blocked transmission
+        conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close",
+                          str(LOCKSTEP_BLOCK_US))
+    session = zenoh.open(conf)
     svc = TrackService(session, Keys(args.ns), table, clock=args.clock, rate=args.rate,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        defaults=(args.sr, args.saz, args.sel, args.sigma),
