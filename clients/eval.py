@@ -286,7 +286,9 @@ def table(report: dict[str, Any], label: str) -> str:
         head += f"{'pos CRB':>9}{'ratio':>7}{'vel CRB':>9}{'ratio':>7}"
     head += f"{'NEES':>8}{'max/scan':>10}{'NIS':>7}"
     lines = [f"{report['scenario']} / {label}: {report['runs']} runs, seed {report['seed']}; "
-             f"NEES of the {report['state_dim']}-D state, 95 % interval [{lo:.2f}, {hi:.2f}]",
+             f"NEES of the {report['state_dim']}-D state, 95 % interval [{lo:.2f}, {hi:.2f}]"
+             + (f"; {report['tracks_missing']} tracks/ messages MISSING"
+                if report["tracks_missing"] else ""),
              head]
     for r in [*report["windows"], report["overall"]]:
         s = f"{r['window']:<16}{r['pos_rmse']:>10.2f}{r['vel_rmse']:>10.3f}"
