@@ -94,8 +94,9 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
 
     session = zenoh.open(client_config(endpoint))
     try:
-        subs = [session.declare_subscriber(keys.space("tracks"), on_track),
-                session.declare_subscriber(keys.frame, on_frame)]
+        direct = [zenoh.handlers.Callback(f, indirect=False) for f in (on_track, on_frame)]
+        subs = [session.declare_subscriber(keys.space("tracks"), direct[0]),
+                session.declare_subscriber(keys.frame, direct[1])]
         if not wait_for_tracker(session, keys, 1, timeout=30):
             raise SystemExit(f"track-eval: no tracker on {endpoint} ns={ns}")
         flights = [Interceptors(Law(guidance=g), name=f"interceptor-{g}").attach(
