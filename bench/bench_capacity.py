@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import importlib.metadata
 import json
 import math
 import os
@@ -129,6 +130,21 @@ def machine_jiffies() -> tuple[int, int]:
     return total - idle, total
 
 
+def wait_idle(limit: float, budget: float, log: Any) -> float:
+    """Wait up to `budget` s for a 2-s sample of the machine to be less than `limit`
+    busy (a fraction of all cores); return the busy fraction last seen."""
+    end = time.time() + budget
+    while True:
+        b0, t0 = machine_jiffies()
+        time.sleep(2.0)
+        b1, t1 = machine_jiffies()
+        busy = (b1 - b0) / max(1, t1 - t0)
+        if busy < limit or time.time() >= end:
+            if busy >= limit:
+                log(f"# machine still {busy:.0%} busy after waiting {budget:.0f} s; running")
+            return busy
+
+
 # ---------------------------------------------------------------- helpers
 def head(payload: bytes) -> tuple[float, int]:
     """t (and the length of the second field if it is an array) from the head of a map
@@ -152,7 +168,7 @@ def pct(a: np.ndarray | list, q: float) -> float:
     return float(np.percentile(a, q)) if a.size else float("nan")
 
 
-def stop(proc: subprocess.Popen | None, timeout: float = 10.0) -> None:
+def stop(proc: subprocess.Popen | None, timeout: float = 20.0) -> None:
     """Terminate, wait, then kill."""
     if proc is None or proc.poll() is not None:
         return
@@ -252,7 +268,8 @@ class Sampler(threading.Thread):
                 busy, total = machine_jiffies()
                 row = {"wall": time.time(), "cpu": cpu_seconds(self.pid),
                        "rss": rss_mb(self.pid), "threads": thread_cpu(self.pid),
-                       "busy": busy, "total": total, "feed_cpu": None}
+                       "busy": busy, "total": total, "feed_cpu": None,
+                       "self_cpu": cpu_seconds(os.getpid())}
                 if self.feed_pid:
                     try:
                         row["feed_cpu"] = cpu_seconds(self.feed_pid)
@@ -388,7 +405,18 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
     # moves the service's realtime offset by up to one second)
     lo = wall0 + math.ceil(warmup) + 0.5
     hi = min(wall0 + round(duration) - 0.5, feed_end)
+    # settled: every target has a track and less than half a scan is queued, at the
+    # status query half-way between two scans. Before that the service is initiating
+    # tracks (declaring two publishers per new target) and draining what queued meanwhile;
+    # the window starts no earlier.
+    ready = next((asked for asked, _, s in poller.rows
+                  if s is not None and asked >= wall0 and s["tracks"] >= n
+                  and s["queue"] < n / 2), None)
+    r["ready_s"] = None if ready is None else ready - wall0
+    if ready is not None and ready > lo:
+        lo = wall0 + math.floor(ready - wall0) + 0.5
     r["window"] = hi - lo
+    r["window_from_s"] = lo - wall0
     if hi - lo < 2:
         r["error"] = "window too short (duration - warmup)"
         return r
@@ -465,7 +493,7 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
         dt = b["wall"] - a["wall"]
         r["cpu_pct"] = (b["cpu"] - a["cpu"]) / dt * 100
         per_s = [(y["cpu"] - x["cpu"]) / (y["wall"] - x["wall"]) * 100
-                 for x, y in zip(rows, rows[1:])]
+                 for x, y in zip(rows, rows[1:], strict=False)]
         r["cpu_pct_max1s"] = max(per_s)
         comm0 = a["threads"].get(sampler.pid, ("python", 0))[0]
         worker = 0.0
@@ -475,9 +503,13 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
             worker = max(worker, (c1 - a["threads"][tid][1]) / dt * 100)
         r["worker_cpu_pct"] = worker
         r["machine_busy_pct"] = (b["busy"] - a["busy"]) / max(1, b["total"] - a["total"]) * 100
+        r["observer_cpu_pct"] = (b["self_cpu"] - a["self_cpu"]) / dt * 100
         r["machine_cores"] = os.cpu_count()
         if a["feed_cpu"] is not None and b["feed_cpu"] is not None:
             r["feed_cpu_pct"] = (b["feed_cpu"] - a["feed_cpu"]) / dt * 100
+        # cores busy with anything else than the service, the feed and this process
+        r["other_cores"] = max(0.0, (r["machine_busy_pct"] * r["machine_cores"] - r["cpu_pct"]
+                                     - r.get("feed_cpu_pct", 0) - r["observer_cpu_pct"]) / 100)
         r["rss_mb"] = b["rss"]
         r["rss_max_mb"] = max(x["rss"] for x in rows)
     r["rss_series"] = [(round(x["wall"] - wall0, 1), round(x["rss"], 1)) for x in sampler.rows]
@@ -486,27 +518,33 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
 
 
 def verdict(n: int, r: dict[str, Any]) -> str:
-    why = []
+    """sustained / frames missed (input kept up) / saturated, with the limits hit."""
+    inp, frm, ctx = [], [], []
+    if r.get("ready_s") is None:
+        inp.append("never settled (not every target tracked with < N/2 queued)")
     off = r.get("offered", float("nan"))
     if off < 0.97 * n:
-        why.append(f"feed paced {off / n:.0%} of N")
+        ctx.append(f"feed paced {off / n:.0%} of N")
     if r.get("accepted", 0) < 0.99 * min(off, n):
-        why.append(f"input {r.get('accepted', 0) / n:.0%} of N")
+        inp.append(f"accepted {r.get('accepted', 0) / n:.0%} of N")
     if r.get("queue_max", 0) >= n:
-        why.append(f"inbox backlog {r.get('queue_max')}")
-    if r.get("frames_missed_frac", 0) > 0.01:
-        why.append(f"frames missed {r['frames_missed_frac']:.0%}")
-    if r.get("frames_skipped_frac", 0) > 0.01:
-        why.append(f"instants not received {r['frames_skipped_frac']:.0%}")
+        inp.append(f"inbox backlog up to {r.get('queue_max')}")
     if r.get("status_timeouts", 0):
-        why.append(f"{r['status_timeouts']} status timeouts")
-    if not why:
-        return "sustained"
+        inp.append(f"{r['status_timeouts']} status queries unanswered in 2 s")
+    if r.get("frames_missed_frac", 0) > 0.01:
+        frm.append(f"frames missed {r['frames_missed_frac']:.0%}")
+    if r.get("frames_skipped_frac", 0) > 0.01:
+        frm.append(f"instants not received {r['frames_skipped_frac']:.0%}")
     if r.get("worker_cpu_pct", 0) > 85:
-        why.append(f"worker thread {r['worker_cpu_pct']:.0f}% of a core")
-    if r.get("machine_busy_pct", 0) > 90:
-        why.append(f"machine {r['machine_busy_pct']:.0f}% busy")
-    return "SATURATED: " + ", ".join(why)
+        ctx.append(f"worker thread {r['worker_cpu_pct']:.0f}% of a core")
+    if r.get("other_cores", 0) > 0.3:
+        ctx.append(f"other load {r['other_cores']:.1f} cores")
+    tail = f" [{', '.join(ctx)}]" if ctx else ""
+    if inp:
+        return "SATURATED: " + ", ".join(inp + frm) + tail
+    if frm:
+        return "input sustained; " + ", ".join(frm) + tail
+    return "sustained" + tail
 
 
 # ---------------------------------------------------------------- output
@@ -544,10 +582,15 @@ def table(results: list[dict[str, Any]]) -> str:
         extra = ""
         if r["mode"] == "display" and "display_rate" in r:
             extra = f"; display/ msgs per target {r['display_rate']:.1f}/s"
+        ready = r.get("ready_s")
         lines.append(f"  N={r['n']} {r['mode']}: {r.get('verdict', r.get('error'))}"
-                     f" (sample {r['sample']} ids '{r['pattern']}', {r.get('lat_n', 0)} pairs, "
+                     f" (settled {fmt(ready, '.1f')} s after scan 0, window "
+                     f"{fmt(r.get('window_from_s'), '.1f')} s + {fmt(r.get('window'), '.0f')} s;"
+                     f" sample {r['sample']} ids '{r['pattern']}', {r.get('lat_n', 0)} pairs, "
                      f"unpaired {fmt(100 * r.get('lat_unpaired_frac', float('nan')), '.1f')}%; "
-                     f"feed CPU {fmt(r.get('feed_cpu_pct'), '.0f')}%, feed lag p99 "
+                     f"feed CPU {fmt(r.get('feed_cpu_pct'), '.0f')}%, observer CPU "
+                     f"{fmt(r.get('observer_cpu_pct'), '.0f')}%, other load "
+                     f"{fmt(r.get('other_cores'), '.2f')} cores, feed lag p99 "
                      f"{fmt(r.get('feed_lag_p99'), '.2f')} s{extra})")
     return "\n".join(lines)
 
@@ -596,6 +639,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--memory-targets", type=int, default=2000)
     p.add_argument("--memory-mode", choices=("frame", "display"), default="frame")
     p.add_argument("--memory-warmup", type=float, default=60.0)
+    p.add_argument("--idle-wait", type=float, default=0.0, metavar="S",
+                   help="before each run, wait up to S s for the machine to be less than "
+                        "--idle-below busy (other jobs distort the result)")
+    p.add_argument("--idle-below", type=float, default=0.25)
     p.add_argument("--json", metavar="FILE", help="write the raw results here")
     args = p.parse_args(argv)
 
@@ -606,12 +653,15 @@ def main(argv: list[str] | None = None) -> None:
 
     log(f"# {datetime.datetime.now().isoformat(timespec='seconds')}; CPython "
         f"{platform.python_version()}, numpy {np.__version__}, eclipse-zenoh "
-        f"{getattr(zenoh, '__version__', '?')}, {platform.machine()}, {os.cpu_count()} CPUs, "
+        f"{importlib.metadata.version('eclipse-zenoh')}, {platform.machine()}, "
+        f"{os.cpu_count()} CPUs, "
         f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     results = []
     if args.minutes:
         d = args.minutes * 60
         log(f"# memory run: N={args.memory_targets} {args.memory_mode}, {d:.0f} s")
+        if args.idle_wait:
+            wait_idle(args.idle_below, args.idle_wait, log)
         r = run_one(args.memory_targets, args.memory_mode == "display", args, d,
                     args.memory_warmup, log)
         results.append(r)
@@ -620,6 +670,8 @@ def main(argv: list[str] | None = None) -> None:
     else:
         for n in args.sizes:
             for mode in args.modes:
+                if args.idle_wait:
+                    wait_idle(args.idle_below, args.idle_wait, log)
                 r = run_one(n, mode == "display", args, args.duration, args.warmup, log)
                 results.append(r)
                 log(f"# N={n} {mode}: {r.get('verdict', r.get('error'))}")
