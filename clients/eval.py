@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from service.wire import Keys, decode_frame, unpack, wait_for_tracker
+from service.wire import Keys, decode_frame, peer_config, unpack, wait_for_tracker
 
 from . import feed, metrics, scenarios
 from .intercept import Interceptors, Law, summary_line
@@ -47,15 +47,6 @@ def free_endpoint() -> str:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
-
-
-def client_config(endpoint: str) -> zenoh.Config:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-    return conf
 
 
 def run_through_service(scenario: str, runs: int, seed: int, service_args: list[str],
@@ -92,7 +83,7 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
         if m["t"] >= t_end:
             done.set()
 
-    session = zenoh.open(client_config(endpoint))
+    session = zenoh.open(peer_config(endpoint))
     try:
         direct = [zenoh.handlers.Callback(f, indirect=False) for f in (on_track, on_frame)]
         subs = [session.declare_subscriber(keys.space("tracks"), direct[0]),

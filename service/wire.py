@@ -146,6 +146,19 @@ def zenoh_config(args: argparse.Namespace, serve: bool = False) -> Any:
     return conf
 
 
+def peer_config(endpoint: str) -> Any:
+    """A peer that connects to `endpoint` and listens on loopback only, multicast
+    scouting off: the session of a tool or test talking to one known service."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    return conf
+
+
 def open_session(args: argparse.Namespace, serve: bool = False) -> Any:
     import zenoh
 

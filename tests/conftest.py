@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 import subprocess
@@ -14,7 +13,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from service.wire import Keys, unpack, wait_for_tracker
+from service.wire import Keys, peer_config, unpack, wait_for_tracker
 
 
 def free_port() -> int:
@@ -24,12 +23,7 @@ def free_port() -> int:
 
 
 def client_session(endpoint: str) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-    return zenoh.open(conf)
+    return zenoh.open(peer_config(endpoint))
 
 
 class Collector:
