@@ -452,6 +452,11 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
         r["frames_recv"] = len(fr) / (hi - lo)
         r["frames_skipped_frac"] = 1 - len(np.unique(nn)) / span
         d = np.diff(arr)
+        # a skipped instant after a normal gap comes from the clock's offset estimate moving
+        # forward (the maximum of t - arrival over 10 s); after a long gap, from a late tick
+        jump = np.diff(nn) > 1
+        r["skips_clock"] = int((jump & (d < 1.5 / RATE)).sum())
+        r["skips_late"] = int((jump & (d >= 1.5 / RATE)).sum())
         r["jitter_std_ms"] = float(np.std(d) * 1e3)
         r["interarrival_p99_ms"] = pct(d * 1e3, 99)
         r["interarrival_max_ms"] = float(d.max() * 1e3)
@@ -591,7 +596,9 @@ def table(results: list[dict[str, Any]]) -> str:
                      f"feed CPU {fmt(r.get('feed_cpu_pct'), '.0f')}%, observer CPU "
                      f"{fmt(r.get('observer_cpu_pct'), '.0f')}%, other load "
                      f"{fmt(r.get('other_cores'), '.2f')} cores, feed lag p99 "
-                     f"{fmt(r.get('feed_lag_p99'), '.2f')} s{extra})")
+                     f"{fmt(r.get('feed_lag_p99'), '.2f')} s; skips after a long gap "
+                     f"{r.get('skips_late', '-')}, after a normal one {r.get('skips_clock', '-')}"
+                     f"{extra})")
     return "\n".join(lines)
 
 
@@ -613,6 +620,33 @@ def memory_report(r: dict[str, Any], warmup: float, every: float = 10.0) -> str:
                      f"growth {100 * (v1 - v0) / v0:+.2f} %, least-squares slope "
                      f"{slope:+.3f} MB/min; max {max(v for _, v in after):.1f} MB")
     return "\n".join(lines)
+
+
+def declare_scaling(total: int, step: int, log: Any) -> None:
+    """Cost of Session.declare_publisher as publishers accumulate in one session (the
+    service declares two per target, display/ and tracks/, on the target's first
+    measurement), against Session.put on undeclared keys."""
+    conf = zenoh.Config()
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    s = zenoh.open(conf)
+    try:
+        pubs, t0 = [], time.perf_counter()
+        log("declare_publisher, one session, no peer: microseconds per declaration")
+        for i in range(total):
+            pubs.append(s.declare_publisher(f"scaling/tracks/swarm-{i:05d}"))
+            if (i + 1) % step == 0:
+                now = time.perf_counter()
+                log(f"  publishers {i + 1 - step:>6} .. {i + 1:>6}: "
+                    f"{(now - t0) / step * 1e6:8.0f} us")
+                t0 = now
+        t0 = time.perf_counter()
+        for i in range(step):
+            s.put(f"scaling/other/swarm-{i:05d}", b"x" * 600)
+        log(f"Session.put on {step} undeclared keys: "
+            f"{(time.perf_counter() - t0) / step * 1e6:.1f} us per put")
+    finally:
+        s.close()
 
 
 # ---------------------------------------------------------------- main
@@ -643,6 +677,8 @@ def main(argv: list[str] | None = None) -> None:
                    help="before each run, wait up to S s for the machine to be less than "
                         "--idle-below busy (other jobs distort the result)")
     p.add_argument("--idle-below", type=float, default=0.25)
+    p.add_argument("--declare-scaling", type=int, default=0, metavar="K",
+                   help="only time declaring K publishers in one session (in steps of K/8)")
     p.add_argument("--json", metavar="FILE", help="write the raw results here")
     args = p.parse_args(argv)
 
@@ -657,6 +693,9 @@ def main(argv: list[str] | None = None) -> None:
         f"{os.cpu_count()} CPUs, "
         f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     results = []
+    if args.declare_scaling:
+        declare_scaling(args.declare_scaling, max(1, args.declare_scaling // 8), log)
+        return
     if args.minutes:
         d = args.minutes * 60
         log(f"# memory run: N={args.memory_targets} {args.memory_mode}, {d:.0f} s")
