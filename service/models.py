@@ -62,20 +62,26 @@ def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
     backwards uses |dt| for the noise)."""
     dt = np.asarray(dt, dtype=float)
     blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
-    xp, fp = x.copy(), p.copy()
-    # F = kron(Phi, I) is unit upper block-triangular: F P adds dt^k/k! times block row i+k
-    # to block row i, and (F P) F' does the same on the block columns.
-    steps = [(i, j, dt ** (j - i) / math.factorial(j - i))
+    steps = [(blk[i], blk[j], dt ** (j - i) / math.factorial(j - i))
              for i in range(order) for j in range(i + 1, order)]
-    for i, j, c in steps:
-        xp[:, blk[i]] += c[:, None] * x[:, blk[j]]
-        fp[:, blk[i]] += c[:, None, None] * p[:, blk[j]]
-    pp = fp.copy()
-    for i, j, c in steps:
-        pp[:, :, blk[i]] += c[:, None, None] * fp[:, :, blk[j]]
-    axis = np.arange(dim)
-    pp.reshape(len(pp), order, dim, order, dim)[:, :, axis, :, axis] += axis_noise(dt, order, q)
-    return xp, 0.5 * (pp + pp.transpose(0, 2, 1))
+
+    def f_times(a: np.ndarray) -> np.ndarray:
+        """F a in place: F = kron(Phi, I) adds Phi[i, j] times block row j > i to block
+        row i (ascending i, so every row read is still unmodified)."""
+        for bi, bj, c in steps:
+            a[:, bi] += np.reshape(c, (-1,) + (1,) * (a.ndim - 1)) * a[:, bj]
+        return a
+
+    xp = f_times(np.array(x, dtype=float))
+    fp = f_times(np.array(p, dtype=float, order="C"))
+    # F (F P)' = F P' F': the same once symmetrised, and both products run on block rows
+    pp = f_times(fp.transpose(0, 2, 1).copy())
+    qa, blocks = axis_noise(dt, order, q), pp.reshape(len(pp), order, dim, order, dim)
+    for k in range(dim):  # + Q = kron(Q_axis, I)
+        blocks[:, :, k, :, k] += qa
+    fp = np.add(pp, pp.transpose(0, 2, 1), out=fp)  # symmetrised in the buffer of F P
+    fp *= 0.5
+    return xp, fp
 
 
 def motion(kind: str, dt: np.ndarray, order: int, dim: int, q: float | np.ndarray,
