@@ -115,7 +115,11 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
         session.close()
         if proc is not None:
             proc.terminate()
-            proc.wait(timeout=15)
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
     return out
 
 

@@ -115,8 +115,11 @@ def main(argv: list[str] | None = None) -> None:
     print(f"track-service {__version__}: ns={args.ns} clock={args.clock} rate={args.rate} Hz",
           flush=True)
     done.wait()
-    svc.close()
-    session.close()
+    # closing can block on data queued for a peer that vanished (lockstep BLOCK waits
+    # up to LOCKSTEP_BLOCK_US): give it a few seconds, then exit regardless
+    closer = threading.Thread(target=lambda: (svc.close(), session.close()), daemon=True)
+    closer.start()
+    closer.join(timeout=5.0)
 
 
 if __name__ == "__main__":
