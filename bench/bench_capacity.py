@@ -399,7 +399,16 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
         r["error"] = "no measurement seen"
         return r
     wall0 = min(a - t for _, t, a in meas)  # scan 0 left the feed no earlier than this
-    offset = max(t - a for _, t, a in meas)  # the service's estimate, from this process
+    m_arr = np.array([a for _, _, a in meas])
+    order = np.argsort(m_arr)
+    m_arr, m_off = m_arr[order], np.array([t - a for _, t, a in meas])[order]
+
+    def offset_at(wall: float) -> float:
+        """The realtime clock's offset as the service estimates it (max of t - arrival
+        over the last 10 s), from the sampled measurements seen here."""
+        i, j = np.searchsorted(m_arr, [wall - 10.0, wall], side="right")
+        return float(m_off[i:j].max()) if j > i else float(m_off[:j].max())
+
     # the steady window, aligned half-way between scans: scans ceil(warmup) + 1 ... D - 1
     # (the feed's closing clock message, one scan after the last, is left outside: it
     # moves the service's realtime offset by up to one second)
@@ -409,9 +418,10 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
     # status query half-way between two scans. Before that the service is initiating
     # tracks (declaring two publishers per new target) and draining what queued meanwhile;
     # the window starts no earlier.
-    ready = next((asked for asked, _, s in poller.rows
-                  if s is not None and asked >= wall0 and s["tracks"] >= n
-                  and s["queue"] < n / 2), None)
+    ok = [s is not None and asked >= wall0 and s["tracks"] >= n and s["queue"] < n / 2
+          for asked, _, s in poller.rows]
+    ready = next((poller.rows[i][0] for i in range(len(ok)) if all(ok[i:i + 3])
+                  and i + 3 <= len(ok)), None)  # three answers in a row
     r["ready_s"] = None if ready is None else ready - wall0
     if ready is not None and ready > lo:
         lo = wall0 + math.floor(ready - wall0) + 0.5
@@ -437,7 +447,8 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
         r["accepted"] = (s1["meas_accepted"] - s0["meas_accepted"]) / dt
         r["frames_pub"] = (s1["frames_published"] - s0["frames_published"]) / dt
         r["frames_missed"] = s1["frames_missed"] - s0["frames_missed"]
-        r["frames_missed_frac"] = r["frames_missed"] / (dt * RATE)
+        due = r["frames_missed"] + s1["frames_published"] - s0["frames_published"]
+        r["frames_missed_frac"] = r["frames_missed"] / max(1, due)  # of the instants due
         q = [s["queue"] for _, _, s in st]
         r["queue_max"], r["queue_last"] = max(q), q[-1]
         r["status_delay_p99"] = pct([b - a for a, b, _ in st], 99)
@@ -460,7 +471,7 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
         r["jitter_std_ms"] = float(np.std(d) * 1e3)
         r["interarrival_p99_ms"] = pct(d * 1e3, 99)
         r["interarrival_max_ms"] = float(d.max() * 1e3)
-        late = arr - (ts - offset)
+        late = arr - (ts - np.array([offset_at(a) for a in arr]))
         r["frame_late_p50_ms"] = pct(late * 1e3, 50)
         r["frame_late_p99_ms"] = pct(late * 1e3, 99)
         r["frames_late_frac"] = float(np.mean(late > 1 / RATE))
@@ -560,45 +571,49 @@ def fmt(x: Any, spec: str) -> str:
 
 
 def table(results: list[dict[str, Any]]) -> str:
-    head_ = (f"{'N':>6} {'mode':>7} {'offered':>8} {'accept/s':>8} {'queue':>6} "
-             f"{'fr/s':>5} {'missed':>6} {'skip%':>5} {'jit ms':>6} {'late99':>6} "
-             f"{'lat50':>6} {'lat99':>6} {'cpu%':>5} {'wrk%':>5} {'mach%':>5} {'RSS MB':>6}")
-    lines = [head_]
+    nan = float("nan")
+    lines = [f"{'N':>6} {'mode':>7} {'ready':>5} {'offered':>7} {'accept':>7} {'queue':>6} "
+             f"{'fr/s':>5} {'miss%':>5} {'skip%':>5} {'jit':>5} {'late99':>6} "
+             f"{'lat50':>6} {'lat99':>6} {'cpu%':>5} {'wrk%':>5} {'other':>5} {'RSS':>5}"]
     for r in results:
         lines.append(
-            f"{r['n']:>6} {r['mode']:>7} {fmt(r.get('offered'), '8.0f')} "
-            f"{fmt(r.get('accepted'), '8.0f')} {fmt(r.get('queue_max'), '6d')} "
-            f"{fmt(r.get('frames_pub'), '5.1f')} {fmt(r.get('frames_missed'), '6d')} "
-            f"{fmt(100 * r.get('frames_skipped_frac', float('nan')), '5.1f')} "
-            f"{fmt(r.get('jitter_std_ms'), '6.1f')} {fmt(r.get('frame_late_p99_ms'), '6.0f')} "
+            f"{r['n']:>6} {r['mode']:>7} {fmt(r.get('ready_s'), '5.1f')} "
+            f"{fmt(r.get('offered'), '7.0f')} {fmt(r.get('accepted'), '7.0f')} "
+            f"{fmt(r.get('queue_max'), '6d')} {fmt(r.get('frames_pub'), '5.1f')} "
+            f"{fmt(100 * r.get('frames_missed_frac', nan), '5.1f')} "
+            f"{fmt(100 * r.get('frames_skipped_frac', nan), '5.1f')} "
+            f"{fmt(r.get('jitter_std_ms'), '5.1f')} {fmt(r.get('frame_late_p99_ms'), '6.0f')} "
             f"{fmt(r.get('lat_p50_ms'), '6.0f')} {fmt(r.get('lat_p99_ms'), '6.0f')} "
             f"{fmt(r.get('cpu_pct'), '5.0f')} {fmt(r.get('worker_cpu_pct'), '5.0f')} "
-            f"{fmt(r.get('machine_busy_pct'), '5.0f')} {fmt(r.get('rss_mb'), '6.0f')}")
-    lines.append(
-        "  offered / accept/s: measurements per second sent by the feed / accepted by the "
-        "service\n  (steady window); queue: max inbox depth; fr/s: frames published per s; "
-        "missed: status\n  frames_missed in the window; skip%: display instants never "
-        "received by the frame subscriber;\n  jit ms: std of frame inter-arrival; late99: "
-        "p99 frame arrival after its instant, ms;\n  lat50/lat99: tracks/ arrival - meas/ "
-        "arrival, same (id, t), ms; cpu%: service process,\n  all threads, % of one core; "
-        "wrk%: its hottest Python thread (the worker); mach%: all\n  cores busy (feed, "
-        "observer and other load included); RSS: service VmRSS at the end")
+            f"{fmt(r.get('other_cores'), '5.2f')} {fmt(r.get('rss_mb'), '5.0f')}")
+    lines.append("""\
+  ready: s from scan 0 until every target has a track and the inbox holds < N/2 (three
+    status answers in a row); the steady window starts then (or after --warmup) and ends
+    half a scan before the last
+  offered / accept: measurements per second sent by the feed / accepted by the service;
+    queue: largest inbox depth seen (status `queue`, half-way between scans)
+  fr/s: frames published per s; miss%: status frames_missed, % of the instants due;
+    skip%: display instants n/30 never received by the frame subscriber
+  jit: std of frame inter-arrival, ms; late99: p99 of frame arrival - its instant's
+    wall time (offset estimated as the service does), ms
+  lat50 / lat99: tracks/<id> arrival - meas/.../<id> arrival, same (id, t), ms
+  cpu%: service process, all threads, % of one core; wrk%: its busiest Python thread (the
+    worker); other: cores busy with anything but the service, the feed and this process;
+    RSS: service VmRSS at the end of the window, MB""")
     for r in results:
         extra = ""
         if r["mode"] == "display" and "display_rate" in r:
             extra = f"; display/ msgs per target {r['display_rate']:.1f}/s"
-        ready = r.get("ready_s")
-        lines.append(f"  N={r['n']} {r['mode']}: {r.get('verdict', r.get('error'))}"
-                     f" (settled {fmt(ready, '.1f')} s after scan 0, window "
-                     f"{fmt(r.get('window_from_s'), '.1f')} s + {fmt(r.get('window'), '.0f')} s;"
-                     f" sample {r['sample']} ids '{r['pattern']}', {r.get('lat_n', 0)} pairs, "
-                     f"unpaired {fmt(100 * r.get('lat_unpaired_frac', float('nan')), '.1f')}%; "
-                     f"feed CPU {fmt(r.get('feed_cpu_pct'), '.0f')}%, observer CPU "
-                     f"{fmt(r.get('observer_cpu_pct'), '.0f')}%, other load "
-                     f"{fmt(r.get('other_cores'), '.2f')} cores, feed lag p99 "
-                     f"{fmt(r.get('feed_lag_p99'), '.2f')} s; skips after a long gap "
-                     f"{r.get('skips_late', '-')}, after a normal one {r.get('skips_clock', '-')}"
-                     f"{extra})")
+        lines.append(f"  N={r['n']} {r['mode']}: {r.get('verdict', r.get('error'))}\n"
+                     f"    (window {fmt(r.get('window_from_s'), '.1f')} s + "
+                     f"{fmt(r.get('window'), '.0f')} s; sample {r['sample']} ids "
+                     f"'{r['pattern']}', {r.get('lat_n', 0)} pairs, unpaired "
+                     f"{fmt(100 * r.get('lat_unpaired_frac', nan), '.1f')}%; feed CPU "
+                     f"{fmt(r.get('feed_cpu_pct'), '.0f')}%, feed lag p99 "
+                     f"{fmt(r.get('feed_lag_p99'), '.2f')} s; observer CPU "
+                     f"{fmt(r.get('observer_cpu_pct'), '.0f')}%; skipped instants after a "
+                     f"long gap {r.get('skips_late', '-')}, after a normal one "
+                     f"{r.get('skips_clock', '-')}{extra})")
     return "\n".join(lines)
 
 
