@@ -529,6 +529,10 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
         r["rss_mb"] = b["rss"]
         r["rss_max_mb"] = max(x["rss"] for x in rows)
     r["rss_series"] = [(round(x["wall"] - wall0, 1), round(x["rss"], 1)) for x in sampler.rows]
+    rs = sampler.rows
+    r["cpu_series"] = [(round(y["wall"] - wall0, 1),
+                        round((y["cpu"] - x["cpu"]) / (y["wall"] - x["wall"]) * 100, 1))
+                       for x, y in zip(rs, rs[1:], strict=False)]
     r["verdict"] = verdict(n, r)
     return r
 
@@ -627,6 +631,14 @@ def memory_report(r: dict[str, Any], warmup: float, every: float = 10.0) -> str:
     after = [(t, v) for t, v in pts if t >= warmup and t <= r["duration"]]
     lines = ["RSS of the service every 10 s (s since scan 0: MB)",
              "  " + "  ".join(f"{t:.0f}:{v:.1f}" for t, v in pts)]
+    cpu = r.get("cpu_series", [])
+    if cpu:
+        per = {}
+        for t, c in cpu:
+            per.setdefault(int(t // every), []).append(c)
+        lines.append("service CPU, mean % of one core per 10 s (s since scan 0: %)")
+        lines.append("  " + "  ".join(f"{k * every:.0f}:{np.mean(v):.0f}"
+                                      for k, v in sorted(per.items()) if k >= 0))
     if len(after) >= 2:
         t0, v0 = after[0]
         t1, v1 = after[-1]
