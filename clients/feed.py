@@ -29,6 +29,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=int, default=1, help="Monte Carlo copies, one target each")
     p.add_argument("--targets", type=int, default=100, help="swarm: number of targets")
     p.add_argument("--duration", type=float, default=60.0, help="swarm: seconds simulated")
+    p.add_argument("--sectors", type=int, default=32,
+                   help="swarm: reports per radar turn, each sent as the beam leaves it")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--sensor", default="radar1", help="sensor chunk of the keys")
     p.add_argument("--realtime", action="store_true", help="pace scans by simulation time")
@@ -42,33 +44,43 @@ def parser() -> argparse.ArgumentParser:
 
 def scans(args: argparse.Namespace) -> Iterator[scenarios.Scan]:
     if args.scenario == "swarm":
-        return scenarios.swarm(args.targets, args.seed, args.duration)
+        return scenarios.swarm(args.targets, args.seed, args.duration, sectors=args.sectors)
     return scenarios.SCENARIOS[args.scenario](runs=args.runs, seed=args.seed)
+
+
+def stamped(body: dict, t_scan: float, offset: float, **extra: object) -> dict:
+    """The message: `t` first, the body's own t (a radar's beam crossing time) if it
+    has one else the scan's, shifted by `offset`."""
+    return {"t": body.get("t", t_scan) + offset, **extra,
+            **{k: v for k, v in body.items() if k != "t"}}
 
 
 def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
     """Publish every scan; return the number of measurements sent."""
     keys = Keys(args.ns)
     block = zenoh.CongestionControl.BLOCK
-    pubs: dict[str, zenoh.Publisher] = {}
-    truth_pubs: dict[str, zenoh.Publisher] = {}
+    # one key expression per target, put on the session: declaring a publisher per
+    # target costs O(declared) in zenoh, O(N^2) for a swarm
+    meas_keys: dict[str, zenoh.KeyExpr] = {}
+    truth_keys: dict[str, zenoh.KeyExpr] = {}
+    put = session.put
     sent, seq, t_last = 0, 0, args.t0
     wall0 = time.monotonic()
-    for t, meas, truth in scans(args):
-        t += args.t0
+    for t0, meas, truth in scans(args):
+        t = t0 + args.t0
         if args.realtime:
             delay = wall0 + (t - args.t0) - time.monotonic()
             if delay > 0:
                 time.sleep(delay)  # pacing to simulation time is the point here
         if args.truth:
             for target, state in truth:
-                pub = truth_pubs.get(target) or truth_pubs.setdefault(
-                    target, session.declare_publisher(keys.truth(target), congestion_control=block))
-                pub.put(pack({"t": t, **state}))
+                ke = truth_keys.get(target) or truth_keys.setdefault(
+                    target, zenoh.KeyExpr(keys.truth(target)))
+                put(ke, pack(stamped(state, t0, args.t0)), congestion_control=block)
         for target, m in meas:
-            pub = pubs.get(target) or pubs.setdefault(target, session.declare_publisher(
-                keys.meas(args.sensor, target), congestion_control=block))
-            pub.put(pack({"t": t, "seq": seq, **m}))
+            ke = meas_keys.get(target) or meas_keys.setdefault(
+                target, zenoh.KeyExpr(keys.meas(args.sensor, target)))
+            put(ke, pack(stamped(m, t0, args.t0, seq=seq)), congestion_control=block)
             seq += 1
             sent += 1
         t_last = t

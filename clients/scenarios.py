@@ -140,8 +140,14 @@ def maneuver(runs: int = 1, seed: int = 0) -> Iterator[Scan]:
 
 # ---------------------------------------------------------------- swarm
 def swarm(targets: int = 100, seed: int = 0, duration: float = 60.0,
-          period: float = 1.0) -> Iterator[Scan]:
-    """Many straight-flying targets seen by a 3-D radar at the origin."""
+          period: float = 1.0, sectors: int = 32) -> Iterator[Scan]:
+    """Many straight-flying targets seen by a rotating 3-D radar at the origin.
+
+    The beam turns once per `period` from North through East; each target is measured
+    when the beam crosses its azimuth (its own `t`), and the reports of each of the
+    `sectors` sectors of a turn go out together when the beam leaves the sector, as
+    radars report by sector. sectors=1 gives one burst per turn.
+    """
     rng = np.random.default_rng(seed)
     n = targets
     rho = rng.uniform(5_000, 80_000, n)
@@ -151,15 +157,24 @@ def swarm(targets: int = 100, seed: int = 0, duration: float = 60.0,
     v = np.stack([speed * np.sin(heading), speed * np.cos(heading), np.zeros(n)], 1)
     sr, sa = 20.0, math.radians(0.2)
     names = [f"swarm-{i:05d}" for i in range(n)]
+    width = 2 * np.pi / sectors
     for k in range(int(duration / period) + 1):
-        t = k * period
-        q = p + v * t
+        q0 = p + v * (k * period)
+        beam = np.mod(np.arctan2(q0[:, 0], q0[:, 1]), 2 * np.pi)  # azimuth at turn start
+        sector = np.minimum((beam // width).astype(int), sectors - 1)
+        t = k * period + beam / (2 * np.pi) * period  # when the beam crosses the target
+        q = p + v * t[:, None]
         r = np.linalg.norm(q, axis=1) + sr * rng.standard_normal(n)
         az = np.arctan2(q[:, 0], q[:, 1]) + sa * rng.standard_normal(n)
         el = np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1])) + sa * rng.standard_normal(n)
-        meas = [(nm, {"r": float(r[i]), "az": float(az[i]), "el": float(el[i]),
-                      "sr": sr, "saz": sa, "sel": sa}) for i, nm in enumerate(names)]
-        yield t, meas, [(nm, _truth(q[i], v[i])) for i, nm in enumerate(names)]
+        for j in range(sectors):
+            idx = np.flatnonzero(sector == j)
+            idx = idx[np.argsort(t[idx])]
+            meas = [(names[i], {"t": float(t[i]), "r": float(r[i]), "az": float(az[i]),
+                                "el": float(el[i]), "sr": sr, "saz": sa, "sel": sa})
+                    for i in idx]
+            truth = [(names[i], {"t": float(t[i]), **_truth(q[i], v[i])}) for i in idx]
+            yield k * period + (j + 1) * period / sectors, meas, truth
 
 
 SCENARIOS = {"display": display, "radar3d": radar3d, "maneuver": maneuver}

@@ -1,8 +1,10 @@
 """The Zenoh adapter: subscribe inputs, run the pipeline on one worker thread, publish.
 
-Zenoh callbacks only enqueue; one worker thread owns the track table, so the table needs
-no locks. Data flows one way: wire -> validate -> table (convert, predict, update) ->
-clock -> publication.
+Measurements wait in Zenoh's own FIFO channels (Zenoh's receive thread never needs the
+GIL for them, so a busy worker cannot throttle the link); the worker moves them to its
+inbox in batches. Clock messages and queries come by callback into the same inbox. One
+worker thread owns the track table, so the table needs no locks. Data flows one way:
+wire -> validate -> table (convert, predict, update) -> clock -> publication.
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ from .validate import Measurement, Rejected, parse_clock, parse_measurement
 from .wire import CHUNK, Keys, pack
 
 log = logging.getLogger("track-service")
-MAX_BATCH = 20000
+MAX_BATCH = 1000  # inputs per worker step: bounds how long a due frame waits
+CHANNEL = 1 << 16  # measurements Zenoh holds for the worker before it pushes back
+POLL = 0.002  # s: an idle worker looks in the measurement channels this often
 
 
 @dataclass
@@ -59,7 +63,11 @@ class TrackService:
         cc = zenoh.CongestionControl
         self.display_cc = cc.DROP if self.realtime else cc.BLOCK
         self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc)
-        self.pubs: dict[str, tuple[Any, Any]] = {}
+        # key expressions of each track's display/ and tracks/ keys, made once per track;
+        # plain session.put on them: zenoh declares cost O(declared) each, so a
+        # publisher per target would make starting N tracks O(N^2) (bench/README.md)
+        self.track_keys: dict[str, tuple[zenoh.KeyExpr, zenoh.KeyExpr]] = {}
+        self.block = zenoh.CongestionControl.BLOCK
         put = self.inbox.put
 
         def direct(fn: Any) -> zenoh.handlers.Callback:
@@ -68,13 +76,16 @@ class TrackService:
             # overtake the measurements sent before it)
             return zenoh.handlers.Callback(fn, indirect=False)
 
+        def clock(s: zenoh.Sample) -> None:
+            self._ingest(limit=None)  # measurements received before it go first
+            put(("clock", str(s.key_expr), s.payload.to_bytes(), time.time()))
+
+        self.ingest_lock = threading.Lock()
+        self.meas_subs = [session.declare_subscriber(k, zenoh.handlers.FifoChannel(CHANNEL))
+                          for k in (meas_keys or [keys.space("meas")])]
         self.subs = [
-            session.declare_subscriber(k, direct(lambda s: put(
-                ("meas", str(s.key_expr), s.payload.to_bytes(), time.time()))))
-            for k in (meas_keys or [keys.space("meas")])
-        ] + [
-            session.declare_subscriber(keys.clock, direct(lambda s: put(
-                ("clock", str(s.key_expr), s.payload.to_bytes(), time.time())))),
+            *self.meas_subs,
+            session.declare_subscriber(keys.clock, direct(clock)),
             session.declare_queryable(keys.space("tracks"),
                                       direct(lambda q: put(("tracks", q)))),
             session.declare_queryable(keys.status, direct(lambda q: put(("status", q)))),
@@ -93,13 +104,27 @@ class TrackService:
         self.thread.join(timeout=10)
         self.token.undeclare()
 
+    def _ingest(self, limit: int | None = MAX_BATCH) -> None:
+        """Move measurements from Zenoh's channels to the inbox, keeping arrival order."""
+        n, put = 0, self.inbox.put
+        with self.ingest_lock:
+            now = time.time()
+            for sub in self.meas_subs:
+                while limit is None or n < limit:
+                    s = sub.try_recv()
+                    if s is None:
+                        break
+                    put(("meas", str(s.key_expr), s.payload.to_bytes(), now))
+                    n += 1
+
     def _run(self) -> None:
         while not self.stop.is_set():
-            timeout = 0.5
+            timeout = POLL
             if self.realtime:
                 deadline = self.clock.next_deadline(time.time())
                 if deadline is not None:
-                    timeout = min(max(deadline - time.time(), 0.0), 0.5)
+                    timeout = min(max(deadline - time.time(), 0.0), POLL)
+            self._ingest()
             batch = []
             try:
                 batch.append(self.inbox.get(timeout=timeout))
@@ -179,19 +204,18 @@ class TrackService:
                 self._reject(self.keys.meas(m.sensor, m.target), m.sensor, out.reason)
                 continue
             self.count.meas_accepted += 1
-            self._publishers(m.target)[1].put(pack(out.state))
+            self.session.put(self._keys(m.target)[1], pack(out.state),
+                             congestion_control=self.block)
         pending.clear()
 
     # ------------------------------------------------------------ outputs
-    def _publishers(self, track_id: str) -> tuple[Any, Any]:
-        pubs = self.pubs.get(track_id)
-        if pubs is None:
-            s, k = self.session, self.keys
-            pubs = (s.declare_publisher(k.display(track_id), congestion_control=self.display_cc),
-                    s.declare_publisher(k.tracks(track_id),
-                                        congestion_control=zenoh.CongestionControl.BLOCK))
-            self.pubs[track_id] = pubs
-        return pubs
+    def _keys(self, track_id: str) -> tuple[zenoh.KeyExpr, zenoh.KeyExpr]:
+        """The display/ and tracks/ key expressions of a track."""
+        ke = self.track_keys.get(track_id)
+        if ke is None:
+            ke = self.track_keys[track_id] = (zenoh.KeyExpr(self.keys.display(track_id)),
+                                              zenoh.KeyExpr(self.keys.tracks(track_id)))
+        return ke
 
     def _frames_before(self, t: float, pending: list[Measurement]) -> None:
         due = self.clock.due_before(t - self.table.config.lag)
@@ -218,10 +242,12 @@ class TrackService:
         if self.per_target_display:
             pos, vel = snap.pos.tolist(), snap.vel.tolist()
             sig, age = snap.sigma.tolist(), snap.age.tolist()
+            put, cc = self.session.put, self.display_cc
             for i, track_id in enumerate(snap.ids):
-                self._publishers(track_id)[0].put(pack({
+                put(self._keys(track_id)[0], pack({
                     "t": t, "id": track_id, "pos": pos[i], "vel": vel[i], "sigma": sig[i],
-                    "status": snap.status[i], "age": age[i], "shown": snap.shown[i]}))
+                    "status": snap.status[i], "age": age[i], "shown": snap.shown[i]}),
+                    congestion_control=cc)
         self.count.frames_published += 1
 
     def _finite(self, snap: Snapshot) -> Snapshot:
@@ -240,12 +266,9 @@ class TrackService:
         if not ids:
             return
         self.table.delete(ids)
-        block = zenoh.CongestionControl.BLOCK
         for track_id in ids:
-            for pub in self.pubs.pop(track_id, ()):
-                pub.undeclare()
-            for key in (self.keys.display(track_id), self.keys.tracks(track_id)):
-                self.session.delete(key, congestion_control=block)  # deletions never drop
+            for key in self.track_keys.pop(track_id, None) or ():
+                self.session.delete(key, congestion_control=self.block)  # never dropped
         self.count.tracks_deleted += len(ids)
 
     # ------------------------------------------------------------ queries
