@@ -38,8 +38,8 @@ class Single:
         xp, pp = predict(bank.x[rows], bank.p[rows], f, qm)
         return kalman.update(xp, pp, *convert(xp, pp))
 
-    def label(self, bank: Any, row: int) -> str | dict[str, float]:
-        return self.kind
+    def labels(self, bank: Any, rows: np.ndarray) -> list[str | dict[str, float]]:
+        return [self.kind] * len(rows)
 
 
 def predict(x: np.ndarray, p: np.ndarray, f: np.ndarray, q: np.ndarray
@@ -123,8 +123,9 @@ class IMM:
         _, _, nis, _ = kalman.update(xbar, pbar, *conv)  # NIS of the mixture prediction
         return x, p, nis, ok
 
-    def label(self, bank: Any, row: int) -> dict[str, float]:
-        return {name: float(v) for (name, *_), v in zip(self.modes, bank.mu[row], strict=True)}
+    def labels(self, bank: Any, rows: np.ndarray) -> list[dict[str, float]]:
+        names = [name for name, *_ in self.modes]
+        return [dict(zip(names, mu, strict=True)) for mu in bank.mu[rows].tolist()]
 
 
 @dataclass
@@ -224,5 +225,5 @@ class VDF:
             t = tk
         return x, p
 
-    def label(self, bank: Any, row: int) -> str:
-        return "ca" if bank.ca[row] else "cv"
+    def labels(self, bank: Any, rows: np.ndarray) -> list[str]:
+        return ["ca" if ca else "cv" for ca in bank.ca[rows].tolist()]

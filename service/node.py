@@ -26,9 +26,9 @@ from .validate import Measurement, Rejected, parse_clock, parse_measurement
 from .wire import CHUNK, Keys, pack
 
 log = logging.getLogger("track-service")
-MAX_BATCH = 1000  # inputs per worker step: bounds how long a due frame waits
+MAX_BATCH = 256  # inputs per worker step: bounds how long a due frame waits
 CHANNEL = 1 << 16  # measurements Zenoh holds for the worker before it pushes back
-POLL = 0.002  # s: an idle worker looks in the measurement channels this often
+POLL = 0.001  # s: an idle worker looks in the measurement channels this often
 
 
 @dataclass
@@ -142,6 +142,7 @@ class TrackService:
     # ------------------------------------------------------------ inputs
     def _process(self, batch: list[tuple]) -> None:
         pending: list[Measurement] = []
+        seen = (None, -np.inf)  # (arrival stamp, newest t) last given to the clock
         for item in batch:
             kind = item[0]
             if kind == "meas":
@@ -149,7 +150,9 @@ class TrackService:
                 if m is None:
                     continue
                 if self.realtime:
-                    self.clock.observe(m.t, item[3])
+                    if item[3] != seen[0] or m.t > seen[1]:  # else it cannot move the offset
+                        self.clock.observe(m.t, item[3])
+                        seen = (item[3], m.t)
                 else:
                     self._frames_before(m.t, pending)
                 pending.append(m)
@@ -232,7 +235,7 @@ class TrackService:
 
     def _publish_frame(self, t: float) -> None:
         self._delete(self.table.stale(t))
-        snap = self.table.snapshot(t)
+        snap = self.table.snapshot(t, detail=self.per_target_display)
         snap = self._finite(snap)
         self.pub_frame.put(pack({
             "t": t, "ids": snap.ids,
@@ -258,9 +261,11 @@ class TrackService:
             return snap
         self.count.states_withheld += int((~ok).sum())
         keep = np.flatnonzero(ok)
-        return Snapshot(snap.t, [snap.ids[i] for i in keep], snap.pos[keep], snap.vel[keep],
-                        snap.sigma[keep], snap.age[keep], [snap.status[i] for i in keep],
-                        [snap.shown[i] for i in keep])
+        pick = keep.tolist()
+        return Snapshot(snap.t, [snap.ids[i] for i in pick], snap.pos[keep], snap.vel[keep],
+                        snap.sigma[keep], snap.age[keep],
+                        [snap.status[i] for i in pick] if snap.status else [],
+                        [snap.shown[i] for i in pick] if snap.shown else [])
 
     def _delete(self, ids: list[str]) -> None:
         if not ids:

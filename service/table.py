@@ -18,6 +18,8 @@ from . import convert, display, filters
 from .validate import Measurement
 
 TIME_TOL = 1e-6  # s: measurements this close to the track time count as simultaneous
+STATUS = ("tentative", "confirmed", "coasting")
+SHOWN = ("prediction", "blend", "smoothed")
 
 
 @dataclass
@@ -76,6 +78,7 @@ class Bank:
             self.shapes[name] = ((modes,) if modes else ()) + codes[code]
         self.ids: list[str | None] = []
         self.free: list[int] = []
+        self._live: tuple[np.ndarray, list[str]] | None = None
         for name, shape in self.shapes.items():
             setattr(self, name, np.zeros((0, *shape), dtype=self._dtype(name)))
         self._grow(capacity)
@@ -100,15 +103,26 @@ class Bank:
         row = self.free.pop()
         self.ids[row] = track_id
         self.alive[row] = True
+        self._live = None
         return row
 
     def remove(self, row: int) -> None:
         self.ids[row] = None
         self.alive[row] = False
         self.free.append(row)
+        self._live = None
+
+    def live(self) -> tuple[np.ndarray, list[str]]:
+        """Rows of the live tracks and their ids, cached until a track comes or goes
+        (every display frame asks)."""
+        if self._live is None:
+            rows = np.flatnonzero(self.alive)
+            ids = self.ids
+            self._live = (rows, [ids[i] for i in rows.tolist()])  # type: ignore[misc]
+        return self._live
 
     def rows(self) -> np.ndarray:
-        return np.flatnonzero(self.alive)
+        return self.live()[0]
 
 
 def measurement_arrays(meas: Sequence[Measurement], dim: int, pred: np.ndarray | None,
@@ -214,9 +228,10 @@ class TrackTable:
             res = self._initiate(dim, sub) if new else self._update(dim, sub)
             for i, (reason, nis) in zip(idx, res, strict=True):
                 out[i].reason, out[i].nis = reason, nis
-        for o in out:
-            if o.reason is None:
-                o.state = self.state(o.meas.target)
+            good = [i for i, (reason, _) in zip(idx, res, strict=True) if reason is None]
+            rows = [self.where[meas[i].target][1] for i in good]
+            for i, state in zip(good, self.states(self.bank(dim), rows), strict=True):
+                out[i].state = state
         return out
 
     def _initiate(self, dim: int, meas: list[Measurement]) -> list[tuple[str | None, float]]:
@@ -273,32 +288,35 @@ class TrackTable:
 
     # ------------------------------------------------------------ display
     def _drawn(self, bank: Bank, rows: np.ndarray, t: np.ndarray | float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
-        """Position, velocity, position variance and kind of what the display shows."""
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, position variance and kind (index into SHOWN) of what the
+        display shows."""
         c = self.config
         xs, var = display.predicted(bank, rows, t, c.q)
         pos, vel = xs[:, 0], xs[:, 1]
-        shown = np.full(len(rows), "prediction", dtype=object)
+        shown = np.zeros(len(rows), dtype=np.int8)
         if c.blend > 0:
             bpos, bvel, mask = display.blended(bank, rows, t, xs, c.blend)
             pos, vel = np.where(mask[:, None], bpos, pos), np.where(mask[:, None], bvel, vel)
-            shown[mask] = "blend"
+            shown[mask] = 1
         if c.lag > 0 and np.ndim(t) == 0:
             spos, svel, mask = display.smoothed(bank, rows, float(t), c.q)
             pos, vel = np.where(mask[:, None], spos, pos), np.where(mask[:, None], svel, vel)
-            shown[mask] = "smoothed"
-        return pos, vel, var, shown.tolist()
+            shown[mask] = 2
+        return pos, vel, var, shown
 
-    def snapshot(self, t: float) -> Snapshot:
+    def snapshot(self, t: float, detail: bool = True) -> Snapshot:
         """Every track as the display shows it at instant t (no change to the table):
-        position, velocity, sigma = sqrt(trace of the predicted position covariance)."""
+        position, velocity, sigma = sqrt(trace of the predicted position covariance).
+        `detail`: also each track's status and what is shown (the display/ keys; the
+        frame does not carry them)."""
         ids: list[str] = []
         parts: list[tuple[np.ndarray, ...]] = []
         status: list[str] = []
         shown: list[str] = []
         c = self.config
         for bank in self.banks.values():
-            rows = bank.rows()
+            rows, bank_ids = bank.live()
             if not len(rows):
                 continue
             d = bank.dim
@@ -307,15 +325,15 @@ class TrackTable:
             vel = np.zeros((len(rows), 3))
             pos[:, :d], vel[:, :d] = p, v
             age = np.maximum(t - bank.t[rows], 0.0)
-            interval = np.where(bank.updates[rows] > 1,
-                                (bank.t[rows] - bank.t_first[rows])
-                                / np.maximum(bank.updates[rows] - 1, 1), np.inf)
-            coasting = age > c.coast_after * interval
-            confirmed = bank.updates[rows] >= bank.order
-            status += ["coasting" if k else "confirmed" if f else "tentative"
-                       for k, f in zip(coasting, confirmed, strict=True)]
-            shown += kinds
-            ids += [bank.ids[i] for i in rows]  # type: ignore[misc]
+            if detail:
+                updates = bank.updates[rows]
+                interval = np.where(updates > 1, (bank.t[rows] - bank.t_first[rows])
+                                    / np.maximum(updates - 1, 1), np.inf)
+                coasting = age > c.coast_after * interval
+                code = np.where(coasting, 2, (updates >= bank.order).astype(np.int8))
+                status += [STATUS[k] for k in code.tolist()]
+                shown += [SHOWN[k] for k in kinds.tolist()]
+            ids += bank_ids
             parts.append((pos, vel, np.sqrt(np.maximum(var, 0.0)), age))
         if not parts:
             e = np.zeros((0, 3))
@@ -327,22 +345,29 @@ class TrackTable:
     def state(self, track_id: str) -> dict:
         """The filtered state of one track (the `tracks/<id>` message body)."""
         bank, row = self.where[track_id]
-        d = bank.dim
-        x, p = bank.x[row], bank.p[row]
-        pos, vel = [0.0] * 3, [0.0] * 3
-        pos[:d], vel[:d] = x[:d].tolist(), x[d:2 * d].tolist()
-        return {"t": float(bank.t[row]), "id": track_id, "pos": pos, "vel": vel,
-                "x": x.tolist(), "P": p.ravel().tolist(),
-                "model": self.filter.label(bank, row), "nis": float(bank.nis[row]),
-                "updates": int(bank.updates[row])}
+        return self.states(bank, [row])[0]
+
+    def states(self, bank: Bank, rows: Sequence[int]) -> list[dict]:
+        """The filtered states of rows of a bank, built in bulk (`tracks/` bodies)."""
+        r = np.asarray(rows, dtype=int)
+        d, n = bank.dim, len(r)
+        x = bank.x[r]
+        pad = [0.0] * (3 - d)
+        xs, ps = x.tolist(), bank.p[r].reshape(n, -1).tolist()
+        pos, vel = x[:, :d].tolist(), x[:, d:2 * d].tolist()
+        ts, nis, upd = bank.t[r].tolist(), bank.nis[r].tolist(), bank.updates[r].tolist()
+        labels, ids = self.filter.labels(bank, r), bank.ids
+        return [{"t": ts[k], "id": ids[row], "pos": pos[k] + pad, "vel": vel[k] + pad,
+                 "x": xs[k], "P": ps[k], "model": labels[k], "nis": nis[k],
+                 "updates": upd[k]} for k, row in enumerate(r.tolist())]
 
     def stale(self, t: float) -> list[str]:
         """Ids of tracks with no measurement for longer than `delete_after`."""
         out: list[str] = []
         for bank in self.banks.values():
-            rows = bank.rows()
-            old = rows[t - bank.t[rows] > self.config.delete_after]
-            out += [bank.ids[i] for i in old]  # type: ignore[misc]
+            rows, ids = bank.live()
+            old = np.flatnonzero(t - bank.t[rows] > self.config.delete_after)
+            out += [ids[i] for i in old.tolist()]
         return out
 
     def delete(self, ids: Iterable[str]) -> None:

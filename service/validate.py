@@ -58,6 +58,9 @@ def decode_map(payload: bytes) -> dict[str, Any]:
     return msg
 
 
+POLAR_3D = frozenset(("t", "r", "az", "el", "sr", "saz", "sel", "seq"))
+
+
 def parse_measurement(
     sensor: str, target: str, payload: bytes, defaults: tuple[float, float, float, float]
 ) -> Measurement:
@@ -65,6 +68,10 @@ def parse_measurement(
 
     `defaults` = (sr, saz, sel, sigma): the noise used when a message gives none.
     """
+    msg = _fast_polar(sensor, target, payload)
+    if msg is not None:  # the common case, all checks passed at once
+        return Measurement(sensor, target, msg[0], 3, True, msg[1:4], msg[4:7],
+                           (0.0, 0.0, 0.0), msg[7])
     for what, chunk in (("sensor", sensor), ("target", target)):
         if not CHUNK.fullmatch(chunk):
             raise Rejected(f"{what} chunk '{chunk}' must be letters, digits, '-' or '_'")
@@ -104,6 +111,27 @@ def parse_measurement(
         sig = (_num({"sigma": raw}, "sigma", 0.0),)
     sigmas = sig * len(pos) if len(sig) == 1 else sig
     return Measurement(sensor, target, t, len(pos), False, pos, sigmas, sensor_pos, seq)
+
+
+def _fast_polar(sensor: str, target: str, payload: bytes) -> tuple | None:
+    """(t, r, az, el, sr, saz, sel, seq) of a well-formed 3-D polar measurement with all
+    its fields given as floats; None for anything else (the full check then runs and
+    names the problem)."""
+    try:
+        msg = unpack(payload)
+        if type(msg) is not dict or msg.keys() - POLAR_3D or len(msg) < 7:
+            return None
+        v = (msg["t"], msg["r"], msg["az"], msg["el"], msg["sr"], msg["saz"], msg["sel"])
+        seq = msg.get("seq")
+        finite = math.isfinite(math.fsum(v)) if all(type(x) is float for x in v) else False
+    except (ValueError, KeyError, OverflowError):  # fsum overflows on huge finite values
+        return None
+    if (not finite
+            or v[1] < 0.0 or v[4] < 0.0 or v[5] < 0.0 or v[6] < 0.0
+            or (seq is not None and type(seq) is not int)
+            or not (CHUNK.fullmatch(sensor) and CHUNK.fullmatch(target))):
+        return None
+    return (*v, seq)
 
 
 def parse_clock(payload: bytes) -> float:
