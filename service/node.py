@@ -23,7 +23,7 @@ from . import __version__
 from .clock import Lockstep, Realtime
 from .table import Snapshot, TrackTable
 from .validate import Measurement, Rejected, parse_clock, parse_measurement
-from .wire import CHUNK, Keys, pack
+from .wire import CHUNK, Keys, pack, pack_displays
 
 log = logging.getLogger("track-service")
 MAX_BATCH = 256  # inputs per worker step: bounds how long a due frame waits
@@ -243,14 +243,11 @@ class TrackService:
             "sigma": snap.sigma.astype("<f8").tobytes(),
         }))
         if self.per_target_display:
-            pos, vel = snap.pos.tolist(), snap.vel.tolist()
-            sig, age = snap.sigma.tolist(), snap.age.tolist()
-            put, cc = self.session.put, self.display_cc
-            for i, track_id in enumerate(snap.ids):
-                put(self._keys(track_id)[0], pack({
-                    "t": t, "id": track_id, "pos": pos[i], "vel": vel[i], "sigma": sig[i],
-                    "status": snap.status[i], "age": age[i], "shown": snap.shown[i]}),
-                    congestion_control=cc)
+            put, cc, keys = self.session.put, self.display_cc, self._keys
+            bodies = pack_displays(t, snap.ids, snap.pos, snap.vel, snap.sigma, snap.age,
+                                   snap.status, snap.shown)
+            for track_id, body in zip(snap.ids, bodies, strict=True):
+                put(keys(track_id)[0], body, congestion_control=cc)
         self.count.frames_published += 1
 
     def _finite(self, snap: Snapshot) -> Snapshot:

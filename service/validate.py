@@ -72,6 +72,13 @@ def parse_measurement(
     if msg is not None:  # the common case, all checks passed at once
         return Measurement(sensor, target, msg[0], 3, True, msg[1:4], msg[4:7],
                            (0.0, 0.0, 0.0), msg[7])
+    return parse_full(sensor, target, payload, defaults)
+
+
+def parse_full(
+    sensor: str, target: str, payload: bytes, defaults: tuple[float, float, float, float]
+) -> Measurement:
+    """`parse_measurement` field by field, naming the first problem found."""
     for what, chunk in (("sensor", sensor), ("target", target)):
         if not CHUNK.fullmatch(chunk):
             raise Rejected(f"{what} chunk '{chunk}' must be letters, digits, '-' or '_'")

@@ -257,3 +257,32 @@ def test_parse_clock():
             parse_clock(pack(bad))
     with pytest.raises(Rejected):
         parse_clock(b"\xc1")
+
+
+# ---------------------------------------------------------------- fast path
+FULL = {"t": 3.0, "r": 5000.0, "az": 1.0, "el": 0.3, "sr": 1.0, "saz": 0.1, "sel": 0.2,
+        "seq": 4}
+VARIANTS = [
+    {}, {"seq": None}, {"t": 3}, {"r": 5000}, {"sel": 0}, {"r": -1.0}, {"saz": -0.1},
+    {"el": math.nan}, {"t": math.inf}, {"az": True}, {"seq": 1.5}, {"seq": True},
+    {"r": 1e308, "t": 1e308, "az": 1e308},  # finite; a naive sum overflows
+    {"pos": [1.0, 2.0, 3.0]}, {"sensor_pos": [0.0, 0.0, 10.0]}, {"extra": 1},
+    {"r": "5000"}, {"sel": [0.1]},
+]
+
+
+@pytest.mark.parametrize("change", VARIANTS)
+@pytest.mark.parametrize("drop", [None, "sel", "seq", "t", "el"])
+def test_fast_path_agrees_with_the_full_check(change, drop):
+    from service.validate import parse_full
+    msg = {**FULL, **change}
+    if drop:
+        msg.pop(drop, None)
+    data = pack(msg)
+    outcomes = []
+    for fn in (parse_measurement, parse_full):
+        try:
+            outcomes.append(fn("radar-1", "tgt_7", data, DEFAULTS))
+        except Rejected as exc:
+            outcomes.append(str(exc))
+    assert outcomes[0] == outcomes[1]

@@ -1,0 +1,27 @@
+"""The wire module's bulk encoder gives exactly the maps `pack` gives."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.wire import pack, pack_displays, unpack
+
+
+def test_pack_displays_decodes_to_the_same_maps_as_pack():
+    rng = np.random.default_rng(3)
+    ids = ["a", "swarm-00012", "x" * 40, "t_7"]  # fixstr and str8 lengths
+    n = len(ids)
+    pos, vel = rng.normal(size=(n, 3)) * 1e5, rng.normal(size=(n, 3))
+    pos[0, 2] = vel[0, 2] = 0.0  # a 2-D track
+    sigma, age = rng.random(n), np.array([0.0, 1e-9, 3.5, 1e6])
+    status = ["tentative", "confirmed", "coasting", "confirmed"]
+    shown = ["prediction", "blend", "smoothed", "prediction"]
+    got = pack_displays(123.25, ids, pos, vel, sigma, age, status, shown)
+    for i in range(n):
+        want = {"t": 123.25, "id": ids[i], "pos": pos[i].tolist(), "vel": vel[i].tolist(),
+                "sigma": float(sigma[i]), "status": status[i], "age": float(age[i]),
+                "shown": shown[i]}
+        assert unpack(got[i]) == unpack(pack(want))
+        assert list(unpack(got[i]))[0] == "t"  # t first, as every message
+    assert pack_displays(1.0, [], np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                         np.zeros(0), [], []) == []
