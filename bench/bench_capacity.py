@@ -10,8 +10,8 @@ port, multicast scouting off):
     python -m service --clock realtime --filter cv -l tcp/127.0.0.1:PORT [--no-display-keys]
     python -m clients.feed swarm --targets N --realtime --duration D -e tcp/127.0.0.1:PORT
 
-(N targets, one radar measurement each per second, sent as one burst per scan) and
-observes them from this process's own Zenoh session:
+(N targets, one radar measurement each per second, reported by sector as the beam turns)
+and observes them from this process's own Zenoh session:
 
 - input: `<ns>/status` queried once a second, half-way between two scans (all of a
   scan's measurements have arrived by then if the service keeps up): measurements
@@ -24,7 +24,7 @@ observes them from this process's own Zenoh session:
   lateness of each frame against its display instant (instant - offset, the offset
   estimated as the service does: max(t - arrival) of the measurements seen here).
 - latency: `<ns>/tracks/<id>` and `<ns>/meas/*/<id>` of a sample of the targets (ids
-  ending in fixed digits, `swarm-$*0`, so the sample is spread over each burst; at most
+  ending in fixed digits, `swarm-$*0`, so the sample is spread over the turn; at most
   --sample targets) are subscribed here; each tracks/ message is paired with the
   measurement of the same (id, t) and latency = arrival of the track - arrival of the
   measurement, both stamped by this process's clock on Zenoh's receive thread. That is
@@ -650,9 +650,9 @@ def memory_report(r: dict[str, Any], warmup: float, every: float = 10.0) -> str:
 
 
 def declare_scaling(total: int, step: int, log: Any) -> None:
-    """Cost of Session.declare_publisher as publishers accumulate in one session (the
-    service declares two per target, display/ and tracks/, on the target's first
-    measurement), against Session.put on undeclared keys."""
+    """Cost of Session.declare_publisher as publishers accumulate in one session, against
+    Session.put on undeclared keys: why the service and the feed put on key expressions
+    instead of declaring a publisher per target (O(N^2) to start N tracks)."""
     conf = zenoh.Config()
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
@@ -684,7 +684,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--modes", nargs="+", choices=("frame", "display"),
                    default=["frame", "display"],
                    help="frame: --no-display-keys; display: per-target display/ keys too")
-    p.add_argument("--duration", type=float, default=30.0, help="feed duration per run, s")
+    p.add_argument("--duration", type=float, default=60.0, help="feed duration per run, s")
     p.add_argument("--warmup", type=float, default=6.0, help="s after scan 0 not measured")
     p.add_argument("--filter", default="cv")
     p.add_argument("--sample", type=int, default=1000,
