@@ -70,9 +70,14 @@ def parser() -> argparse.ArgumentParser:
                    help="default elevation noise std, rad")
     p.add_argument("--sigma", type=float, default=1.0,
                    help="default Cartesian noise std, m")
+    p.add_argument("--blend-speed", type=float, default=0.0, metavar="M/S",
+                   help="when a correction lands, absorb it into the drawn position at this "
+                        "speed relative to the track instead of stepping: every frame moves "
+                        "at most SPEED / --rate beyond the track's own motion, and a "
+                        "correction of d metres takes d / SPEED seconds (0: off; default)")
     p.add_argument("--blend", type=float, default=0.0, metavar="SECONDS",
-                   help="when a correction lands, absorb it into the drawn position over "
-                        "this period instead of stepping (0: plain "
+                   help="absorb each correction over this period instead of stepping; with "
+                        "--blend-speed, the longest a correction may take (0: plain "
                         "prediction, the contract's lockstep semantics; default)")
     p.add_argument("--lag", type=float, default=0.0, metavar="SECONDS",
                    help="publish frames for now - lag, smoothed between the two filtered "
@@ -94,7 +99,8 @@ def main(argv: list[str] | None = None) -> None:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     order, update, filt, q = make_filter(args)
     table = TrackTable(TableConfig(order=order, q=q, update=update, filter=filt,
-                                   init_speed=args.init_speed, blend=args.blend, lag=args.lag,
+                                   init_speed=args.init_speed, blend=args.blend,
+                                   blend_speed=args.blend_speed, rate=args.rate, lag=args.lag,
                                    init_accel=args.init_accel, delete_after=args.delete_after))
     conf = zenoh_config(args, serve=True)
     if args.clock == "lockstep" and not args.config:

@@ -2,8 +2,9 @@
 
 Pure NumPy over rows of a track bank. `predicted` dead-reckons the filtered state to the
 display instant. `blended` keeps the drawn position continuous when a correction lands,
-absorbing it over a set period. `smoothed` serves a lagged display: the fixed-interval
-(Rauch-Tung-Striebel) smoother between the two filtered states that bracket the instant.
+absorbing it at a limited speed and/or over a set period. `smoothed` serves a lagged
+display: the fixed-interval (Rauch-Tung-Striebel) smoother between the two filtered
+states that bracket the instant.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from . import kalman, models
+from .clock import TOL
 
 
 def predicted(bank: Any, rows: np.ndarray, t: np.ndarray | float, q: float
@@ -29,24 +31,46 @@ def predicted(bank: Any, rows: np.ndarray, t: np.ndarray | float, q: float
     return xs, np.einsum("na,nab,nb->n", c0, tr, c0) + d * (q * g0) ** 2
 
 
-def blended(bank: Any, rows: np.ndarray, t: np.ndarray | float, xs: np.ndarray,
-            period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Position drawn at t while a correction is absorbed: the new estimate's prediction
-    xs minus the correction (new position - drawn position bp, both at the correction
-    time bt) decaying linearly to zero over `period`. Returns pos, vel (N, dim) and a mask
-    of rows still blending.
+def frame_before(t: np.ndarray, rate: float) -> np.ndarray:
+    """The last display instant n / rate strictly before t (same tolerance as the clock)."""
+    return (np.ceil((np.asarray(t, dtype=float) - TOL) * rate) - 1.0) / rate
 
-    The drawn position is continuous and moves at most correction/(period x rate) beyond
-    the estimate per frame. Linear decay is the fastest that keeps each frame's step under
-    that bound. Unlike projective velocity blending (Murphy, Game Engine Gems 2, 2011),
-    which also blends the velocity, the new velocity is taken at once, so the old
-    trajectory's velocity error stops counting straight away: 10-15 % less frame error
-    for the same largest step on scenario A (docs/accuracy.md)."""
+
+def blend_period(offset: np.ndarray, period: float, speed: float) -> np.ndarray:
+    """How long each row takes to absorb its correction offset (N, dim): |offset| / speed
+    when a speed is set (slew-rate limit: the drawn point never moves faster than `speed`
+    relative to the estimate, so small corrections vanish within a frame or two and only
+    large ones take long), at most `period` when that is set too; `period` alone: every
+    correction over the same period."""
+    size = np.linalg.norm(offset, axis=-1)
+    if speed <= 0:
+        return np.full(size.shape, float(period))
+    dur = size / speed
+    return np.minimum(dur, period) if period > 0 else dur
+
+
+def blended(bank: Any, rows: np.ndarray, t: np.ndarray | float, xs: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position drawn at t while a correction is absorbed: the new estimate's prediction xs
+    plus the offset bo (what was drawn at bt minus the new estimate at bt) decaying
+    linearly to zero over the row's period bd (`blend_period`). Returns pos, vel (N, dim)
+    and a mask of rows still blending.
+
+    bt is the last display instant before the correction, so the frame at the correction
+    instant already takes the first step, and every frame moves at most |bo| / (bd x rate)
+    beyond the estimate's own motion. With a speed limit that step is the same for every
+    correction (speed / rate), so the jump bound costs only the largest corrections time;
+    a fixed period holds small corrections as long as large ones. Linear decay is the
+    fastest schedule that keeps each frame's step under the bound. This is rate-limited
+    convergence to the estimate, not projective velocity blending (Murphy, "Believable
+    Dead Reckoning for Networked Games", Game Engine Gems 2, 2011): the new velocity is
+    taken at once, so the old trajectory's velocity error stops counting straight away
+    (docs/accuracy.md)."""
     tau = np.broadcast_to(np.asarray(t - bank.bt[rows], dtype=float), rows.shape)
-    s = np.clip(tau / period, 0.0, 1.0)
-    s = np.where(bank.updates[rows] > 1, s, 1.0)
-    offset = bank.bp[rows] - bank.x[rows, :bank.dim]  # drawn - estimate at the correction
-    return xs[:, 0] + offset * (1.0 - s)[:, None], xs[:, 1], s < 1.0
+    period = bank.bd[rows]
+    s = np.divide(tau, period, out=np.ones_like(tau), where=period > 0)
+    s = np.where(bank.updates[rows] > 1, np.clip(s, 0.0, 1.0), 1.0)
+    return xs[:, 0] + bank.bo[rows] * (1.0 - s)[:, None], xs[:, 1], s < 1.0
 
 
 def smoothed(bank: Any, rows: np.ndarray, t: float, q: float

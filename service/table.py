@@ -30,7 +30,9 @@ class TableConfig:
     q: float = 1.0  # process noise std: m/s^2 (CV) or m/s^3 (CA), per axis
     init_speed: float = 1000.0  # prior std of velocity at initiation, m/s
     init_accel: float = 10.0  # prior std of acceleration at initiation (CA), m/s^2
-    blend: float = 0.0  # s: converge to a correction over this period (0: plain prediction)
+    blend: float = 0.0  # s: absorb a correction over this period (at most, with a speed)
+    blend_speed: float = 0.0  # m/s: absorb a correction at this speed (0: no speed limit)
+    rate: float = 30.0  # Hz: display rate (blending starts from the last frame drawn)
     lag: float = 0.0  # s: display instants lag the clock; shown smoothed when bracketed
     coast_after: float = 2.5  # coasting when age > coast_after x the track's scan interval
     delete_after: float = 30.0  # s of simulation time without a measurement
@@ -70,8 +72,8 @@ class Bank:
         self.shapes: dict[str, tuple[int, ...]] = {
             "x": (n,), "p": (n, n), "t": (), "t_first": (), "nis": (), "updates": (),
             "alive": (),
-            # the state drawn when the last correction landed (display blending)
-            "bp": (dim,), "bt": (),
+            # display blending: drawn minus estimate at instant bt, absorbed over bd
+            "bo": (dim,), "bt": (), "bd": (),
             # the previous filtered state (display smoothing)
             "px": (n,), "pp": (n, n), "pt": ()}
         for name, (code, modes) in (extra or {}).items():
@@ -255,7 +257,7 @@ class TrackTable:
             bank.p[row] = np.diag(np.repeat([0.0, *prior], dim))
             bank.p[row, :dim, :dim] = ri
             bank.t[row] = bank.t_first[row] = bank.bt[row] = bank.pt[row] = m.t
-            bank.bp[row] = zi
+            bank.bo[row], bank.bd[row] = 0.0, 0.0
             bank.px[row], bank.pp[row] = bank.x[row], bank.p[row]
             bank.updates[row] = 1
             bank.nis[row] = 0.0
@@ -275,14 +277,19 @@ class TrackTable:
 
         xn, pn, nis, ok = self.filter.update(bank, rows, t - bank.t[rows], conversion)
         good = rows[ok]
-        if c.blend > 0:  # anchor the blend at what was drawn when the correction lands
-            shown = self._drawn(bank, good, t[ok])
-            bank.bp[good] = shown[0]
-            bank.bt[good] = t[ok]
+        blend = c.blend > 0 or c.blend_speed > 0
+        if blend:  # anchor the blend at the last frame drawn before the correction
+            before = display.frame_before(t[ok], c.rate)
+            drawn = self._drawn(bank, good, before)[0]
         bank.px[good], bank.pp[good], bank.pt[good] = bank.x[good], bank.p[good], bank.t[good]
         bank.x[good], bank.p[good], bank.nis[good] = xn[ok], pn[ok], nis[ok]
         bank.t[good] = t[ok]
         bank.updates[good] += 1
+        if blend:
+            off = drawn - display.predicted(bank, good, before, c.q)[0][:, 0]
+            bank.bo[good] = np.where(np.isfinite(off).all(1, keepdims=True), off, 0.0)
+            bank.bt[good] = before
+            bank.bd[good] = display.blend_period(bank.bo[good], c.blend, c.blend_speed)
         return [(None, float(v)) if k else ("update gave a non-finite state", np.nan)
                 for k, v in zip(ok, nis, strict=True)]
 
@@ -295,8 +302,8 @@ class TrackTable:
         xs, var = display.predicted(bank, rows, t, c.q)
         pos, vel = xs[:, 0], xs[:, 1]
         shown = np.zeros(len(rows), dtype=np.int8)
-        if c.blend > 0:
-            bpos, bvel, mask = display.blended(bank, rows, t, xs, c.blend)
+        if c.blend > 0 or c.blend_speed > 0:
+            bpos, bvel, mask = display.blended(bank, rows, t, xs)
             pos, vel = np.where(mask[:, None], bpos, pos), np.where(mask[:, None], bvel, vel)
             shown[mask] = 1
         if c.lag > 0 and np.ndim(t) == 0:
