@@ -395,8 +395,9 @@ def main(argv: list[str] | None = None) -> None:
                    choices=("pure", "pn", "intercept"),
                    help="also fly interceptors with this guidance (repeatable; scenario C)")
     p.add_argument("--display-variants", action="store_true",
-                   help="scenario A: compare plain prediction, --blend 0.35 and --lag 1 "
-                        "(with the first --filter) and plot the frames around corrections")
+                   help="scenario A: compare plain prediction, --blend 0.35, --blend-speed "
+                        "2.4 and --lag 1 (with the first --filter) and plot the frames "
+                        "around corrections")
     p.add_argument("--json", action="store_true", help="print the reports as JSON")
     p.add_argument("--plot", metavar="DIR", help="write PNG figures here")
     args = p.parse_args(argv)
@@ -404,7 +405,7 @@ def main(argv: list[str] | None = None) -> None:
     reports, collected = {}, {}
     if args.display_variants:
         variants = {"prediction": [], "blend 0.35 s": ["--blend", "0.35"],
-                    "lag 1 s": ["--lag", "1"]}
+                    "blend 2.4 m/s": ["--blend-speed", "2.4"], "lag 1 s": ["--lag", "1"]}
         for label, extra in variants.items():
             collected[label] = run_through_service(
                 args.scenario, args.runs, args.seed,

@@ -41,10 +41,10 @@ def blend_period(offset: np.ndarray, period: float, speed: float) -> np.ndarray:
     when a speed is set (slew-rate limit: the drawn point never moves faster than `speed`
     relative to the estimate, so small corrections vanish within a frame or two and only
     large ones take long), at most `period` when that is set too; `period` alone: every
-    correction over the same period."""
+    correction over the same period. No offset, no period."""
     size = np.linalg.norm(offset, axis=-1)
     if speed <= 0:
-        return np.full(size.shape, float(period))
+        return np.where(size > 0, float(period), 0.0)
     dur = size / speed
     return np.minimum(dur, period) if period > 0 else dur
 
@@ -53,8 +53,9 @@ def blended(bank: Any, rows: np.ndarray, t: np.ndarray | float, xs: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position drawn at t while a correction is absorbed: the new estimate's prediction xs
     plus the offset bo (what was drawn at bt minus the new estimate at bt) decaying
-    linearly to zero over the row's period bd (`blend_period`). Returns pos, vel (N, dim)
-    and a mask of rows still blending.
+    linearly to zero over the row's period bd (`blend_period`; 0 for a new track, and for
+    a correction that lands on a tentative track). Returns pos, vel (N, dim) and a mask
+    of rows still blending.
 
     bt is the last display instant before the correction, so the frame at the correction
     instant already takes the first step, and every frame moves at most |bo| / (bd x rate)
@@ -68,8 +69,7 @@ def blended(bank: Any, rows: np.ndarray, t: np.ndarray | float, xs: np.ndarray
     (docs/accuracy.md)."""
     tau = np.broadcast_to(np.asarray(t - bank.bt[rows], dtype=float), rows.shape)
     period = bank.bd[rows]
-    s = np.divide(tau, period, out=np.ones_like(tau), where=period > 0)
-    s = np.where(bank.updates[rows] > 1, np.clip(s, 0.0, 1.0), 1.0)
+    s = np.clip(np.divide(tau, period, out=np.ones_like(tau), where=period > 0), 0.0, 1.0)
     return xs[:, 0] + bank.bo[rows] * (1.0 - s)[:, None], xs[:, 1], s < 1.0
 
 

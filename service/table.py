@@ -281,13 +281,15 @@ class TrackTable:
         if blend:  # anchor the blend at the last frame drawn before the correction
             before = display.frame_before(t[ok], c.rate)
             drawn = self._drawn(bank, good, before)[0]
+            confirmed = bank.updates[good] >= bank.order  # tentative tracks snap
         bank.px[good], bank.pp[good], bank.pt[good] = bank.x[good], bank.p[good], bank.t[good]
         bank.x[good], bank.p[good], bank.nis[good] = xn[ok], pn[ok], nis[ok]
         bank.t[good] = t[ok]
         bank.updates[good] += 1
         if blend:
             off = drawn - display.predicted(bank, good, before, c.q)[0][:, 0]
-            bank.bo[good] = np.where(np.isfinite(off).all(1, keepdims=True), off, 0.0)
+            keep = np.isfinite(off).all(1) & confirmed
+            bank.bo[good] = np.where(keep[:, None], off, 0.0)
             bank.bt[good] = before
             bank.bd[good] = display.blend_period(bank.bo[good], c.blend, c.blend_speed)
         return [(None, float(v)) if k else ("update gave a non-finite state", np.nan)
