@@ -416,7 +416,7 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
     hi = min(wall0 + round(duration) - 0.5, feed_end)
     # settled: every target has a track and less than half a scan is queued, at the
     # status query half-way between two scans. Before that the service is initiating
-    # tracks (declaring two publishers per new target) and draining what queued meanwhile;
+    # tracks and draining what queued meanwhile;
     # the window starts no earlier.
     ok = [s is not None and asked >= wall0 and s["tracks"] >= n and s["queue"] < n / 2
           for asked, _, s in poller.rows]
@@ -555,6 +555,8 @@ def verdict(n: int, r: dict[str, Any]) -> str:
         frm.append(f"frames missed {r['frames_missed_frac']:.0%}")
     if r.get("frames_skipped_frac", 0) > 0.01:
         frm.append(f"instants not received {r['frames_skipped_frac']:.0%}")
+    if r.get("frames_late_frac", 0) > 0.01:
+        frm.append(f"frames late {r['frames_late_frac']:.0%}")
     if r.get("worker_cpu_pct", 0) > 85:
         ctx.append(f"worker thread {r['worker_cpu_pct']:.0f}% of a core")
     if r.get("other_cores", 0) > 0.3:
@@ -576,14 +578,15 @@ def fmt(x: Any, spec: str) -> str:
 
 def table(results: list[dict[str, Any]]) -> str:
     nan = float("nan")
-    lines = [f"{'N':>6} {'mode':>7} {'ready':>5} {'offered':>7} {'accept':>7} {'queue':>6} "
+    lines = [f"{'N':>6} {'mode':>7} {'ready':>5} {'offered':>7} {'accept':>7} {'late%':>6} "
              f"{'fr/s':>5} {'miss%':>5} {'skip%':>5} {'jit':>5} {'late99':>6} "
              f"{'lat50':>6} {'lat99':>6} {'cpu%':>5} {'wrk%':>5} {'other':>5} {'RSS':>5}"]
     for r in results:
         lines.append(
             f"{r['n']:>6} {r['mode']:>7} {fmt(r.get('ready_s'), '5.1f')} "
             f"{fmt(r.get('offered'), '7.0f')} {fmt(r.get('accepted'), '7.0f')} "
-            f"{fmt(r.get('queue_max'), '6d')} {fmt(r.get('frames_pub'), '5.1f')} "
+            f"{fmt(100 * r.get('frames_late_frac', nan), '6.2f')} "
+            f"{fmt(r.get('frames_pub'), '5.1f')} "
             f"{fmt(100 * r.get('frames_missed_frac', nan), '5.1f')} "
             f"{fmt(100 * r.get('frames_skipped_frac', nan), '5.1f')} "
             f"{fmt(r.get('jitter_std_ms'), '5.1f')} {fmt(r.get('frame_late_p99_ms'), '6.0f')} "
@@ -595,7 +598,7 @@ def table(results: list[dict[str, Any]]) -> str:
     status answers in a row); the steady window starts then (or after --warmup) and ends
     half a scan before the last
   offered / accept: measurements per second sent by the feed / accepted by the service;
-    queue: largest inbox depth seen (status `queue`, half-way between scans)
+    late%: frames received more than one frame period (33 ms) after their instant
   fr/s: frames published per s; miss%: status frames_missed, % of the instants due;
     skip%: display instants n/30 never received by the frame subscriber
   jit: std of frame inter-arrival, ms; late99: p99 of frame arrival - its instant's

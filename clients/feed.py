@@ -15,7 +15,7 @@ from collections.abc import Iterator
 
 import zenoh
 
-from service.wire import Keys, add_zenoh_args, open_session, pack, wait_for_tracker
+from service.wire import Keys, add_zenoh_args, pack, patient, wait_for_tracker, zenoh_config
 
 from . import scenarios
 
@@ -91,7 +91,8 @@ def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
-    session = open_session(args)
+    conf = zenoh_config(args)
+    session = zenoh.open(conf if args.config else patient(conf))  # block, never drop
     try:
         if args.trackers and not wait_for_tracker(session, Keys(args.ns), args.trackers):
             sys.exit(f"track-feed: no tracker alive on '{args.ns}' after 30 s "

@@ -14,10 +14,9 @@ import zenoh
 from . import __version__, filters
 from .node import TrackService
 from .table import TableConfig, TrackTable
-from .wire import Keys, add_zenoh_args, zenoh_config
+from .wire import Keys, add_zenoh_args, patient, zenoh_config
 
 FILTERS = ("cv", "ca", "ekf", "vdf", "imm")
-LOCKSTEP_BLOCK_US = 600_000_000  # 10 minutes
 
 
 def make_filter(args: argparse.Namespace) -> tuple[int, str, object | None, float]:
@@ -104,10 +103,7 @@ def main(argv: list[str] | None = None) -> None:
                                    init_accel=args.init_accel, delete_after=args.delete_after))
     conf = zenoh_config(args, serve=True)
     if args.clock == "lockstep" and not args.config:
-        # lockstep must drop nothing (PROTOCOL.md): wait for a slow subscriber instead of
-        # closing its link after Zenoh's default 5 s of blocked transmission
-        conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close",
-                          str(LOCKSTEP_BLOCK_US))
+        patient(conf)  # lockstep drops nothing: wait for a slow subscriber
     session = zenoh.open(conf)
     svc = TrackService(session, Keys(args.ns), table, clock=args.clock, rate=args.rate,
                        instance=args.instance or uuid.uuid4().hex[:8],
@@ -122,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
           flush=True)
     done.wait()
     # closing can block on data queued for a peer that vanished (lockstep BLOCK waits
-    # up to LOCKSTEP_BLOCK_US): give it a few seconds, then exit regardless
+    # up to wire.BLOCK_WAIT_US): give it a few seconds, then exit regardless
     closer = threading.Thread(target=lambda: (svc.close(), session.close()), daemon=True)
     closer.start()
     closer.join(timeout=5.0)

@@ -27,7 +27,7 @@ from .wire import CHUNK, Keys, pack, pack_displays
 
 log = logging.getLogger("track-service")
 MAX_BATCH = 256  # inputs per worker step: bounds how long a due frame waits
-CHANNEL = 1 << 16  # measurements Zenoh holds for the worker before it pushes back
+CHANNEL = 1 << 13  # measurements Zenoh holds for the worker before it pushes back (bounds memory)
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
 
 

@@ -211,6 +211,18 @@ def peer_config(endpoint: str) -> Any:
     return conf
 
 
+BLOCK_WAIT_US = 600_000_000  # 10 minutes
+
+
+def patient(conf: Any) -> Any:
+    """Let BLOCK puts wait for a slow receiver instead of closing its link after Zenoh's
+    default 5 s of blocked transmission (which loses data): for lockstep services and
+    for feeds, which must drop nothing (PROTOCOL.md)."""
+    conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close",
+                      str(BLOCK_WAIT_US))
+    return conf
+
+
 def open_session(args: argparse.Namespace, serve: bool = False) -> Any:
     import zenoh
 
