@@ -21,9 +21,9 @@ import zenoh
 
 from . import __version__
 from .clock import Lockstep, Realtime
-from .table import Snapshot, TrackTable
+from .table import Snapshot, States, TrackTable
 from .validate import Measurement, Rejected, parse_clock, parse_measurement
-from .wire import CHUNK, Keys, pack, pack_displays
+from .wire import CHUNK, Keys, pack, pack_displays, pack_tracks
 
 log = logging.getLogger("track-service")
 MAX_BATCH = 256  # inputs per worker step: bounds how long a due frame waits
@@ -201,14 +201,20 @@ class TrackService:
     def _flush(self, pending: list[Measurement]) -> None:
         if not pending:
             return
+        blocks: dict[int, States] = {}  # the updated tracks, in order, once each block
         for out in self.table.apply(pending):
             m = out.meas
             if out.reason is not None:
                 self._reject(self.keys.meas(m.sensor, m.target), m.sensor, out.reason)
                 continue
             self.count.meas_accepted += 1
-            self.session.put(self._keys(m.target)[1], pack(out.state),
-                             congestion_control=self.block)
+            blocks.setdefault(id(out.states), out.states)  # type: ignore[arg-type]
+        put, keys, block = self.session.put, self._keys, self.block
+        for st in blocks.values():
+            bodies = pack_tracks(st.t, st.ids, st.pos, st.vel, st.x, st.p, st.models, st.nis,
+                                 st.updates)
+            for track_id, body in zip(st.ids, bodies, strict=True):
+                put(keys(track_id)[1], body, congestion_control=block)
         pending.clear()
 
     # ------------------------------------------------------------ outputs

@@ -53,11 +53,32 @@ class Snapshot:
 
 
 @dataclass
+class States:
+    """Filtered states of tracks of one bank, as columns: the `tracks/<id>` bodies."""
+
+    ids: list[str]
+    t: np.ndarray  # (N,)
+    pos: np.ndarray  # (N, 3), zero-padded for 2-D tracks
+    vel: np.ndarray  # (N, 3)
+    x: np.ndarray  # (N, n)
+    p: np.ndarray  # (N, n * n), row-major
+    models: list  # per track: the filter's model label (str, or IMM mode probabilities)
+    nis: np.ndarray  # (N,)
+    updates: np.ndarray  # (N,) int
+
+    def body(self, i: int) -> dict:
+        return {"t": float(self.t[i]), "id": self.ids[i], "pos": self.pos[i].tolist(),
+                "vel": self.vel[i].tolist(), "x": self.x[i].tolist(), "P": self.p[i].tolist(),
+                "model": self.models[i], "nis": float(self.nis[i]),
+                "updates": int(self.updates[i])}
+
+
+@dataclass
 class Outcome:
     meas: Measurement
     reason: str | None  # None: accepted
     nis: float = float("nan")
-    state: dict | None = None  # the track right after this update (tracks/ message)
+    states: States | None = None  # accepted: the tracks updated with it, this one among them
 
 
 class Bank:
@@ -231,9 +252,9 @@ class TrackTable:
             for i, (reason, nis) in zip(idx, res, strict=True):
                 out[i].reason, out[i].nis = reason, nis
             good = [i for i, (reason, _) in zip(idx, res, strict=True) if reason is None]
-            rows = [self.where[meas[i].target][1] for i in good]
-            for i, state in zip(good, self.states(self.bank(dim), rows), strict=True):
-                out[i].state = state
+            block = self.states(self.bank(dim), [self.where[meas[i].target][1] for i in good])
+            for i in good:
+                out[i].states = block
         return out
 
     def _initiate(self, dim: int, meas: list[Measurement]) -> list[tuple[str | None, float]]:
@@ -354,21 +375,19 @@ class TrackTable:
     def state(self, track_id: str) -> dict:
         """The filtered state of one track (the `tracks/<id>` message body)."""
         bank, row = self.where[track_id]
-        return self.states(bank, [row])[0]
+        return self.states(bank, [row]).body(0)
 
-    def states(self, bank: Bank, rows: Sequence[int]) -> list[dict]:
-        """The filtered states of rows of a bank, built in bulk (`tracks/` bodies)."""
+    def states(self, bank: Bank, rows: Sequence[int]) -> States:
+        """The filtered states of rows of a bank, as columns."""
         r = np.asarray(rows, dtype=int)
         d, n = bank.dim, len(r)
         x = bank.x[r]
-        pad = [0.0] * (3 - d)
-        xs, ps = x.tolist(), bank.p[r].reshape(n, -1).tolist()
-        pos, vel = x[:, :d].tolist(), x[:, d:2 * d].tolist()
-        ts, nis, upd = bank.t[r].tolist(), bank.nis[r].tolist(), bank.updates[r].tolist()
-        labels, ids = self.filter.labels(bank, r), bank.ids
-        return [{"t": ts[k], "id": ids[row], "pos": pos[k] + pad, "vel": vel[k] + pad,
-                 "x": xs[k], "P": ps[k], "model": labels[k], "nis": nis[k],
-                 "updates": upd[k]} for k, row in enumerate(r.tolist())]
+        pos, vel = np.zeros((n, 3)), np.zeros((n, 3))
+        pos[:, :d], vel[:, :d] = x[:, :d], x[:, d:2 * d]
+        ids = bank.ids
+        return States([ids[i] for i in r.tolist()], bank.t[r], pos, vel, x,  # type: ignore[misc]
+                      bank.p[r].reshape(n, -1), self.filter.labels(bank, r), bank.nis[r],
+                      bank.updates[r])
 
     def stale(self, t: float) -> list[str]:
         """Ids of tracks with no measurement for longer than `delete_after`."""

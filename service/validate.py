@@ -126,15 +126,19 @@ def _fast_polar(sensor: str, target: str, payload: bytes) -> tuple | None:
     names the problem)."""
     try:
         msg = unpack(payload)
-        if type(msg) is not dict or msg.keys() - POLAR_3D or len(msg) < 7:
+        if type(msg) is not dict or not POLAR_3D.issuperset(msg) or len(msg) < 7:
             return None
-        v = (msg["t"], msg["r"], msg["az"], msg["el"], msg["sr"], msg["saz"], msg["sel"])
+        v = (t, r, az, el, sr, saz, sel) = (msg["t"], msg["r"], msg["az"], msg["el"],
+                                            msg["sr"], msg["saz"], msg["sel"])
         seq = msg.get("seq")
-        finite = math.isfinite(math.fsum(v)) if all(type(x) is float for x in v) else False
+        f = float
+        if not (type(t) is f and type(r) is f and type(az) is f and type(el) is f
+                and type(sr) is f and type(saz) is f and type(sel) is f
+                and math.isfinite(math.fsum(v))):
+            return None
     except (ValueError, KeyError, OverflowError):  # fsum overflows on huge finite values
         return None
-    if (not finite
-            or v[1] < 0.0 or v[4] < 0.0 or v[5] < 0.0 or v[6] < 0.0
+    if (r < 0.0 or sr < 0.0 or saz < 0.0 or sel < 0.0
             or (seq is not None and type(seq) is not int)
             or not (CHUNK.fullmatch(sensor) and CHUNK.fullmatch(target))):
         return None

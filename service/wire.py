@@ -88,55 +88,93 @@ def unpack(data: bytes) -> Any:
         raise ValueError(f"payload is not valid MessagePack: {exc}") from None
 
 
-# display/<target> bodies for many tracks at once: the numbers of every body are written
-# by NumPy into one buffer laid out as MessagePack (map of 8; float64 0xcb, big-endian;
-# fixarray 0x93; fixstr 0xa0|len), and each body is its slice plus its packed strings.
-_DISPLAY_HEAD = [(b"\x88\xa1t\xcb", "t"), (b"\xa3pos\x93\xcb", "p0"), (b"\xcb", "p1"),
-                 (b"\xcb", "p2"), (b"\xa3vel\x93\xcb", "v0"), (b"\xcb", "v1"), (b"\xcb", "v2"),
-                 (b"\xa5sigma\xcb", "sigma"), (b"\xa3age\xcb", "age")]
-
-
-def _display_layout() -> tuple[np.dtype, bytes]:
-    names, offsets, template = [], [], b""
-    for prefix, name in _DISPLAY_HEAD:
-        template += prefix + bytes(8)
-        names.append(name)
-        offsets.append(len(template) - 8)
-    dtype = np.dtype({"names": names, "formats": [">f8"] * len(names), "offsets": offsets,
+# ---------------------------------------------------------------- bulk maps
+# The bodies of many tracks at once: the numbers of every row are written by NumPy into
+# one buffer laid out as MessagePack (float 64 0xcb and int 64 0xd3, big-endian; fixarray
+# 0x9n or array 16 0xdc), and each body is its row's slice followed by its own packed
+# strings and maps. Decoded, the maps equal what `pack` gives for the same dicts.
+def _layout(columns: Sequence[tuple[str, np.ndarray]], entries: int) -> tuple[np.dtype, bytes]:
+    names, formats, offsets, template = [], [], [], pack_map_header(entries)
+    for key, col in columns:
+        width = col.shape[1] if col.ndim == 2 else 0
+        template += pack(key)
+        if col.ndim == 2:
+            template += bytes([0x90 | width]) if width < 16 else b"\xdc" + width.to_bytes(2, "big")
+        integer = col.dtype.kind in "iub"
+        for k in range(max(width, 1)):
+            template += (b"\xd3" if integer else b"\xcb") + bytes(8)
+            names.append(f"{key}.{k}")
+            formats.append(">i8" if integer else ">f8")
+            offsets.append(len(template) - 8)
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets,
                       "itemsize": len(template)})
     return dtype, template
 
 
-DISPLAY_DTYPE, DISPLAY_TEMPLATE = _display_layout()
+def pack_map_header(entries: int) -> bytes:
+    return bytes([0x80 | entries]) if entries < 16 else b"\xde" + entries.to_bytes(2, "big")
+
+
+def pack_rows(columns: Sequence[tuple[str, np.ndarray]], tails: Sequence[bytes],
+              tail_entries: int) -> list[bytes]:
+    """One MessagePack map per row: the numeric `columns` ((N,) or (N, k) arrays, in this
+    key order) then the row's `tails` (packed key-value pairs, `tail_entries` of them)."""
+    n = len(tails)
+    if not n:
+        return []
+    dtype, template = _layout(columns, len(columns) + tail_entries)
+    raw = np.frombuffer(template * n, dtype=np.uint8).copy()
+    rec = raw.view(dtype)  # writes go through to raw; the markers between stay
+    for key, col in columns:
+        for k in range(col.shape[1] if col.ndim == 2 else 1):
+            rec[f"{key}.{k}"] = col[:, k] if col.ndim == 2 else col
+    buf, size = raw.tobytes(), dtype.itemsize
+    return [buf[i:i + size] + tail for i, tail in zip(range(0, n * size, size), tails, strict=True)]
+
+
+class PackedStrings:
+    """Packed key-value pairs of string fields, remembered (few distinct values)."""
+
+    def __init__(self, keys: Sequence[str], limit: int = 1 << 18) -> None:
+        self.keys, self.limit = tuple(keys), limit
+        self.memo: dict[tuple, bytes] = {}
+
+    def __call__(self, values: tuple) -> bytes:
+        out = self.memo.get(values)
+        if out is None:
+            if len(self.memo) >= self.limit:
+                self.memo.clear()
+            out = self.memo[values] = b"".join(
+                pack(k) + pack(v) for k, v in zip(self.keys, values, strict=True))
+        return out
+
+
+_DISPLAY_STRINGS = PackedStrings(("id", "status", "shown"))
 
 
 def pack_displays(t: float, ids: Sequence[str], pos: np.ndarray, vel: np.ndarray,
                   sigma: np.ndarray, age: np.ndarray, status: Sequence[str],
                   shown: Sequence[str]) -> list[bytes]:
-    """The `display/<id>` bodies of many tracks: the same maps as `pack` gives for
-    {t, pos, vel, sigma, age, id, status, shown}, about five times faster."""
-    n = len(ids)
-    raw = np.frombuffer(DISPLAY_TEMPLATE * n, dtype=np.uint8).copy()
-    rec = raw.view(DISPLAY_DTYPE)  # writes go through to raw, padding (markers) kept
-    rec["t"] = t
-    for k in range(3):
-        rec[f"p{k}"], rec[f"v{k}"] = pos[:, k], vel[:, k]
-    rec["sigma"], rec["age"] = sigma, age
-    buf, size = raw.tobytes(), DISPLAY_DTYPE.itemsize
-    strings = _strings_cache
-    if len(strings) > 1 << 18:
-        strings.clear()
-    tails = [strings.get(k) or _strings(k) for k in zip(ids, status, shown, strict=True)]
-    return [buf[i:i + size] + tail for i, tail in zip(range(0, n * size, size), tails, strict=True)]
+    """The `display/<id>` bodies of many tracks: {t, pos, vel, sigma, age, id, status,
+    shown}."""
+    tails = [_DISPLAY_STRINGS(k) for k in zip(ids, status, shown, strict=True)]
+    return pack_rows([("t", np.full(len(ids), t)), ("pos", pos), ("vel", vel),
+                      ("sigma", sigma), ("age", age)], tails, 3)
 
 
-_strings_cache: dict[tuple[str, str, str], bytes] = {}
+_TRACK_STRINGS = PackedStrings(("id", "model"))
 
 
-def _strings(key: tuple[str, str, str]) -> bytes:
-    out = _strings_cache[key] = b"".join(
-        pack(k) + pack(v) for k, v in zip(("id", "status", "shown"), key, strict=True))
-    return out
+def pack_tracks(t: np.ndarray, ids: Sequence[str], pos: np.ndarray, vel: np.ndarray,
+                x: np.ndarray, p: np.ndarray, models: Sequence[Any], nis: np.ndarray,
+                updates: np.ndarray) -> list[bytes]:
+    """The `tracks/<id>` bodies of many tracks: {t, pos, vel, x, P (row-major), nis,
+    updates, id, model}; a model is a name or a map (IMM mode probabilities)."""
+    tails = [_TRACK_STRINGS((i, m)) if isinstance(m, str) else
+             pack("id") + pack(i) + pack("model") + pack(m)
+             for i, m in zip(ids, models, strict=True)]
+    return pack_rows([("t", t), ("pos", pos), ("vel", vel), ("x", x), ("P", p), ("nis", nis),
+                      ("updates", updates)], tails, 2)
 
 
 def f64_bin(values: Sequence[float]) -> bytes:

@@ -25,3 +25,22 @@ def test_pack_displays_decodes_to_the_same_maps_as_pack():
         assert list(unpack(got[i]))[0] == "t"  # t first, as every message
     assert pack_displays(1.0, [], np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
                          np.zeros(0), [], []) == []
+
+
+def test_pack_tracks_decodes_to_the_same_maps_as_pack():
+    from service.wire import pack_tracks
+    rng = np.random.default_rng(4)
+    n, k = 3, 6
+    t, x, p = rng.random(n) * 100, rng.normal(size=(n, k)), rng.normal(size=(n, k * k))
+    pos, vel = x[:, :3], x[:, 3:]
+    models = ["cv", {"cv": 0.7, "ct+": 0.3}, "ca"]
+    ids = ["a", "b-2", "c_3"]
+    nis, updates = rng.random(n), np.array([1, 2, 70000])
+    got = pack_tracks(t, ids, pos, vel, x, p, models, nis, updates)
+    for i in range(n):
+        want = {"t": float(t[i]), "id": ids[i], "pos": pos[i].tolist(), "vel": vel[i].tolist(),
+                "x": x[i].tolist(), "P": p[i].tolist(), "model": models[i],
+                "nis": float(nis[i]), "updates": int(updates[i])}
+        body = unpack(got[i])
+        assert body == unpack(pack(want))
+        assert type(body["updates"]) is int and list(body)[0] == "t"
