@@ -2,8 +2,10 @@
 
 Measurements go to `<ns>/meas/<sensor>/<target>` with congestion control BLOCK (nothing
 is lost), as fast as possible or at the pace of simulation time (`--realtime`); the feed
-ends with a `<ns>/clock` message one scan after the last. `--truth` also publishes the
-true states on `<ns>/truth/<target>` (an extension key) for evaluation.
+ends with a `<ns>/clock` message one scan after the last, then waits for every tracker to
+confirm receipt (a status query behind the data) before it closes its session, which
+would drop whatever its links still queue. `--truth` also publishes the true states on
+`<ns>/truth/<target>` (an extension key) for evaluation.
 """
 
 from __future__ import annotations
@@ -15,7 +17,15 @@ from collections.abc import Iterator
 
 import zenoh
 
-from service.wire import Keys, add_zenoh_args, pack, patient, wait_for_tracker, zenoh_config
+from service.wire import (
+    BLOCK_WAIT_US,
+    Keys,
+    add_zenoh_args,
+    pack,
+    patient,
+    wait_for_tracker,
+    zenoh_config,
+)
 
 from . import scenarios
 
@@ -89,6 +99,16 @@ def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
     return sent
 
 
+def delivered(session: zenoh.Session, keys: Keys, trackers: int,
+              timeout: float = BLOCK_WAIT_US / 1e6) -> bool:
+    """Wait until `trackers` trackers have received everything sent: closing a session
+    drops what its links still queue, and a status query travels behind the data on
+    each link, so its answer means the data arrived."""
+    replies = session.get(keys.status, target=zenoh.QueryTarget.ALL,
+                          consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout)
+    return sum(1 for r in replies if r.ok is not None) >= trackers
+
+
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
     conf = zenoh_config(args)
@@ -104,6 +124,8 @@ def main(argv: list[str] | None = None) -> None:
             return
         print(f"track-feed: {args.scenario}: {n} measurements in "
               f"{time.monotonic() - start:.2f} s", flush=True)
+        if args.trackers and not delivered(session, Keys(args.ns), args.trackers):
+            sys.exit(f"track-feed: fewer than {args.trackers} tracker(s) confirmed receipt")
     finally:
         session.close()
 
