@@ -96,7 +96,9 @@ class Bank:
             # display blending: drawn minus estimate at instant bt, absorbed over bd
             "bo": (dim,), "bt": (), "bd": (),
             # the previous filtered state (display smoothing)
-            "px": (n,), "pp": (n, n), "pt": ()}
+            "px": (n,), "pp": (n, n), "pt": (),
+            # P summed over the axes per derivative block (display prediction)
+            "ptr": (order, order)}
         for name, (code, modes) in (extra or {}).items():
             self.shapes[name] = ((modes,) if modes else ()) + codes[code]
         self.ids: list[str | None] = []
@@ -206,6 +208,7 @@ class TrackTable:
         c.order = self.filter.order
         self.banks: dict[int, Bank] = {}
         self.where: dict[str, tuple[Bank, int]] = {}
+        self._ids_cache: tuple[tuple, list[str], list] | None = None
 
     def __len__(self) -> int:
         return len(self.where)
@@ -283,6 +286,7 @@ class TrackTable:
             bank.updates[row] = 1
             bank.nis[row] = 0.0
         self.filter.initiate(bank, np.array(rows, dtype=int))
+        bank.ptr[rows] = display.axis_traces(bank.p[rows], bank.order, dim)
         return [(None, 0.0) if ok else ("conversion gave a non-finite value", np.nan)
                 for ok in finite]
 
@@ -305,6 +309,7 @@ class TrackTable:
             confirmed = bank.updates[good] >= bank.order  # tentative tracks snap
         bank.px[good], bank.pp[good], bank.pt[good] = bank.x[good], bank.p[good], bank.t[good]
         bank.x[good], bank.p[good], bank.nis[good] = xn[ok], pn[ok], nis[ok]
+        bank.ptr[good] = display.axis_traces(pn[ok], bank.order, dim)
         bank.t[good] = t[ok]
         bank.updates[good] += 1
         if blend:
@@ -340,7 +345,7 @@ class TrackTable:
         position, velocity, sigma = sqrt(trace of the predicted position covariance).
         `detail`: also each track's status and what is shown (the display/ keys; the
         frame does not carry them)."""
-        ids: list[str] = []
+        id_parts: list[list[str]] = []
         parts: list[tuple[np.ndarray, ...]] = []
         status: list[str] = []
         shown: list[str] = []
@@ -363,13 +368,21 @@ class TrackTable:
                 code = np.where(coasting, 2, (updates >= bank.order).astype(np.int8))
                 status += [STATUS[k] for k in code.tolist()]
                 shown += [SHOWN[k] for k in kinds.tolist()]
-            ids += bank_ids
+            id_parts.append(bank_ids)
             parts.append((pos, vel, np.sqrt(np.maximum(var, 0.0)), age))
         if not parts:
             e = np.zeros((0, 3))
             return Snapshot(t, [], e, e.copy(), np.zeros(0), np.zeros(0), [], [])
         pos, vel, sig, age = (np.concatenate(p) for p in zip(*parts, strict=True))
-        return Snapshot(t, ids, pos, vel, sig, age, status, shown)
+        return Snapshot(t, self._joined(id_parts), pos, vel, sig, age, status, shown)
+
+    def _joined(self, parts: list[list[str]]) -> list[str]:
+        """The banks' live ids in one list; the same list object while no track comes or
+        goes (so the display side can keep what it derived from it)."""
+        key = tuple(id(p) for p in parts)
+        if self._ids_cache is None or self._ids_cache[0] != key:
+            self._ids_cache = (key, [i for p in parts for i in p], parts)
+        return self._ids_cache[1]
 
     # ------------------------------------------------------------ queries / delete
     def state(self, track_id: str) -> dict:

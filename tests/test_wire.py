@@ -44,3 +44,12 @@ def test_pack_tracks_decodes_to_the_same_maps_as_pack():
         body = unpack(got[i])
         assert body == unpack(pack(want))
         assert type(body["updates"]) is int and list(body)[0] == "t"
+
+
+def test_pack_frame_decodes_to_the_same_map_as_pack():
+    from service.wire import pack_frame
+    ids = ["a", "b" * 40]
+    pos, vel, sigma = np.arange(6.0).reshape(2, 3), -np.arange(6.0).reshape(2, 3), np.ones(2)
+    want = {"t": 2.5, "ids": ids, "pos": pos.astype("<f8").tobytes(),
+            "vel": vel.astype("<f8").tobytes(), "sigma": sigma.astype("<f8").tobytes()}
+    assert unpack(pack_frame(2.5, pack(ids), pos, vel, sigma)) == want
