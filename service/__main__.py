@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import ctypes
 import logging
 import math
 import signal
@@ -17,6 +18,20 @@ from .table import TableConfig, TrackTable
 from .wire import Keys, add_zenoh_args, patient, zenoh_config
 
 FILTERS = ("cv", "ca", "ekf", "vdf", "imm")
+
+
+def steady_malloc() -> None:
+    """glibc: a fixed mmap threshold (large NumPy temporaries go back to the OS when
+    freed instead of raising the threshold and fragmenting the heap) and at most two
+    malloc arenas (Zenoh's threads would each take one): the service's memory then stays
+    flat over hours (docs/performance.md). No-op elsewhere."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        m_mmap_threshold, m_arena_max = -3, -8  # glibc malloc.h
+        libc.mallopt(m_mmap_threshold, 1 << 20)
+        libc.mallopt(m_arena_max, 2)
+    except (OSError, AttributeError):
+        pass
 
 
 def make_filter(args: argparse.Namespace) -> tuple[int, str, object | None, float]:
@@ -94,6 +109,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    steady_malloc()  # before Zenoh starts its threads
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     order, update, filt, q = make_filter(args)
