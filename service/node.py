@@ -9,7 +9,9 @@ wire -> validate -> table (convert, predict, update) -> clock -> publication.
 
 from __future__ import annotations
 
+import heapq
 import logging
+import math
 import queue
 import threading
 import time
@@ -23,12 +25,21 @@ from . import __version__
 from .clock import Lockstep, Realtime
 from .table import Snapshot, States, TrackTable
 from .validate import Measurement, Rejected, parse_clock, parse_measurement
-from .wire import CHUNK, Keys, pack, pack_displays, pack_frame, pack_tracks
+from .wire import CHUNK, Keys, pack, pack_displays, pack_frame, pack_tracks, unpack
 
 log = logging.getLogger("track-service")
 MAX_BATCH = 256  # inputs per worker step: bounds how long a due frame waits
 CHANNEL = 1 << 13  # measurements Zenoh holds for the worker before it pushes back (bounds memory)
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
+
+
+def _meas_time(item: tuple) -> float:
+    """A measurement's t for ordering (-inf when unreadable: rejected first)."""
+    try:
+        t = unpack(item[2]).get("t")
+        return float(t) if isinstance(t, int | float) and not isinstance(t, bool) else -math.inf
+    except (ValueError, AttributeError):
+        return -math.inf
 
 
 @dataclass
@@ -106,17 +117,31 @@ class TrackService:
         self.token.undeclare()
 
     def _ingest(self, limit: int | None = MAX_BATCH) -> None:
-        """Move measurements from Zenoh's channels to the inbox, keeping arrival order."""
-        n, put = 0, self.inbox.put
+        """Move measurements from Zenoh's channels to the inbox, keeping arrival order.
+
+        With several measurement key expressions (a shard's part of the key space), the
+        order between their channels is lost: everything waiting is taken and merged by
+        measurement time (feeds send in time order), so a lockstep frame is not released
+        by one channel's later measurement while another's earlier ones still wait."""
         with self.ingest_lock:
             now = time.time()
-            for sub in self.meas_subs:
-                while limit is None or n < limit:
-                    s = sub.try_recv()
-                    if s is None:
-                        break
-                    put(("meas", str(s.key_expr), s.payload.to_bytes(), now))
-                    n += 1
+            subs = self.meas_subs
+            if len(subs) > 1:
+                limit = None
+            lists = [self._drain(sub, limit, now) for sub in subs]
+            items = lists[0] if len(lists) == 1 else heapq.merge(*lists, key=_meas_time)
+            for item in items:
+                self.inbox.put(item)
+
+    @staticmethod
+    def _drain(sub: Any, limit: int | None, now: float) -> list[tuple]:
+        out: list[tuple] = []
+        while limit is None or len(out) < limit:
+            s = sub.try_recv()
+            if s is None:
+                break
+            out.append(("meas", str(s.key_expr), s.payload.to_bytes(), now))
+        return out
 
     def _run(self) -> None:
         while not self.stop.is_set():
