@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from . import work
+
 
 def axis_transition(dt: np.ndarray, order: int) -> np.ndarray:
     """Per-axis transition Phi (N, order, order): Phi[i, j] = dt^(j-i) / (j-i)!."""
@@ -59,29 +61,52 @@ def process_noise(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray) -
 def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
             q: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Kalman prediction of every row by its own dt (dt may be negative: extrapolation
-    backwards uses |dt| for the noise)."""
-    dt = np.asarray(dt, dtype=float)
+    backwards uses |dt| for the noise): x (N, n), P (N, n, n) -> new arrays; `predict_soa`
+    on batch-last copies, chunk by chunk."""
+    x, p = np.asarray(x, dtype=float), np.asarray(p, dtype=float)
+    n_rows, n = x.shape
+    dt = np.broadcast_to(np.asarray(dt, dtype=float), (n_rows,))
+    q = np.asarray(q, dtype=float)
+    xp, pp = np.empty((n_rows, n)), np.empty((n_rows, n, n))
+    for lo, hi in work.chunks(n_rows):
+        xs, ps = work.to_soa(x[lo:hi], "pred.x"), work.to_soa(p[lo:hi], "pred.p")
+        predict_soa(xs, ps, dt[lo:hi], order, dim, q[lo:hi] if q.ndim else q)
+        np.copyto(xp[lo:hi].T, xs)
+        np.copyto(np.moveaxis(pp[lo:hi], 0, -1), ps)
+    return xp, pp
+
+
+def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+                q: float | np.ndarray) -> None:
+    """`predict` in place on batch-last arrays x (n, N) and symmetric P (n, n, N).
+
+    F = kron(Phi, I_dim): F a adds Phi[i, j] times block row j > i to block row i
+    (ascending i, so every row read is still unmodified); F P F' is that on the rows of P,
+    then on its columns; + Q = kron(Q_axis, I_dim) on the diagonals of the blocks. The
+    upper triangle is then copied to the lower one (P exactly symmetric)."""
+    n, n_rows = x.shape
     blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
-    steps = [(blk[i], blk[j], dt ** (j - i) / math.factorial(j - i))
-             for i in range(order) for j in range(i + 1, order)]
+    tmp = work.work("pred.tmp", (dim, n), n_rows)
+    for i in range(order):
+        for j in range(i + 1, order):
+            c = dt if j == i + 1 else dt ** (j - i) / math.factorial(j - i)
+            x[blk[i]] += np.multiply(x[blk[j]], c, out=tmp[:, 0])
+            p[blk[i]] += np.multiply(p[blk[j]], c, out=tmp)
+    cols = tmp.transpose(1, 0, 2)
+    for i in range(order):
+        for j in range(i + 1, order):
+            c = dt if j == i + 1 else dt ** (j - i) / math.factorial(j - i)
+            p[:, blk[i]] += np.multiply(p[:, blk[j]], c, out=cols)
+    qa = axis_noise(dt, order, q).transpose(1, 2, 0)  # (order, order, N)
+    for i in range(order):
+        for j in range(i, order):
+            for k in range(dim):
+                p[i * dim + k, j * dim + k] += qa[i, j]
+    low = _TRIL.get(n) or _TRIL.setdefault(n, np.tril_indices(n, -1))
+    p[low] = p[low[1], low[0]]
 
-    def f_times(a: np.ndarray) -> np.ndarray:
-        """F a in place: F = kron(Phi, I) adds Phi[i, j] times block row j > i to block
-        row i (ascending i, so every row read is still unmodified)."""
-        for bi, bj, c in steps:
-            a[:, bi] += np.reshape(c, (-1,) + (1,) * (a.ndim - 1)) * a[:, bj]
-        return a
 
-    xp = f_times(np.array(x, dtype=float))
-    fp = f_times(np.array(p, dtype=float, order="C"))
-    # F (F P)' = F P' F': the same once symmetrised, and both products run on block rows
-    pp = f_times(fp.transpose(0, 2, 1).copy())
-    qa, blocks = axis_noise(dt, order, q), pp.reshape(len(pp), order, dim, order, dim)
-    for k in range(dim):  # + Q = kron(Q_axis, I)
-        blocks[:, :, k, :, k] += qa
-    fp = np.add(pp, pp.transpose(0, 2, 1), out=fp)  # symmetrised in the buffer of F P
-    fp *= 0.5
-    return xp, fp
+_TRIL: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
 
 def motion(kind: str, dt: np.ndarray, order: int, dim: int, q: float | np.ndarray,
