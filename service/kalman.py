@@ -99,55 +99,75 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     P (n, n, N) -> p_out (another array, exactly symmetric), z (m, N), R (m, m, N) ->
     NIS and det S into nis, det (N,).
 
-    S = P[:m, :m] + R (+ S_FLOOR I), solved by `ldl_solve` for the transposed gain
-    K' = S^-1 P[:m] and S^-1 nu. The Joseph form (I - KH) P (I - KH)' + K R K' with
-    H = [I 0] is evaluated from the n x m gain without forming I - KH: G = (I - KH) P =
-    P - K P[:m], E = G H' - K R = P[:, :m] - K (P[:m, :m] + R), and then
-    (I - KH) P (I - KH)' + K R K' = G - G H' K' + K R K' = G - E K' (an identity for any
-    K, not only the optimal one). Only its upper triangle is computed, row by row, and
-    mirrored."""
+    S = P[:m, :m] + R (+ S_FLOOR I) is inverted through S = L D L' (`ldl_inverse`); the
+    transposed gain is K' = S^-1 P[:m]. The Joseph form (I - KH) P (I - KH)' + K R K'
+    with H = [I 0] is evaluated from the n x m gain without forming I - KH:
+    G = (I - KH) P = P - K P[:m], E = G H' - K R = P[:, :m] - K (P[:m, :m] + R), and then
+    (I - KH) P (I - KH)' + K R K' = G - G H' K' + K R K' = G - E K' = P - [K E] [P[:m]; K']
+    (an identity for any K, not only the optimal one). Its rows :m and its lower-right
+    block are computed (np.einsum with the batch axis last: one pass per product), the
+    rest mirrored. The products run as np.einsum contractions over the small leading
+    axes, which keep the accumulation in one pass over the batch."""
     n, k = x.shape
     m = z.shape[0]
     nu = np.subtract(z, x[:m], out=work.work("upd.nu", (m,), k))
     s0 = np.add(p[:m, :m], r, out=work.work("upd.s", (m, m), k))  # S without the floor
-    sol = work.work("upd.sol", (m, n + 1), k)  # S^-1 [P[:m], nu] = [K', S^-1 nu]
-    sol[:, :n] = p[:m]
-    sol[:, n] = nu
-    ldl_solve(s0, sol, det, S_FLOOR)
-    kt = sol[:, :n]
-    np.multiply(nu[0], sol[0, n], out=nis)
-    for a in range(1, m):
-        nis += nu[a] * sol[a, n]
-    tmp = work.work("upd.tmp", (n,), k)
-    for a in range(m):  # x + K nu
-        x += np.multiply(kt[a], nu[a], out=tmp)
-    # E' = P[:m] - S0 K' (S0 symmetric)
-    et = work.work("upd.e", (m, n), k)
-    for a in range(m):
-        et[a] = p[a]
-        for b in range(m):
-            et[a] -= np.multiply(kt[b], s0[b, a], out=tmp)
-    # upper triangle of G - E K' = P - K P[:m] - E K', row by row
-    for i in range(n):
-        row, t = p_out[i, i:], tmp[i:]
-        np.multiply(p[0, i:], kt[0, i], out=t)
-        np.subtract(p[i, i:], t, out=row)
-        row -= np.multiply(kt[0, i:], et[0, i], out=t)
-        for a in range(1, m):
-            row -= np.multiply(p[a, i:], kt[a, i], out=t)
-            row -= np.multiply(kt[a, i:], et[a, i], out=t)
-    low = _tril(n)
-    p_out[low] = p_out[low[1], low[0]]
+    sinv = work.work("upd.si", (m, m), k)
+    ldl_inverse(s0, sinv, det, S_FLOOR)
+    lk, up = work.work("upd.l", (2 * m, n), k), work.work("upd.u", (2 * m, n), k)
+    kt, et = lk[:m], lk[m:]  # K' and E' (m, n)
+    np.einsum("abn,bin->ain", sinv, p[:m], out=kt)
+    sn = np.einsum("abn,bn->an", sinv, nu, out=work.work("upd.sn", (m,), k))  # S^-1 nu
+    np.einsum("an,an->n", nu, sn, out=nis)
+    x += np.einsum("ain,an->in", kt, nu, out=work.work("upd.dx", (n,), k))
+    np.einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
+    np.subtract(p[:m], et, out=et)
+    up[:m] = p[:m]
+    up[m:] = kt
+    # P - [K E] [P[:m]; K']: rows :m, then the lower-right block
+    top = np.einsum("ain,ajn->ijn", lk[:, :m], up, out=p_out[:m])
+    np.subtract(p[:m], top, out=top)
+    if n > m:
+        low = np.einsum("ain,ajn->ijn", lk[:, m:], up[:, m:], out=p_out[m:, m:])
+        np.subtract(p[m:, m:], low, out=low)
+    for i in range(n - 1):
+        p_out[i + 1:, i] = p_out[i, i + 1:]
 
 
-def ldl_solve(s: np.ndarray, b: np.ndarray, det: np.ndarray, floor: float = 0.0) -> None:
-    """S^-1 b in place and det S into det, for symmetric S + floor I, S (m, m, N) (its
-    lower triangle is read) and right-hand sides b (m, k, N), batch axis last; entry by
-    entry for small m: S = L D L' (Golub & Van Loan 2013, alg. 4.1.1), then
-    substitution, without pivoting (S is a covariance). A row with a zero pivot (singular
-    S) gets NaN, flagged by the caller's finiteness mask as in `solve`."""
+def ldl_inverse(s: np.ndarray, out: np.ndarray, det: np.ndarray, floor: float = 0.0) -> None:
+    """(S + floor I)^-1 into out (m, m, N) and its determinant into det, for symmetric S
+    (m, m, N), batch axis last (its lower triangle is read); entry by entry for small m:
+    S = L D L' (Golub & Van Loan 2013, alg. 4.1.1) without pivoting (S is a covariance),
+    then S^-1 = M' D^-1 M with M = L^-1. A row with a zero pivot (singular S) gets NaN,
+    flagged by the caller's finiteness mask as in `solve`."""
     m = s.shape[0]
-    low, piv, inv_piv = {}, [], []  # L below its unit diagonal, D, D^-1
+    low, piv, inv_piv = _ldl(s, floor)
+    inv_l: dict = {}  # M = L^-1 below its unit diagonal
+    for j in range(m):
+        for i in range(j + 1, m):
+            v = -low[i, j]
+            for q in range(j + 1, i):
+                v = v - low[i, q] * inv_l[q, j]
+            inv_l[i, j] = v
+    for i in range(m):
+        for j in range(i, m):  # sum over q >= j of M[q, i] M[q, j] / d_q
+            acc = out[i, j]
+            np.multiply(inv_piv[j], 1.0 if i == j else inv_l[j, i], out=acc)
+            for q in range(j + 1, m):
+                mi = inv_l[q, i] if q != i else 1.0
+                acc += inv_piv[q] * (mi * inv_l[q, j])
+            if i != j:
+                out[j, i] = acc
+    np.copyto(det, piv[0])
+    for pj in piv[1:]:
+        det *= pj
+
+
+def _ldl(s: np.ndarray, floor: float) -> tuple[dict, list, list]:
+    """L (below its unit diagonal), D and D^-1 of S + floor I = L D L' (lower triangle of
+    s (m, m, N) read); D^-1 is NaN where a pivot is zero."""
+    m = s.shape[0]
+    low, piv, inv_piv = {}, [], []
     for j in range(m):
         pj = s[j, j] + floor
         for q in range(j):
@@ -159,6 +179,17 @@ def ldl_solve(s: np.ndarray, b: np.ndarray, det: np.ndarray, floor: float = 0.0)
             for q in range(j):
                 v -= low[i, q] * low[j, q] * piv[q]
             low[i, j] = v * inv_piv[j]
+    return low, piv, inv_piv
+
+
+def ldl_solve(s: np.ndarray, b: np.ndarray, det: np.ndarray, floor: float = 0.0) -> None:
+    """S^-1 b in place and det S into det, for symmetric S + floor I, S (m, m, N) (its
+    lower triangle is read) and right-hand sides b (m, k, N), batch axis last; entry by
+    entry for small m: S = L D L' (Golub & Van Loan 2013, alg. 4.1.1), then
+    substitution, without pivoting (S is a covariance). A row with a zero pivot (singular
+    S) gets NaN, flagged by the caller's finiteness mask as in `solve`."""
+    m = s.shape[0]
+    low, piv, inv_piv = _ldl(s, floor)
     tmp = work.work("ldl.tmp", b.shape[1:-1], b.shape[-1])
     for i in range(m):  # L y = b
         for q in range(i):
@@ -170,14 +201,6 @@ def ldl_solve(s: np.ndarray, b: np.ndarray, det: np.ndarray, floor: float = 0.0)
     np.copyto(det, piv[0])
     for pj in piv[1:]:
         det *= pj
-
-
-_TRIL: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-
-
-def _tril(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the strict lower triangle of an n x n matrix."""
-    return _TRIL.get(n) or _TRIL.setdefault(n, np.tril_indices(n, -1))
 
 
 def _update_linearised(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,

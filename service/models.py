@@ -80,33 +80,51 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
                 q: float | np.ndarray) -> None:
     """`predict` in place on batch-last arrays x (n, N) and symmetric P (n, n, N).
 
-    F = kron(Phi, I_dim): F a adds Phi[i, j] times block row j > i to block row i
-    (ascending i, so every row read is still unmodified); F P F' is that on the rows of P,
-    then on its columns; + Q = kron(Q_axis, I_dim) on the diagonals of the blocks. The
-    upper triangle is then copied to the lower one (P exactly symmetric)."""
+    With F = kron(Phi, I_dim), F x adds Phi[a, c] times block c > a to block a (ascending
+    a, so every block read is still unmodified). F P F' block by block: the (a, b) block
+    (dim x dim) becomes sum over c >= a, e >= b of Phi[a, c] Phi[b, e] P_ce, computed for
+    a <= b in ascending order (every block read is still unmodified); the diagonal blocks
+    pair P_ce + P_ec, so they stay exactly symmetric, and the blocks below the diagonal
+    are copied from above (the blocks below the diagonal are read only before that, as
+    the transposes of the input's). + Q = kron(Q_axis, I_dim) on the diagonals of the blocks."""
     n, n_rows = x.shape
+    dt = np.asarray(dt, dtype=float)
+    powers = [None, dt] + [dt ** k / math.factorial(k) for k in range(2, order)]  # Phi[a, a+k]
     blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
-    tmp = work.work("pred.tmp", (dim, n), n_rows)
-    for i in range(order):
-        for j in range(i + 1, order):
-            c = dt if j == i + 1 else dt ** (j - i) / math.factorial(j - i)
-            x[blk[i]] += np.multiply(x[blk[j]], c, out=tmp[:, 0])
-            p[blk[i]] += np.multiply(p[blk[j]], c, out=tmp)
-    cols = tmp.transpose(1, 0, 2)
-    for i in range(order):
-        for j in range(i + 1, order):
-            c = dt if j == i + 1 else dt ** (j - i) / math.factorial(j - i)
-            p[:, blk[i]] += np.multiply(p[:, blk[j]], c, out=cols)
-    qa = axis_noise(dt, order, q).transpose(1, 2, 0)  # (order, order, N)
-    for i in range(order):
-        for j in range(i, order):
+    tmp = work.work("pred.tmp", (dim, dim), n_rows)
+    for a in range(order):
+        for c in range(a + 1, order):
+            x[blk[a]] += np.multiply(x[blk[c]], powers[c - a], out=tmp[0])
+    for a in range(order):
+        for b in range(a, order):
+            acc = p[blk[a], blk[b]]
+            for c in range(a, order):
+                for e in range(b, order):
+                    if (c, e) == (a, b) or (a == b and e < c):
+                        continue
+                    coef = _phi(powers, a, c) * _phi(powers, b, e)
+                    if a == b and c != e:  # Phi[a, c] Phi[a, e] (P_ce + P_ec), P_ec = P_ce'
+                        term = np.add(p[blk[c], blk[e]], p[blk[c], blk[e]].transpose(1, 0, 2),
+                                      out=tmp)
+                        term *= coef
+                    else:
+                        term = np.multiply(p[blk[c], blk[e]], coef, out=tmp)
+                    acc += term
+    # + Q: q^2 g_a g_b, g_a = |dt|^(order - a) / (order - a)! (axis_noise)
+    gain = np.abs(dt)
+    g = [gain ** (order - a) / math.factorial(order - a) for a in range(order)]
+    q2 = np.square(q)
+    for a in range(order):
+        for b in range(a, order):
+            qab = g[a] * g[b] * q2
             for k in range(dim):
-                p[i * dim + k, j * dim + k] += qa[i, j]
-    low = _TRIL.get(n) or _TRIL.setdefault(n, np.tril_indices(n, -1))
-    p[low] = p[low[1], low[0]]
+                p[a * dim + k, b * dim + k] += qab
+            if b > a:
+                p[blk[b], blk[a]] = p[blk[a], blk[b]].transpose(1, 0, 2)
 
 
-_TRIL: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+def _phi(powers: list, a: int, c: int) -> np.ndarray | float:
+    return 1.0 if c == a else powers[c - a]
 
 
 def motion(kind: str, dt: np.ndarray, order: int, dim: int, q: float | np.ndarray,

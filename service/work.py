@@ -13,11 +13,16 @@ allocator hands their memory back to the system after each step).
 
 from __future__ import annotations
 
+import math
 import threading
 
 import numpy as np
 
 CHUNK = 4096  # rows per kernel pass
+CONTIG = 0
+EVEN = 0
+PAD = 8  # buffer rows are CHUNK + PAD long: a power-of-two row stride would map the
+# rows of a block to the same cache sets (many conflict misses)
 
 _local = threading.local()
 
@@ -27,14 +32,24 @@ def work(name: str, shape: tuple[int, ...], n: int) -> np.ndarray:
     thread, kept between calls (its content is whatever the last user left). Each
     kernel uses its own names; a name must not be held across a call that reuses it."""
     bufs: dict[str, np.ndarray] = _local.__dict__.setdefault("bufs", {})
+    if CONTIG:
+        size = n * math.prod(shape)
+        buf = bufs.get(name)
+        if buf is None or len(buf) < size:
+            buf = bufs[name] = np.empty(max(size, CHUNK * math.prod(shape)))
+        return buf[:size].reshape(*shape, n)
     buf = bufs.get(name)
     if buf is None or buf.shape[:-1] != shape or buf.shape[-1] < n:
-        buf = bufs[name] = np.empty((*shape, max(n, CHUNK)))
+        buf = bufs[name] = np.empty((*shape, max(n, CHUNK) + PAD))
     return buf[..., :n]
 
 
 def chunks(n: int) -> list[tuple[int, int]]:
     """(start, stop) of the row chunks of a batch of n rows."""
+    if EVEN:
+        k = -(-n // CHUNK)
+        edges = [n * i // k for i in range(k + 1)]
+        return list(zip(edges[:-1], edges[1:], strict=True))
     return [(lo, min(n, lo + CHUNK)) for lo in range(0, n, CHUNK)]
 
 
