@@ -139,18 +139,21 @@ def _polar_soa(batch: MeasurementBatch, pos: np.ndarray, cov: np.ndarray, z: np.
     d, n = pos.shape
     vals, sig, origin = batch.values, batch.sigmas, batch.origin[:, :d].T
     el, sel = (vals[:, 2], sig[:, 2]) if d == 3 else (None, None)
-    # UCM point (as `unbiased`), sensor-relative, then moved to the common frame
+    # UCM point (as `unbiased`; cos and sin by _cos_sin), sensor-relative, then moved to
+    # the common frame
     lb = np.exp(-0.5 * sig[:, 1] ** 2)
     rng, az = vals[:, 0], vals[:, 1]
     if el is None:
         horiz = rng / lb
     else:
         le = np.exp(-0.5 * sel**2)
-        horiz = rng * np.cos(el) / (lb * le)
-        np.multiply(rng, np.sin(el), out=z[2])
+        cos_el, sin_el = _cos_sin(el)
+        horiz = rng * cos_el / (lb * le)
+        np.multiply(rng, sin_el, out=z[2])
         z[2] /= le
-    np.multiply(horiz, np.sin(az), out=z[0])
-    np.multiply(horiz, np.cos(az), out=z[1])
+    cos_az, sin_az = _cos_sin(az)
+    np.multiply(horiz, sin_az, out=z[0])
+    np.multiply(horiz, cos_az, out=z[1])
     z += origin
     rel = np.subtract(pos, origin, out=work.work("cmkf.rel", (d,), n))
     ucm_expected_soa(rel, cov, sig[:, 0], sig[:, 1], sel, az, r)
@@ -268,11 +271,9 @@ def _eigh3(cov: np.ndarray, a: dict, n: int) -> tuple[list, list]:
     np.subtract(a11, q, out=b11)
     np.subtract(a22, q, out=b22)
     # p = sqrt((b00^2 + b11^2 + b22^2 + 2 (a01^2 + a02^2 + a12^2)) / 6)
-    np.multiply(b00, b00, out=p)
-    p += np.multiply(b11, b11, out=t)
-    p += np.multiply(b22, b22, out=t)
-    np.multiply(a01, a01, out=t2)
-    t2 += np.multiply(a02, a02, out=t)
+    bq, aq = e[1:4], cov[0, 1:]  # (b00, b11, b22) and (a01, a02)
+    np.einsum("kn,kn->n", bq, bq, out=p)
+    np.einsum("kn,kn->n", aq, aq, out=t2)
     t2 += np.multiply(a12, a12, out=t)
     t2 *= 2
     p += t2

@@ -114,16 +114,18 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     s0 = np.add(p[:m, :m], r, out=work.work("upd.s", (m, m), k))  # S without the floor
     sinv = work.work("upd.si", (m, m), k)
     ldl_inverse(s0, sinv, det, S_FLOOR)
-    lk, up = work.work("upd.l", (2 * m, n), k), work.work("upd.u", (2 * m, n), k)
-    kt, et = lk[:m], lk[m:]  # K' and E' (m, n)
+    # one buffer [P[:m]; K'; E'] (3m, n): the Joseph operands [P[:m]; K'] and [K'; E']
+    # are two overlapping slices of it
+    ops = work.work("upd.ops", (3 * m, n), k)
+    up, lk = ops[:2 * m], ops[m:]
+    kt, et = ops[m:2 * m], ops[2 * m:]  # K' and E' (m, n)
+    ops[:m] = p[:m]
     np.einsum("abn,bin->ain", sinv, p[:m], out=kt)
     sn = np.einsum("abn,bn->an", sinv, nu, out=work.work("upd.sn", (m,), k))  # S^-1 nu
     np.einsum("an,an->n", nu, sn, out=nis)
     x += np.einsum("ain,an->in", kt, nu, out=work.work("upd.dx", (n,), k))
     np.einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
     np.subtract(p[:m], et, out=et)
-    up[:m] = p[:m]
-    up[m:] = kt
     # P - [K E] [P[:m]; K']: rows :m, then the lower-right block
     top = np.einsum("ain,ajn->ijn", lk[:, :m], up, out=p_out[:m])
     np.subtract(p[:m], top, out=top)
