@@ -70,7 +70,7 @@ def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int
         conversion.cmkf_soa(batch.rows(lo, hi), xs[:dim], ps[:dim, :dim], zs, rs)
         pout = work.work("step.pn", (n, n), k)
         kalman.update_soa(xs, ps, zs, rs, pout, nis[lo:hi], det[lo:hi])
-        ok[lo:hi] = kalman.finite(xs, pout, nis[lo:hi])
+        ok[lo:hi] = kalman.finite(xs, pout, nis[lo:hi], dim)
         np.copyto(xn[lo:hi].T, xs)
         np.copyto(np.moveaxis(pn[lo:hi], 0, -1), pout)
     return xn, pn, nis, ok

@@ -70,17 +70,22 @@ def update_full(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
         xs, pout = work.to_soa(x[lo:hi], "upda.x"), work.work("upda.pn", (n, n), hi - lo)
         update_soa(xs, work.to_soa(p[lo:hi], "upda.p"), work.to_soa(z[lo:hi], "upda.z"),
                    work.to_soa(r[lo:hi], "upda.r"), pout, nis[lo:hi], det[lo:hi])
-        ok[lo:hi] = finite(xs, pout, nis[lo:hi])
+        ok[lo:hi] = finite(xs, pout, nis[lo:hi], m)
         np.copyto(xn[lo:hi].T, xs)
         np.copyto(np.moveaxis(pn[lo:hi], 0, -1), pout)
     return xn, pn, nis, ok, loglik(nis, det, m)
 
 
-def finite(x: np.ndarray, p: np.ndarray, nis: np.ndarray) -> np.ndarray:
+def finite(x: np.ndarray, p: np.ndarray, nis: np.ndarray, m: int = 0) -> np.ndarray:
     """Rows (batch axis last) whose state, covariance and NIS are all finite: a sum is
-    finite if and only if all its terms are (short of an overflow)."""
+    finite if and only if all its terms are (short of an overflow). With m > 0, P is
+    known symmetric and only its rows :m and its lower-right block are summed."""
     tot = x.sum(0)
-    tot += p.sum((0, 1))
+    if m > 0:
+        tot += p[:m].sum((0, 1))
+        tot += p[m:, m:].sum((0, 1))
+    else:
+        tot += p.sum((0, 1))
     tot += nis
     return np.isfinite(tot)
 
