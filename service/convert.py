@@ -232,7 +232,7 @@ def ucm_covariance_polar(r: np.ndarray, az: np.ndarray, el: np.ndarray | None,
 
 
 def _eigh(cov: np.ndarray, d: int) -> tuple[list, list]:
-    """Eigenvalues (d arrays of N) and unit eigenvectors (d vectors of d arrays of N) of
+    """Eigenvalues (d arrays of N) and unit eigenvectors (d arrays (d, N)) of
     symmetric PSD matrices cov (d, d, N) (batch axis last; the upper triangle is read),
     those of `np.linalg.eigh` up to order and signs (and the choice of basis of a repeated
     eigenvalue), in closed form for d <= 3.
@@ -248,10 +248,10 @@ def _eigh(cov: np.ndarray, d: int) -> tuple[list, list]:
     n = cov.shape[-1]
     if d > 3:
         vals, vecs = np.linalg.eigh(np.moveaxis(cov, -1, 0))
-        return list(vals.T), [list(vecs[:, :, k].T) for k in range(d)]
+        return list(vals.T), [vecs[:, :, k].T for k in range(d)]
     a = {(i, j): cov[min(i, j), max(i, j)] for i in range(d) for j in range(d)}
     if d == 1:
-        return [a[0, 0]], [[np.ones(n)]]
+        return [a[0, 0]], [np.ones((1, n))]
     if d == 2:
         uw = np.zeros((2, 2, n))
         uw[0, 0] = uw[1, 1] = 1.0
@@ -331,7 +331,8 @@ def _eigh3(cov: np.ndarray, a: dict, n: int) -> tuple[list, list]:
     np.multiply(u2, u2, out=su2)
     np.add(su0, su1, out=best)
     best += np.multiply(d2, d2, out=t)
-    v = [e[25], e[26], e[27]]
+    vec = e[25:28]
+    v = list(vec)
     for vi, ci in zip(v, (u0, u1, d2), strict=True):
         np.copyto(vi, ci)
     for cand, (s1, x, s2) in (((u2, d1, u1), (su2, d1, su1)), ((d0, u2, u0), (None, d0, su2))):
@@ -377,7 +378,7 @@ def _eigh3(cov: np.ndarray, a: dict, n: int) -> tuple[list, list]:
     w[1] += sign
     np.negative(v[1], out=w[2])
     pair_vals, pair_vecs = _rotate(cov, uw)
-    return [iso, *pair_vals], [v, *pair_vecs]
+    return [iso, *pair_vals], [vec, *pair_vecs]
 
 
 def _cos_sin_into(angle: np.ndarray, cos: np.ndarray, sin: np.ndarray
@@ -426,7 +427,7 @@ def _rotate(cov: np.ndarray, uw: np.ndarray) -> tuple[list, list]:
     np.einsum("jn,jin->in", e[4:6], uw, out=vecs[1])  # c w - s u
     uu += ww
     uu -= first
-    return [first, uu], [list(vecs[0]), list(vecs[1])]
+    return [first, uu], [vecs[0], vecs[1]]
 
 
 def _cos_sin(angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -482,15 +483,20 @@ def ucm_expected_soa(mean: np.ndarray, cov: np.ndarray, sr: np.ndarray, saz: np.
     pts, root = work.work("ucm.pts", (d, k2), n), work.work("ucm.root", (d,), n)
     for k in range(d):
         scale = np.sqrt(d * np.maximum(vals[k], 0.0))
-        for i in range(d):
-            np.multiply(vecs[k][i], scale, out=root[i])
+        np.multiply(vecs[k], scale, out=root)
         np.add(mean, root, out=pts[:, k])
         np.subtract(mean, root, out=pts[:, d + k])
-    x, y = mean[0], mean[1]
-    rho2 = x * x + y * y
-    cxx, cxy, cyy = cov[0, 0], cov[0, 1] + cov[1, 0], cov[1, 1]
-    var_t = np.where(rho2 > 0, (y * y * cxx - x * y * cxy + x * x * cyy)
-                     / np.maximum(rho2, 1e-300), 0.5 * (cxx + cyy))  # along (y, -x) / rho
+    # predicted variance along the tangent (y, -x) / rho
+    tangent = root[:2]
+    np.copyto(tangent[0], mean[1])
+    np.negative(mean[0], out=tangent[1])
+    rho2 = np.einsum("in,in->n", mean[:2], mean[:2])
+    var_t = np.einsum("in,ijn,jn->n", tangent, cov[:2, :2], tangent)
+    if (rho2 > 0).all():
+        var_t /= rho2
+    else:
+        var_t = np.where(rho2 > 0, var_t / np.maximum(rho2, 1e-300),
+                         0.5 * (cov[0, 0] + cov[1, 1]))
     var_az = var_t / np.maximum(rho2, 1e-12)  # predicted azimuth variance, rad^2
     w = var_az / (var_az + saz * saz)
     x, y = pts[0], pts[1]
