@@ -401,8 +401,9 @@ def _rotate(cov: np.ndarray, uw: np.ndarray) -> tuple[list, list]:
     d, n = uw.shape[1:]
     e = work.work("rot", (7,), n)
     t, first, cs = e[0], e[1], e[2:4]
-    # the projection [[uu, uw], [uw, ww]] = [u w]' cov [u w]
-    proj = np.einsum("ain,ijn,bjn->abn", uw, cov, uw, out=work.work("rot.p", (2, 2), n))
+    # the projection [[uu, uw], [uw, ww]] = [u w]' (cov [u w])
+    cuw = np.einsum("ijn,ajn->ain", cov, uw, out=work.work("rot.c", (2, d), n))
+    proj = np.einsum("ain,bin->abn", uw, cuw, out=work.work("rot.p", (2, 2), n))
     uu, uv, ww = proj[0, 0], proj[0, 1], proj[1, 1]
     # 0.5 atan2(2 uw, uu - ww), cos and sin as _cos_sin
     np.subtract(uu, ww, out=t)
