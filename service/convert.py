@@ -295,8 +295,7 @@ def _eigh3(cov: np.ndarray, a: dict, n: int) -> tuple[list, list]:
     np.multiply(p, p, out=t)
     t *= p
     t *= 2
-    half.fill(0.0)
-    np.divide(det, t, out=half, where=p > 0)  # det / (2 p^3)
+    _divide(det, t, half, 0.0)  # det / (2 p^3), 0 where p = 0
     np.clip(half, -1.0, 1.0, out=half)
     np.arccos(half, out=half)
     half /= 3
@@ -347,15 +346,14 @@ def _eigh3(cov: np.ndarray, a: dict, n: int) -> tuple[list, list]:
         for vi, ci in zip(v, cand, strict=True):
             np.copyto(vi, ci, where=more)
         np.maximum(best, c2, out=best)
-    some = best > 0
     scale = e[28]
     np.sqrt(best, out=t)
-    scale.fill(0.0)
-    np.divide(1.0, t, out=scale, where=some)
+    _divide(1.0, t, scale, 0.0)
     v[0] *= scale
     v[1] *= scale
     v[2] *= scale
-    np.copyto(v[2], 1.0, where=~some)  # else any
+    if not best.all():
+        np.copyto(v[2], 1.0, where=best == 0)  # any unit vector
     # u, w complete v to an orthonormal basis (Duff et al.)
     sign, k, f = e[29], e[30], e[31]
     np.copysign(1.0, v[2], out=sign)
@@ -379,6 +377,15 @@ def _eigh3(cov: np.ndarray, a: dict, n: int) -> tuple[list, list]:
     np.negative(v[1], out=w[2])
     pair_vals, pair_vecs = _rotate(cov, uw)
     return [iso, *pair_vals], [vec, *pair_vecs]
+
+
+def _divide(num: np.ndarray | float, den: np.ndarray, out: np.ndarray, fill: float
+            ) -> np.ndarray:
+    """num / den into out, `fill` where den is 0 (a masked divide only when one is)."""
+    if den.all():
+        return np.divide(num, den, out=out)
+    out.fill(fill)
+    return np.divide(num, den, out=out, where=den != 0)
 
 
 def _cos_sin_into(angle: np.ndarray, cos: np.ndarray, sin: np.ndarray

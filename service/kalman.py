@@ -180,7 +180,10 @@ def _ldl(s: np.ndarray, floor: float) -> tuple[dict, list, list]:
         for q in range(j):
             pj -= low[j, q] ** 2 * piv[q]
         piv.append(pj)
-        inv_piv.append(np.divide(1.0, pj, out=np.full_like(pj, np.nan), where=pj != 0))
+        if pj.all():
+            inv_piv.append(np.divide(1.0, pj))
+        else:
+            inv_piv.append(np.divide(1.0, pj, out=np.full_like(pj, np.nan), where=pj != 0))
         for i in range(j + 1, m):
             v = s[i, j].copy()
             for q in range(j):
