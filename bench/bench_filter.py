@@ -139,6 +139,14 @@ def best_of(fn: Callable[[], object], reps: int, setup: Callable[[], object] | N
     return best
 
 
+def reference() -> float:
+    """Best time (s) of one np.multiply of two 10,000-float arrays into a third: this
+    machine's element-wise NumPy speed at the moment (on a shared virtual machine it
+    varies by up to 2x from one minute to the next)."""
+    a, b, c = np.ones(10_000), np.ones(10_000), np.empty(10_000)
+    return best_of(lambda: np.multiply(a, b, out=c), 300)
+
+
 def us(seconds: float, n: int) -> float:
     return seconds / n * 1e6
 
@@ -175,6 +183,7 @@ def bench_ours(n: int, reps: int, seed: int) -> dict:
     res["convert"] = best_of(lambda: measurement_arrays(batch, DIM, pred, pred_cov), reps)
     z, r = measurement_arrays(batch, DIM, pred, pred_cov)
     res["update"] = best_of(lambda: kalman.update(xp, pp, z, r), reps)
+    res["ref"] = reference()
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     res["step"] = best_of(lambda: ours_step(x0, p0, batch), reps)
     res["faults"] = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / (reps + 1)
@@ -297,10 +306,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"# {platform.python_implementation()} {platform.python_version()}, "
           f"numpy {np.__version__}, {platform.machine()}, {os.cpu_count()} CPUs; "
           f"best of {args.reps} after warm-up; us = microseconds per target-step")
-    a, b, c = np.ones(10_000), np.ones(10_000), np.empty(10_000)
-    ref = best_of(lambda: np.multiply(a, b, out=c), 200)
-    print(f"# reference: np.multiply of two 10,000-float arrays into a third, {ref * 1e6:.1f} us "
-          "(this machine's element-wise NumPy speed at the moment)")
+    print(f"# reference: np.multiply of two 10,000-float arrays into a third, "
+          f"{reference() * 1e6:.1f} us (element-wise NumPy speed; also column ref)")
     peers = []
     if KalmanFilter is None:
         print("# FilterPy not installed: skipped (pip install filterpy)")
@@ -332,19 +339,20 @@ def main(argv: list[str] | None = None) -> None:
 
     print("\nours, one vectorised step over N targets (us per target-step)")
     print(f"{'N':>8} {'decode':>8} {'step':>8} {'predict':>8} {'convert':>8} {'update':>8}"
-          f" {'p+u':>8} {'apply':>8} {'faults':>8}")
+          f" {'p+u':>8} {'apply':>8} {'faults':>8} {'ref':>6}")
     for o, _, _ in rows:
         n = o["n"]
         print(f"{n:>8} {us(o['decode'], n):>8.3f} {us(o['step'], n):>8.3f}"
               f" {us(o['predict'], n):>8.3f} {us(o['convert'], n):>8.3f}"
               f" {us(o['update'], n):>8.3f} {us(o['predict'] + o['update'], n):>8.3f}"
-              f" {us(o['apply'], n):>8.3f} {o['faults']:>8.0f}")
+              f" {us(o['apply'], n):>8.3f} {o['faults']:>8.0f} {o['ref'] * 1e6:>6.1f}")
     print("  decode = the Measurement records to columns (MeasurementBatch.of), not in step;\n"
           "  step = filters.cmkf_step: predict + convert + update on arrays, in one pass;\n"
           "  predict, convert, update = the parts through their own entry points (each with\n"
           "  its own row-major input and output: they add up to more than step);\n"
           "  p+u = predict + update; apply = TrackTable.apply, the whole table step (decode,\n"
-          "  bookkeeping, tracks/ message dicts); faults = minor page faults per step call")
+          "  bookkeeping, tracks/ message dicts); faults = minor page faults per step call;\n"
+          "  ref = us of the reference np.multiply, timed just before step")
 
     if peers:
         names = [k for k, _ in peers]
