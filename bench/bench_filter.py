@@ -7,12 +7,16 @@ one target: 3-D nearly-constant-velocity state [x y z vx vy vz], piecewise-const
 white acceleration noise q = 1 m/s^2 per axis, polar radar measurements (range,
 azimuth, elevation; sr = 20 m, saz = sel = 0.2 deg, the `swarm` scenario's sensor)
 converted the way the track table does it (unbiased conversion, covariance averaged
-over the predicted position: `table.measurement_arrays`).
+over the predicted position: `convert.cmkf_soa`).
 
-- ours: `models.predict` + `table.measurement_arrays` + `kalman.update` on the stacked
-  arrays of all N targets, timed as one vectorised step (and part by part). Also the
-  whole table step `TrackTable.apply` (which adds the bookkeeping and the per-track
-  `tracks/` message dicts) on the following scans.
+- ours: the filter core `filters.cmkf_step` (prediction, conversion, CMKF update) on the
+  stacked arrays of all N targets and the columns of their measurements
+  (`convert.MeasurementBatch`), timed as one vectorised step; building those columns
+  from the validated `Measurement` records is timed on its own ("decode"), and the parts
+  through their own entry points (`models.predict`, `table.measurement_arrays` on the
+  columns, `kalman.update`). Also the whole table step `TrackTable.apply` (which adds
+  decoding, the bookkeeping and the per-track `tracks/` message dicts) on the following
+  scans.
 - FilterPy: one `filterpy.kalman.KalmanFilter` per target, F and Q (Q from FilterPy's own
   `Q_discrete_white_noise`) equal to ours, fed our converted z and R; a loop of
   `predict(); update(z, R)`.
@@ -38,6 +42,7 @@ import datetime
 import math
 import os
 import platform
+import resource
 import sys
 import time
 from collections.abc import Callable
@@ -47,7 +52,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
-from service import convert, kalman, models  # noqa: E402
+from service import filters, kalman, models  # noqa: E402
+from service.convert import MeasurementBatch  # noqa: E402
 from service.table import TableConfig, TrackTable, measurement_arrays  # noqa: E402
 from service.validate import Measurement  # noqa: E402
 
@@ -133,14 +139,28 @@ def best_of(fn: Callable[[], object], reps: int, setup: Callable[[], object] | N
     return best
 
 
+def reference() -> float:
+    """Best time (s) of one np.multiply of two 10,000-float arrays into a third: this
+    machine's element-wise NumPy speed at the moment (on a shared virtual machine it
+    varies by up to 2x from one minute to the next)."""
+    a, b, c = np.ones(10_000), np.ones(10_000), np.empty(10_000)
+    return best_of(lambda: np.multiply(a, b, out=c), 300)
+
+
 def us(seconds: float, n: int) -> float:
     return seconds / n * 1e6
 
 
 # ---------------------------------------------------------------- ours
-def ours_step(x, p, meas):
+def ours_step(x, p, batch):
+    xn, pn, _, ok = filters.cmkf_step(x, p, np.full(len(x), T), ORDER, DIM, Q, batch)
+    return xn, pn, ok
+
+
+def ours_parts(x, p, batch):
+    """The same step through the parts' own entry points (row-major arrays between them)."""
     xp, pp = models.predict(x, p, np.full(len(x), T), ORDER, DIM, Q)
-    z, r = measurement_arrays(meas, DIM, xp[:, :DIM], pp[:, :DIM, :DIM])
+    z, r = measurement_arrays(batch, DIM, xp[:, :DIM], pp[:, :DIM, :DIM])
     xn, pn, _, ok = kalman.update(xp, pp, z, r)
     return xn, pn, ok
 
@@ -155,25 +175,23 @@ def bench_ours(n: int, reps: int, seed: int) -> dict:
     dt = np.full(n, T)
 
     res: dict = {"n": n}
+    res["decode"] = best_of(lambda: MeasurementBatch.of(meas, DIM), reps)
+    batch = MeasurementBatch.of(meas, DIM)
     res["predict"] = best_of(lambda: models.predict(x0, p0, dt, ORDER, DIM, Q), reps)
     xp, pp = models.predict(x0, p0, dt, ORDER, DIM, Q)
     pred, pred_cov = xp[:, :DIM], pp[:, :DIM, :DIM]
-    res["convert"] = best_of(lambda: measurement_arrays(meas, DIM, pred, pred_cov), reps)
-    # the arithmetic of the conversion alone, on arrays already unpacked from the records
-    vals = np.array([m.values for m in meas])
-    sig = np.array([m.sigmas for m in meas])
-
-    def ucm() -> None:
-        convert.unbiased(vals[:, 0], vals[:, 1], vals[:, 2], sig[:, 1], sig[:, 2])
-        convert.ucm_covariance_expected(pred, pred_cov, sig[:, 0], sig[:, 1], sig[:, 2],
-                                        vals[:, 1])
-
-    res["ucm_math"] = best_of(ucm, reps)
-    z, r = measurement_arrays(meas, DIM, pred, pred_cov)
+    res["convert"] = best_of(lambda: measurement_arrays(batch, DIM, pred, pred_cov), reps)
+    z, r = measurement_arrays(batch, DIM, pred, pred_cov)
     res["update"] = best_of(lambda: kalman.update(xp, pp, z, r), reps)
-    res["step"] = best_of(lambda: ours_step(x0, p0, meas), reps)
-    xn, pn, ok = ours_step(x0, p0, meas)
+    res["ref"] = reference()
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    res["step"] = best_of(lambda: ours_step(x0, p0, batch), reps)
+    res["faults"] = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults) / (reps + 1)
+    xn, pn, ok = ours_step(x0, p0, batch)
     assert ok.all()
+    xs, ps, _ = ours_parts(x0, p0, batch)
+    same_posterior("predict + measurement_arrays + update", xs[:CHECK], ps[:CHECK],
+                   xn[:CHECK], pn[:CHECK])
 
     # the whole table step: the table moves on, so the best of R *successive* scans,
     # after the timed step's own scan as warm-up (where it must give the same posterior)
@@ -288,6 +306,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"# {platform.python_implementation()} {platform.python_version()}, "
           f"numpy {np.__version__}, {platform.machine()}, {os.cpu_count()} CPUs; "
           f"best of {args.reps} after warm-up; us = microseconds per target-step")
+    print(f"# reference: np.multiply of two 10,000-float arrays into a third, "
+          f"{reference() * 1e6:.1f} us (element-wise NumPy speed; also column ref)")
     peers = []
     if KalmanFilter is None:
         print("# FilterPy not installed: skipped (pip install filterpy)")
@@ -314,22 +334,25 @@ def main(argv: list[str] | None = None) -> None:
         rows.append((o, m, peer_us))
         print(f"# N={n}: done ({', '.join(f'{k} timed on {m}' for k in peer_us) or 'ours'})",
               flush=True)
-    agree = ", ".join(["ours", "TrackTable.apply", *(k for k, _ in peers)])
+    agree = ", ".join(["ours", "ours by parts", "TrackTable.apply", *(k for k, _ in peers)])
     print(f"# posteriors of the first {CHECK} targets agree to {RTOL:g} relative: {agree}")
 
     print("\nours, one vectorised step over N targets (us per target-step)")
-    print(f"{'N':>8} {'step':>8} {'predict':>8} {'convert':>8} {'(ucm)':>8} {'update':>8}"
-          f" {'p+u':>8} {'apply':>8}")
+    print(f"{'N':>8} {'decode':>8} {'step':>8} {'predict':>8} {'convert':>8} {'update':>8}"
+          f" {'p+u':>8} {'apply':>8} {'faults':>8} {'ref':>6}")
     for o, _, _ in rows:
         n = o["n"]
-        print(f"{n:>8} {us(o['step'], n):>8.3f} {us(o['predict'], n):>8.3f}"
-              f" {us(o['convert'], n):>8.3f} {us(o['ucm_math'], n):>8.3f}"
+        print(f"{n:>8} {us(o['decode'], n):>8.3f} {us(o['step'], n):>8.3f}"
+              f" {us(o['predict'], n):>8.3f} {us(o['convert'], n):>8.3f}"
               f" {us(o['update'], n):>8.3f} {us(o['predict'] + o['update'], n):>8.3f}"
-              f" {us(o['apply'], n):>8.3f}")
-    print("  step = predict + convert + update timed together; (ucm) = the conversion's "
-          "arithmetic alone,\n  the rest of convert unpacks the Measurement records; p+u = "
-          "predict + update;\n  apply = TrackTable.apply, the whole table step "
-          "(with the tracks/ message dicts)")
+              f" {us(o['apply'], n):>8.3f} {o['faults']:>8.0f} {o['ref'] * 1e6:>6.1f}")
+    print("  decode = the Measurement records to columns (MeasurementBatch.of), not in step;\n"
+          "  step = filters.cmkf_step: predict + convert + update on arrays, in one pass;\n"
+          "  predict, convert, update = the parts through their own entry points (each with\n"
+          "  its own row-major input and output: they add up to more than step);\n"
+          "  p+u = predict + update; apply = TrackTable.apply, the whole table step (decode,\n"
+          "  bookkeeping, tracks/ message dicts); faults = minor page faults per step call;\n"
+          "  ref = us of the reference np.multiply, timed just before step")
 
     if peers:
         names = [k for k, _ in peers]

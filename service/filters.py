@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from . import kalman, models
+from . import convert as conversion
+from . import kalman, models, work
 
 # (x_pred (N, n), P_pred (N, n, n)) -> (z, R[, h, hx]) converted for those predictions
 Convert = Callable[[np.ndarray, np.ndarray], tuple]
@@ -34,17 +35,51 @@ class Single:
         """Nothing beyond the table's own x and P."""
 
     def update(self, bank: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
-        f, qm = models.motion(self.kind, dt, self.order, bank.dim, self.q)
-        xp, pp = predict(bank.x[rows], bank.p[rows], f, qm)
+        standard = (self.kind, self.order) in (("cv", 2), ("ca", 3))  # F, Q of models.predict
+        if standard and isinstance(convert, conversion.CMKFConversion):
+            return cmkf_step(bank.x[rows], bank.p[rows], dt, self.order, bank.dim, self.q,
+                             convert.batch)
+        if standard:
+            xp, pp = models.predict(bank.x[rows], bank.p[rows], dt, self.order, bank.dim,
+                                    self.q)
+        else:
+            f, qm = models.motion(self.kind, dt, self.order, bank.dim, self.q)
+            xp, pp = predict(bank.x[rows], bank.p[rows], f, qm)
         return kalman.update(xp, pp, *convert(xp, pp))
 
     def labels(self, bank: Any, rows: np.ndarray) -> list[str | dict[str, float]]:
         return [self.kind] * len(rows)
 
 
+def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+              q: float | np.ndarray, batch: conversion.MeasurementBatch) -> Result:
+    """The filter core: prediction (`models.predict_soa`), conversion of the measurements
+    at the prediction (`convert.cmkf_soa`) and CMKF update (`kalman.update_soa`) of rows
+    x (N, n), P (N, n, n) over their own dt, in one pass per chunk of rows on batch-last
+    work arrays. Returns new arrays: posterior x, P, NIS and the mask of finite rows."""
+    n_rows, n = x.shape
+    dt = np.broadcast_to(np.asarray(dt, dtype=float), (n_rows,))
+    q = np.asarray(q, dtype=float)
+    xn, pn = np.empty((n_rows, n)), np.empty((n_rows, n, n))
+    nis, det, ok = np.empty(n_rows), np.empty(n_rows), np.empty(n_rows, dtype=bool)
+    for lo, hi in work.chunks(n_rows):
+        k = hi - lo
+        xs, ps = work.to_soa(x[lo:hi], "step.x"), work.to_soa(p[lo:hi], "step.p")
+        models.predict_soa(xs, ps, dt[lo:hi], order, dim, q[lo:hi] if q.ndim else q)
+        zs, rs = work.work("step.z", (dim,), k), work.work("step.r", (dim, dim), k)
+        conversion.cmkf_soa(batch.rows(lo, hi), xs[:dim], ps[:dim, :dim], zs, rs)
+        pout = work.work("step.pn", (n, n), k)
+        kalman.update_soa(xs, ps, zs, rs, pout, nis[lo:hi], det[lo:hi])
+        ok[lo:hi] = kalman.finite(xs, pout, nis[lo:hi], dim)
+        np.copyto(xn[lo:hi].T, xs)
+        np.copyto(np.moveaxis(pn[lo:hi], 0, -1), pout)
+    return xn, pn, nis, ok
+
+
 def predict(x: np.ndarray, p: np.ndarray, f: np.ndarray, q: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray]:
-    xp = np.einsum("nij,nj->ni", f, x)
+    """x (N, n), P (N, n, n) predicted by full transition matrices F and noise Q (N, n, n)."""
+    xp = (f @ x[:, :, None])[:, :, 0]  # matmul: much faster than einsum on small matrices
     return xp, kalman.symmetrise(f @ p @ f.transpose(0, 2, 1) + q)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import work
+
 # Floor added to the innovation covariance so an exact measurement of an exactly known
 # position (R = 0, P = 0) gives a zero gain instead of a division by zero (m^2).
 S_FLOOR = 1e-9
@@ -31,26 +33,10 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def solve_symmetric(s: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """S^-1 b and det S for symmetric (N, m, m) S (its lower triangle is read) and
     right-hand sides b (m, k, N) with the batch axis last, which are overwritten by the
-    solution; entry by entry for small m: S = L D L' (Golub & Van Loan 2013, alg. 4.1.1),
-    then substitution, without pivoting (S is a covariance). A row with a zero pivot
-    (singular S) gets NaN, flagged by the caller's finiteness mask as in `solve`."""
-    m = s.shape[-1]
-    low, piv, inv_piv = {}, [], []  # L below its unit diagonal, D, D^-1
-    for j in range(m):
-        piv.append(s[:, j, j] - sum(low[j, k] ** 2 * piv[k] for k in range(j)))
-        inv_piv.append(np.divide(1.0, piv[j], out=np.full_like(piv[j], np.nan),
-                                 where=piv[j] != 0))
-        for i in range(j + 1, m):
-            low[i, j] = inv_piv[j] * (s[:, i, j] - sum(low[i, k] * low[j, k] * piv[k]
-                                                       for k in range(j)))
-    for i in range(m):  # L y = b
-        for k in range(i):
-            b[i] -= low[i, k] * b[k]
-    for i in reversed(range(m)):  # D L' x = y
-        b[i] *= inv_piv[i]
-        for k in range(i + 1, m):
-            b[i] -= low[k, i] * b[k]
-    return b, np.prod(piv, axis=0)
+    solution (`ldl_solve`)."""
+    det = np.empty(len(s))
+    ldl_solve(s.transpose(1, 2, 0), b, det)
+    return b, det
 
 
 def update(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
@@ -66,13 +52,171 @@ def update_full(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
     """Update rows (N, n) / (N, n, n) with measurements z (N, m) of covariance R (N, m, m).
 
     The measurement depends on position only: by default it is the position itself
-    (H = [I 0], the CMKF); an EKF passes the Jacobian `h` (N, m, d) with respect to the
-    position and the predicted measurement `hx` (N, m). Joseph-form covariance
-    (Bar-Shalom, Li & Kirubarajan 2001, eq. 5.2.3-18), symmetrised. Returns the posterior
-    x, P, the normalised innovation squared, a mask of rows whose result is finite
-    (the caller keeps the prior of the others) and the Gaussian log-likelihood of the
-    innovation (for model probabilities).
+    (H = [I 0], the CMKF: `update_soa` on batch-last copies, chunk by chunk); an EKF
+    passes the Jacobian `h` (N, m, d) with respect to the position and the predicted
+    measurement `hx` (N, m). Joseph-form covariance (Bar-Shalom, Li & Kirubarajan 2001,
+    eq. 5.2.3-18), symmetric. Returns the posterior x, P, the normalised innovation
+    squared, a mask of rows whose result is finite (the caller keeps the prior of the
+    others) and the Gaussian log-likelihood of the innovation (for model probabilities).
     """
+    if h is not None or hx is not None:
+        return _update_linearised(x, p, z, r, h, hx)
+    x, p = np.asarray(x, dtype=float), np.asarray(p, dtype=float)
+    n_rows, n = x.shape
+    m = z.shape[1]
+    xn, pn = np.empty((n_rows, n)), np.empty((n_rows, n, n))
+    nis, det, ok = np.empty(n_rows), np.empty(n_rows), np.empty(n_rows, dtype=bool)
+    for lo, hi in work.chunks(n_rows):
+        xs, pout = work.to_soa(x[lo:hi], "upda.x"), work.work("upda.pn", (n, n), hi - lo)
+        update_soa(xs, work.to_soa(p[lo:hi], "upda.p"), work.to_soa(z[lo:hi], "upda.z"),
+                   work.to_soa(r[lo:hi], "upda.r"), pout, nis[lo:hi], det[lo:hi])
+        ok[lo:hi] = finite(xs, pout, nis[lo:hi], m)
+        np.copyto(xn[lo:hi].T, xs)
+        np.copyto(np.moveaxis(pn[lo:hi], 0, -1), pout)
+    return xn, pn, nis, ok, loglik(nis, det, m)
+
+
+def finite(x: np.ndarray, p: np.ndarray, nis: np.ndarray, m: int = 0) -> np.ndarray:
+    """Rows (batch axis last) whose state, covariance and NIS are all finite: a sum is
+    finite if and only if all its terms are (short of an overflow). With m > 0, P is
+    known symmetric and only its rows :m and its lower-right block are summed."""
+    tot = x.sum(0)
+    if m > 0:
+        tot += p[:m].sum((0, 1))
+        tot += p[m:, m:].sum((0, 1))
+    else:
+        tot += p.sum((0, 1))
+    tot += nis
+    return np.isfinite(tot)
+
+
+def loglik(nis: np.ndarray, det: np.ndarray, m: int) -> np.ndarray:
+    """Gaussian log-likelihood of innovations of dimension m, from NIS and det S."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = -0.5 * (nis + np.log(det) + m * np.log(2 * np.pi))
+    out[~(det > 0)] = -np.inf  # as a non-positive sign from slogdet
+    return out
+
+
+def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out: np.ndarray,
+               nis: np.ndarray, det: np.ndarray) -> None:
+    """The CMKF update (H = [I 0]) with the batch axis last: x (n, N) in place, symmetric
+    P (n, n, N) -> p_out (another array, exactly symmetric), z (m, N), R (m, m, N) ->
+    NIS and det S into nis, det (N,).
+
+    S = P[:m, :m] + R (+ S_FLOOR I) is inverted through S = L D L' (`ldl_inverse`); the
+    transposed gain is K' = S^-1 P[:m]. The Joseph form (I - KH) P (I - KH)' + K R K'
+    with H = [I 0] is evaluated from the n x m gain without forming I - KH:
+    G = (I - KH) P = P - K P[:m], E = G H' - K R = P[:, :m] - K (P[:m, :m] + R), and then
+    (I - KH) P (I - KH)' + K R K' = G - G H' K' + K R K' = G - E K' = P - [K E] [P[:m]; K']
+    (an identity for any K, not only the optimal one). Its rows :m and its lower-right
+    block are computed (np.einsum with the batch axis last: one pass per product), the
+    rest mirrored. The products run as np.einsum contractions over the small leading
+    axes, which keep the accumulation in one pass over the batch."""
+    n, k = x.shape
+    m = z.shape[0]
+    nu = np.subtract(z, x[:m], out=work.work("upd.nu", (m,), k))
+    s0 = np.add(p[:m, :m], r, out=work.work("upd.s", (m, m), k))  # S without the floor
+    sinv = work.work("upd.si", (m, m), k)
+    ldl_inverse(s0, sinv, det, S_FLOOR)
+    # one buffer [P[:m]; K'; E'] (3m, n): the Joseph operands [P[:m]; K'] and [K'; E']
+    # are two overlapping slices of it
+    ops = work.work("upd.ops", (3 * m, n), k)
+    up, lk = ops[:2 * m], ops[m:]
+    kt, et = ops[m:2 * m], ops[2 * m:]  # K' and E' (m, n)
+    ops[:m] = p[:m]
+    np.einsum("abn,bin->ain", sinv, p[:m], out=kt)
+    sn = np.einsum("abn,bn->an", sinv, nu, out=work.work("upd.sn", (m,), k))  # S^-1 nu
+    np.einsum("an,an->n", nu, sn, out=nis)
+    x += np.einsum("ain,an->in", kt, nu, out=work.work("upd.dx", (n,), k))
+    np.einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
+    np.subtract(p[:m], et, out=et)
+    # P - [K E] [P[:m]; K']: rows :m, then the lower-right block
+    top = np.einsum("ain,ajn->ijn", lk[:, :m], up, out=p_out[:m])
+    np.subtract(p[:m], top, out=top)
+    if n > m:
+        low = np.einsum("ain,ajn->ijn", lk[:, m:], up[:, m:], out=p_out[m:, m:])
+        np.subtract(p[m:, m:], low, out=low)
+    for i in range(n - 1):
+        p_out[i + 1:, i] = p_out[i, i + 1:]
+
+
+def ldl_inverse(s: np.ndarray, out: np.ndarray, det: np.ndarray, floor: float = 0.0) -> None:
+    """(S + floor I)^-1 into out (m, m, N) and its determinant into det, for symmetric S
+    (m, m, N), batch axis last (its lower triangle is read); entry by entry for small m:
+    S = L D L' (Golub & Van Loan 2013, alg. 4.1.1) without pivoting (S is a covariance),
+    then S^-1 = M' D^-1 M with M = L^-1. A row with a zero pivot (singular S) gets NaN,
+    flagged by the caller's finiteness mask as in `solve`."""
+    m = s.shape[0]
+    low, piv, inv_piv = _ldl(s, floor)
+    inv_l: dict = {}  # M = L^-1 below its unit diagonal
+    for j in range(m):
+        for i in range(j + 1, m):
+            v = -low[i, j]
+            for q in range(j + 1, i):
+                v = v - low[i, q] * inv_l[q, j]
+            inv_l[i, j] = v
+    for i in range(m):
+        for j in range(i, m):  # sum over q >= j of M[q, i] M[q, j] / d_q
+            acc = out[i, j]
+            np.multiply(inv_piv[j], 1.0 if i == j else inv_l[j, i], out=acc)
+            for q in range(j + 1, m):
+                mi = inv_l[q, i] if q != i else 1.0
+                acc += inv_piv[q] * (mi * inv_l[q, j])
+            if i != j:
+                out[j, i] = acc
+    np.copyto(det, piv[0])
+    for pj in piv[1:]:
+        det *= pj
+
+
+def _ldl(s: np.ndarray, floor: float) -> tuple[dict, list, list]:
+    """L (below its unit diagonal), D and D^-1 of S + floor I = L D L' (lower triangle of
+    s (m, m, N) read); D^-1 is NaN where a pivot is zero."""
+    m = s.shape[0]
+    low, piv, inv_piv = {}, [], []
+    for j in range(m):
+        pj = s[j, j] + floor
+        for q in range(j):
+            pj -= low[j, q] ** 2 * piv[q]
+        piv.append(pj)
+        if pj.all():
+            inv_piv.append(np.divide(1.0, pj))
+        else:
+            inv_piv.append(np.divide(1.0, pj, out=np.full_like(pj, np.nan), where=pj != 0))
+        for i in range(j + 1, m):
+            v = s[i, j].copy()
+            for q in range(j):
+                v -= low[i, q] * low[j, q] * piv[q]
+            low[i, j] = v * inv_piv[j]
+    return low, piv, inv_piv
+
+
+def ldl_solve(s: np.ndarray, b: np.ndarray, det: np.ndarray, floor: float = 0.0) -> None:
+    """S^-1 b in place and det S into det, for symmetric S + floor I, S (m, m, N) (its
+    lower triangle is read) and right-hand sides b (m, k, N), batch axis last; entry by
+    entry for small m: S = L D L' (Golub & Van Loan 2013, alg. 4.1.1), then
+    substitution, without pivoting (S is a covariance). A row with a zero pivot (singular
+    S) gets NaN, flagged by the caller's finiteness mask as in `solve`."""
+    m = s.shape[0]
+    low, piv, inv_piv = _ldl(s, floor)
+    tmp = work.work("ldl.tmp", b.shape[1:-1], b.shape[-1])
+    for i in range(m):  # L y = b
+        for q in range(i):
+            b[i] -= np.multiply(b[q], low[i, q], out=tmp)
+    for i in reversed(range(m)):  # D L' x = y
+        b[i] *= inv_piv[i]
+        for q in range(i + 1, m):
+            b[i] -= np.multiply(b[q], low[q, i], out=tmp)
+    np.copyto(det, piv[0])
+    for pj in piv[1:]:
+        det *= pj
+
+
+def _update_linearised(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
+                       h: np.ndarray | None, hx: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`update_full` with H = [h 0] (the EKF baseline), on row-major arrays."""
     m = z.shape[1]
     n, d = x.shape[1], m if h is None else h.shape[2]
     nu = z - (x[:, :d] if hx is None else hx)
@@ -97,7 +241,4 @@ def update_full(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
     pn = np.multiply(np.add(pn, pn.transpose(0, 2, 1), out=ikh_p), 0.5, out=ikh_p)
     # a sum is finite if and only if all its terms are (short of an overflow)
     ok = np.isfinite(xn @ np.ones(n) + pn.reshape(len(pn), -1) @ np.ones(n * n) + nis)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        loglik = -0.5 * (nis + np.log(det) + m * np.log(2 * np.pi))
-    loglik[~(det > 0)] = -np.inf  # as a non-positive sign from slogdet
-    return xn, pn, nis, ok, loglik
+    return xn, pn, nis, ok, loglik(nis, det, m)

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from . import work
+
 
 def axis_transition(dt: np.ndarray, order: int) -> np.ndarray:
     """Per-axis transition Phi (N, order, order): Phi[i, j] = dt^(j-i) / (j-i)!."""
@@ -59,29 +61,70 @@ def process_noise(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray) -
 def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
             q: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Kalman prediction of every row by its own dt (dt may be negative: extrapolation
-    backwards uses |dt| for the noise)."""
+    backwards uses |dt| for the noise): x (N, n), P (N, n, n) -> new arrays; `predict_soa`
+    on batch-last copies, chunk by chunk."""
+    x, p = np.asarray(x, dtype=float), np.asarray(p, dtype=float)
+    n_rows, n = x.shape
+    dt = np.broadcast_to(np.asarray(dt, dtype=float), (n_rows,))
+    q = np.asarray(q, dtype=float)
+    xp, pp = np.empty((n_rows, n)), np.empty((n_rows, n, n))
+    for lo, hi in work.chunks(n_rows):
+        xs, ps = work.to_soa(x[lo:hi], "pred.x"), work.to_soa(p[lo:hi], "pred.p")
+        predict_soa(xs, ps, dt[lo:hi], order, dim, q[lo:hi] if q.ndim else q)
+        np.copyto(xp[lo:hi].T, xs)
+        np.copyto(np.moveaxis(pp[lo:hi], 0, -1), ps)
+    return xp, pp
+
+
+def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+                q: float | np.ndarray) -> None:
+    """`predict` in place on batch-last arrays x (n, N) and symmetric P (n, n, N).
+
+    With F = kron(Phi, I_dim), F x adds Phi[a, c] times block c > a to block a (ascending
+    a, so every block read is still unmodified). F P F' block by block: the (a, b) block
+    (dim x dim) becomes sum over c >= a, e >= b of Phi[a, c] Phi[b, e] P_ce, computed for
+    a <= b in ascending order (every block read is still unmodified); the diagonal blocks
+    pair P_ce + P_ec, so they stay exactly symmetric, and the blocks below the diagonal
+    are copied from above (the blocks below the diagonal are read only before that, as
+    the transposes of the input's). + Q = kron(Q_axis, I_dim) on the diagonals of the blocks."""
+    n, n_rows = x.shape
     dt = np.asarray(dt, dtype=float)
+    powers = [None, dt] + [dt ** k / math.factorial(k) for k in range(2, order)]  # Phi[a, a+k]
     blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
-    steps = [(blk[i], blk[j], dt ** (j - i) / math.factorial(j - i))
-             for i in range(order) for j in range(i + 1, order)]
+    tmp = work.work("pred.tmp", (dim, dim), n_rows)
+    for a in range(order):
+        for c in range(a + 1, order):
+            x[blk[a]] += np.multiply(x[blk[c]], powers[c - a], out=tmp[0])
+    for a in range(order):
+        for b in range(a, order):
+            acc = p[blk[a], blk[b]]
+            for c in range(a, order):
+                for e in range(b, order):
+                    if (c, e) == (a, b) or (a == b and e < c):
+                        continue
+                    coef = _phi(powers, a, c) * _phi(powers, b, e)
+                    if a == b and c != e:  # Phi[a, c] Phi[a, e] (P_ce + P_ec), P_ec = P_ce'
+                        term = np.add(p[blk[c], blk[e]], p[blk[c], blk[e]].transpose(1, 0, 2),
+                                      out=tmp)
+                        term *= coef
+                    else:
+                        term = np.multiply(p[blk[c], blk[e]], coef, out=tmp)
+                    acc += term
+    # + Q: q^2 g_a g_b, g_a = |dt|^(order - a) / (order - a)! (axis_noise)
+    gain = np.abs(dt)
+    g = [gain ** (order - a) / math.factorial(order - a) for a in range(order)]
+    q2 = np.square(q)
+    for a in range(order):
+        for b in range(a, order):
+            qab = g[a] * g[b] * q2
+            for k in range(dim):
+                p[a * dim + k, b * dim + k] += qab
+            if b > a:
+                p[blk[b], blk[a]] = p[blk[a], blk[b]].transpose(1, 0, 2)
 
-    def f_times(a: np.ndarray) -> np.ndarray:
-        """F a in place: F = kron(Phi, I) adds Phi[i, j] times block row j > i to block
-        row i (ascending i, so every row read is still unmodified)."""
-        for bi, bj, c in steps:
-            a[:, bi] += np.reshape(c, (-1,) + (1,) * (a.ndim - 1)) * a[:, bj]
-        return a
 
-    xp = f_times(np.array(x, dtype=float))
-    fp = f_times(np.array(p, dtype=float, order="C"))
-    # F (F P)' = F P' F': the same once symmetrised, and both products run on block rows
-    pp = f_times(fp.transpose(0, 2, 1).copy())
-    qa, blocks = axis_noise(dt, order, q), pp.reshape(len(pp), order, dim, order, dim)
-    for k in range(dim):  # + Q = kron(Q_axis, I)
-        blocks[:, :, k, :, k] += qa
-    fp = np.add(pp, pp.transpose(0, 2, 1), out=fp)  # symmetrised in the buffer of F P
-    fp *= 0.5
-    return xp, fp
+def _phi(powers: list, a: int, c: int) -> np.ndarray | float:
+    return 1.0 if c == a else powers[c - a]
 
 
 def motion(kind: str, dt: np.ndarray, order: int, dim: int, q: float | np.ndarray,

@@ -150,51 +150,37 @@ class Bank:
         return self.live()[0]
 
 
-def measurement_arrays(meas: Sequence[Measurement], dim: int, pred: np.ndarray | None,
-                       pred_cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def measurement_arrays(meas: Sequence[Measurement] | convert.MeasurementBatch, dim: int,
+                       pred: np.ndarray | None, pred_cov: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """Converted measurements z (N, dim) and covariances R (N, dim, dim) in the common
     frame. Polar ones use the UCM, with R averaged over the predicted position
-    N(pred, pred_cov) when given, else evaluated at the converted point (initiation)."""
-    n = len(meas)
-    z = np.zeros((n, dim))
-    r = np.zeros((n, dim, dim))
-    origin = np.array([m.sensor_pos[:dim] for m in meas]).reshape(n, dim)
-    polar = np.array([m.polar for m in meas], dtype=bool)
-    cart = ~polar
-    if cart.any():
-        z[cart] = [m.values for m, c in zip(meas, cart, strict=True) if c]
-        sig = np.array([m.sigmas for m, c in zip(meas, cart, strict=True) if c])
-        r[cart] = sig[:, :, None] * np.eye(dim) * sig[:, None, :]
-    if polar.any():
-        vals = np.array([m.values for m, c in zip(meas, polar, strict=True) if c])
-        sig = np.array([m.sigmas for m, c in zip(meas, polar, strict=True) if c])
-        el, sel = (vals[:, 2], sig[:, 2]) if dim == 3 else (None, None)
-        rel = convert.unbiased(vals[:, 0], vals[:, 1], el, sig[:, 1], sel)
-        z[polar] = origin[polar] + rel
-        if pred is None or pred_cov is None:
-            r[polar] = convert.ucm_covariance(rel, sig[:, 0], sig[:, 1], sel)
-        else:
-            r[polar] = convert.ucm_covariance_expected(
-                pred[polar] - origin[polar], pred_cov[polar], sig[:, 0], sig[:, 1], sel,
-                vals[:, 1])
-    return z, r
+    N(pred, pred_cov) when given, else evaluated at the converted point (initiation).
+    `meas`: the records, or their columns (`convert.MeasurementBatch`)."""
+    return convert.cmkf_arrays(_batch(meas, dim), pred, pred_cov)
 
 
-def ekf_arrays(meas: Sequence[Measurement], dim: int, pred: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _batch(meas: Sequence[Measurement] | convert.MeasurementBatch, dim: int
+           ) -> convert.MeasurementBatch:
+    if isinstance(meas, convert.MeasurementBatch):
+        return meas
+    return convert.MeasurementBatch.of(meas, dim)
+
+
+def ekf_arrays(meas: Sequence[Measurement] | convert.MeasurementBatch, dim: int,
+               pred: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """EKF baseline: polar measurements kept polar (z, R = diag of the noise variances),
     with the Jacobian h and predicted measurement hx at the predicted position; Cartesian
     ones as in the CMKF (h = I, hx = position)."""
-    z, r = measurement_arrays(meas, dim, None)
-    h = np.broadcast_to(np.eye(dim), (len(meas), dim, dim)).copy()
+    batch = _batch(meas, dim)
+    z, r = measurement_arrays(batch, dim, None)
+    h = np.broadcast_to(np.eye(dim), (len(batch), dim, dim)).copy()
     hx = pred.copy()
-    polar = np.array([m.polar for m in meas], dtype=bool)
+    polar = batch.polar
     if polar.any():
-        sub = [m for m, k in zip(meas, polar, strict=True) if k]
-        origin = np.array([m.sensor_pos[:dim] for m in sub])
-        sig = np.array([m.sigmas for m in sub])
+        origin, sig = batch.origin[polar, :dim], batch.sigmas[polar]
         hx[polar], h[polar], z[polar] = convert.polar_linearised(
-            pred[polar] - origin, np.array([m.values for m in sub]))
+            pred[polar] - origin, batch.values[polar])
         r[polar] = sig[:, :, None] ** 2 * np.eye(dim)
     return z, r, h, hx
 
@@ -295,10 +281,12 @@ class TrackTable:
         rows = np.array([self.where[m.target][1] for m in meas], dtype=int)
         t = np.array([m.t for m in meas])
 
-        def conversion(xp: np.ndarray, pp: np.ndarray) -> tuple:
-            if c.update == "ekf":
-                return ekf_arrays(meas, dim, xp[:, :dim])
-            return measurement_arrays(meas, dim, xp[:, :dim], pp[:, :dim, :dim])
+        batch = convert.MeasurementBatch.of(meas, dim)  # the records as columns, once
+        if c.update == "ekf":
+            def conversion(xp: np.ndarray, pp: np.ndarray) -> tuple:
+                return ekf_arrays(batch, dim, xp[:, :dim])
+        else:  # (xp, pp) -> z, R; filters.cmkf_step converts its columns directly
+            conversion = convert.CMKFConversion(batch)
 
         xn, pn, nis, ok = self.filter.update(bank, rows, t - bank.t[rows], conversion)
         good = rows[ok]

@@ -1,0 +1,62 @@
+"""Work arrays of the filter kernels: kept per thread and reused, batch axis last.
+
+The kernels (`models.predict_soa`, `convert.cmkf_soa`, `kalman.update_soa`) run on
+"structure of arrays" blocks: a covariance of n x n entries over N rows is an (n, n, N)
+array, so every entry is a contiguous run of N numbers and the arithmetic is a few
+large element-wise operations (and np.einsum contractions over the small leading axes)
+instead of many tiny matrix products. The entry points (`models.predict`,
+`kalman.update`, `filters.cmkf_step`, ...) take and return the usual row-major (N, n) /
+(N, n, n) arrays and process the rows in chunks of at most `CHUNK`, on work arrays
+allocated once per thread instead of on every call: large fresh temporaries cost page
+faults whenever the allocator has handed their memory back to the system.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+# Rows per kernel pass. Every kernel call costs a fixed ~0.5 ms of NumPy call overhead
+# per chunk, so chunks should be long; beyond ~10,000 rows the per-row arrays (N,) of
+# the kernels' temporaries reach glibc's 128 KiB mmap threshold and the work arrays
+# leave the caches. 5,000 to 10,000 measured best (bench_filter, N = 10,000 and 100,000).
+CHUNK = 10_000
+
+_local = threading.local()
+
+
+def work(name: str, shape: tuple[int, ...], n: int) -> np.ndarray:
+    """The work array `name` of shape (*shape, n), contiguous: the start of a float buffer
+    of this thread, kept between calls (its content is whatever the last user left).
+    Each kernel uses its own names; a name must not be held across a call that reuses it."""
+    try:
+        views = _local.views
+    except AttributeError:
+        views = _local.views = {}
+    hit = views.get(name)
+    if hit is not None and hit.shape[-1] == n and hit.shape[:-1] == shape:
+        return hit  # the same view as last time (most calls)
+    bufs: dict[str, np.ndarray] = _local.__dict__.setdefault("bufs", {})
+    size = n * math.prod(shape)
+    buf = bufs.get(name)
+    if buf is None or len(buf) < size:
+        buf = bufs[name] = np.empty(max(size, min(n, CHUNK) * math.prod(shape)))
+    view = views[name] = buf[:size].reshape(*shape, n)
+    return view
+
+
+def chunks(n: int) -> list[tuple[int, int]]:
+    """(start, stop) of the row chunks of a batch of n rows: the fewest chunks of at most
+    CHUNK rows, of equal length (to a row)."""
+    k = -(-n // CHUNK)
+    edges = [n * i // k for i in range(k + 1)]
+    return list(zip(edges[:-1], edges[1:], strict=True))
+
+
+def to_soa(a: np.ndarray, name: str) -> np.ndarray:
+    """Rows (k, *shape) copied into the work array `name` of shape (*shape, k)."""
+    out = work(name, a.shape[1:], len(a))
+    np.copyto(out, np.moveaxis(a, 0, -1))
+    return out
