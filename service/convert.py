@@ -28,7 +28,8 @@ if TYPE_CHECKING:
 
 @dataclass
 class MeasurementBatch:
-    """N measurements of one dimension d as columns: the filter core's input."""
+    """N measurements of one dimension d as columns: the filter core's input (the
+    (N, d) arrays are column-major: the kernels read them a column at a time)."""
 
     t: np.ndarray  # (N,) s
     polar: np.ndarray  # (N,) bool: polar (r, az[, el]) or Cartesian position
@@ -47,7 +48,7 @@ class MeasurementBatch:
             a = np.fromiter(flat(map(attrgetter(name), meas)), float)
             if a.size != n * width:
                 raise ValueError(f"measurements of mixed dimensions in one {dim}-D batch")
-            return a.reshape(n, width)
+            return np.asfortranarray(a.reshape(n, width))  # each of its columns contiguous
 
         return cls(np.fromiter(map(attrgetter("t"), meas), float, n),
                    np.fromiter(map(attrgetter("polar"), meas), bool, n),

@@ -109,10 +109,9 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     with H = [I 0] is evaluated from the n x m gain without forming I - KH:
     G = (I - KH) P = P - K P[:m], E = G H' - K R = P[:, :m] - K (P[:m, :m] + R), and then
     (I - KH) P (I - KH)' + K R K' = G - G H' K' + K R K' = G - E K' = P - [K E] [P[:m]; K']
-    (an identity for any K, not only the optimal one). Its rows :m and its lower-right
-    block are computed (np.einsum with the batch axis last: one pass per product), the
-    rest mirrored. The products run as np.einsum contractions over the small leading
-    axes, which keep the accumulation in one pass over the batch."""
+    (an identity for any K, not only the optimal one); its upper triangle is computed
+    and mirrored. The products run as np.einsum contractions over the small leading
+    axes (batch axis last), which keep each accumulation in one pass over the batch."""
     n, k = x.shape
     m = z.shape[0]
     nu = np.subtract(z, x[:m], out=work.work("upd.nu", (m,), k))
@@ -131,12 +130,10 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     x += np.einsum("ain,an->in", kt, nu, out=work.work("upd.dx", (n,), k))
     np.einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
     np.subtract(p[:m], et, out=et)
-    # P - [K E] [P[:m]; K']: rows :m, then the lower-right block
-    top = np.einsum("ain,ajn->ijn", lk[:, :m], up, out=p_out[:m])
-    np.subtract(p[:m], top, out=top)
-    if n > m:
-        low = np.einsum("ain,ajn->ijn", lk[:, m:], up[:, m:], out=p_out[m:, m:])
-        np.subtract(p[m:, m:], low, out=low)
+    # P - [K E] [P[:m]; K'], its upper triangle row by row, then mirrored
+    for i in range(n):
+        row = np.einsum("an,ajn->jn", lk[:, i], up[:, i:], out=p_out[i, i:])
+        np.subtract(p[i, i:], row, out=row)
     for i in range(n - 1):
         p_out[i + 1:, i] = p_out[i, i + 1:]
 

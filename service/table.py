@@ -157,14 +157,9 @@ def measurement_arrays(meas: Sequence[Measurement] | convert.MeasurementBatch, d
     frame. Polar ones use the UCM, with R averaged over the predicted position
     N(pred, pred_cov) when given, else evaluated at the converted point (initiation).
     `meas`: the records, or their columns (`convert.MeasurementBatch`)."""
-    return convert.cmkf_arrays(_batch(meas, dim), pred, pred_cov)
-
-
-def _batch(meas: Sequence[Measurement] | convert.MeasurementBatch, dim: int
-           ) -> convert.MeasurementBatch:
-    if isinstance(meas, convert.MeasurementBatch):
-        return meas
-    return convert.MeasurementBatch.of(meas, dim)
+    if not isinstance(meas, convert.MeasurementBatch):
+        meas = convert.MeasurementBatch.of(meas, dim)
+    return convert.cmkf_arrays(meas, pred, pred_cov)
 
 
 def ekf_arrays(meas: Sequence[Measurement] | convert.MeasurementBatch, dim: int,
@@ -172,7 +167,8 @@ def ekf_arrays(meas: Sequence[Measurement] | convert.MeasurementBatch, dim: int,
     """EKF baseline: polar measurements kept polar (z, R = diag of the noise variances),
     with the Jacobian h and predicted measurement hx at the predicted position; Cartesian
     ones as in the CMKF (h = I, hx = position)."""
-    batch = _batch(meas, dim)
+    batch = meas if isinstance(meas, convert.MeasurementBatch) else \
+        convert.MeasurementBatch.of(meas, dim)
     z, r = measurement_arrays(batch, dim, None)
     h = np.broadcast_to(np.eye(dim), (len(batch), dim, dim)).copy()
     hx = pred.copy()
