@@ -88,9 +88,13 @@ class TrackService:
             # overtake the measurements sent before it)
             return zenoh.handlers.Callback(fn, indirect=False)
 
+        def control(item: Any) -> None:
+            # a clock message or query: the measurements received before it go first
+            self._ingest(limit=None)
+            put(item)
+
         def clock(s: zenoh.Sample) -> None:
-            self._ingest(limit=None)  # measurements received before it go first
-            put(("clock", str(s.key_expr), s.payload.to_bytes(), time.time()))
+            control(("clock", str(s.key_expr), s.payload.to_bytes(), time.time()))
 
         self.ingest_lock = threading.Lock()
         self.meas_subs = [session.declare_subscriber(k, zenoh.handlers.FifoChannel(CHANNEL))
@@ -99,8 +103,8 @@ class TrackService:
             *self.meas_subs,
             session.declare_subscriber(keys.clock, direct(clock)),
             session.declare_queryable(keys.space("tracks"),
-                                      direct(lambda q: put(("tracks", q)))),
-            session.declare_queryable(keys.status, direct(lambda q: put(("status", q)))),
+                                      direct(lambda q: control(("tracks", q)))),
+            session.declare_queryable(keys.status, direct(lambda q: control(("status", q)))),
         ]
         self.token = session.liveliness().declare_token(keys.alive(instance))
         self.thread = threading.Thread(target=self._run, name="track-worker", daemon=True)
