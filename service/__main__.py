@@ -5,16 +5,18 @@ from __future__ import annotations
 import argparse
 import ctypes
 import logging
-import math
 import signal
 import threading
 import uuid
 
 import zenoh
 
-from . import __version__, filters
+from . import __version__, defaults
+from .estimation.imm import IMM, standard_modes
+from .estimation.vdf import VDF
 from .node import TrackService
-from .table import TableConfig, TrackTable
+from .tracking.display import DisplayConfig
+from .tracking.tracker import Tracker, TrackerConfig
 from .wire import Keys, add_zenoh_args, patient, zenoh_config
 
 FILTERS = ("cv", "ca", "ekf", "vdf", "imm")
@@ -34,66 +36,76 @@ def steady_malloc() -> None:
         pass
 
 
-def make_filter(args: argparse.Namespace) -> tuple[int, str, object | None, float]:
-    """(order, polar update, filter object or None, q) for the --filter choice."""
-    q = args.q if args.q is not None else 1.0
+def tracker_config(args: argparse.Namespace) -> TrackerConfig:
+    """The tracker's configuration from the options (the --filter choice and its noise)."""
+    order, conversion, filt = 2, "cmkf", None
+    q = args.q if args.q is not None else defaults.Q_CV
     if args.filter == "imm":
-        w = math.radians(args.imm_turn)
-        modes = (("cv", "cv", q, 0.0), ("ca", "ca", q, 0.0),
-                 ("ct+", "ct", args.imm_ct_q * q, w), ("ct-", "ct", args.imm_ct_q * q, -w))
-        return 3, "cmkf", filters.IMM(modes, args.imm_sojourn), q
-    if args.filter == "vdf":
-        return 3, "cmkf", filters.VDF(detect=args.vdf_detect, settle=args.vdf_settle), 0.0
-    order = 3 if args.filter == "ca" else 2
-    q = args.q if args.q is not None else {2: 1.0, 3: 0.5}[order]
-    return order, "ekf" if args.filter == "ekf" else "cmkf", None, q
+        order = 3
+        filt = IMM(standard_modes(q, args.imm_ct_q, args.imm_turn), args.imm_sojourn)
+    elif args.filter == "vdf":
+        order, q = 3, 0.0
+        filt = VDF(detect=args.vdf_detect, settle=args.vdf_settle)
+    elif args.filter == "ca":
+        order = 3
+        q = args.q if args.q is not None else defaults.Q_CA
+    elif args.filter == "ekf":
+        conversion = "ekf"
+    return TrackerConfig(order=order, conversion=conversion, filter=filt, q=q,
+                         init_speed=args.init_speed, init_accel=args.init_accel,
+                         delete_after=args.delete_after,
+                         display=DisplayConfig(rate=args.rate, blend=args.blend,
+                                               blend_speed=args.blend_speed, lag=args.lag))
 
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-service", description=__doc__)
     add_zenoh_args(p)
-    p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
+    p.add_argument("--clock", choices=("realtime", "lockstep"), default=defaults.CLOCK,
                    help="display clock (default %(default)s)")
-    p.add_argument("--rate", type=float, default=30.0, help="display rate, Hz")
-    p.add_argument("--filter", choices=FILTERS, default="imm",
+    p.add_argument("--rate", type=float, default=defaults.RATE, help="display rate, Hz")
+    p.add_argument("--filter", choices=FILTERS, default=defaults.FILTER,
                    help="imm (default): IMM of CV, CA and two coordinated turns on converted "
                         "measurements; cv: CMKF, nearly-constant velocity; ca: CMKF, nearly-"
                         "constant acceleration; ekf: EKF on polar measurements, CV (baseline); "
                         "vdf: variable-dimension CV/CA (scenario C's method)")
-    p.add_argument("--imm-ct-q", type=float, default=3.0,
+    p.add_argument("--imm-ct-q", type=float, default=defaults.IMM_CT_Q,
                    help="IMM: turn models' noise as a multiple of --q (CV: --q m/s^2, CA: "
                         "--q m/s^3)")
-    p.add_argument("--imm-turn", type=float, default=1.8, help="IMM turn rate, deg/s")
-    p.add_argument("--imm-sojourn", type=float, default=200.0,
+    p.add_argument("--imm-turn", type=float, default=defaults.IMM_TURN_DEG,
+                   help="IMM turn rate, deg/s")
+    p.add_argument("--imm-sojourn", type=float, default=defaults.IMM_SOJOURN,
                    help="IMM mean time in one mode, s (staying probability exp(-dt/sojourn))")
-    p.add_argument("--vdf-detect", type=float, default=35.0, help="VDF detection threshold")
-    p.add_argument("--vdf-settle", type=float, default=13.0, help="VDF return threshold")
+    p.add_argument("--vdf-detect", type=float, default=defaults.VDF_DETECT,
+                   help="VDF detection threshold")
+    p.add_argument("--vdf-settle", type=float, default=defaults.VDF_SETTLE,
+                   help="VDF return threshold")
     p.add_argument("--q", type=float, default=None,
-                   help="process noise std per axis: m/s^2 for cv (default 1), "
-                        "m/s^3 for ca (default 0.5)")
-    p.add_argument("--init-speed", type=float, default=1000.0,
+                   help=f"process noise std per axis: m/s^2 for cv and imm (default "
+                        f"{defaults.Q_CV}), m/s^3 for ca (default {defaults.Q_CA})")
+    p.add_argument("--init-speed", type=float, default=defaults.INIT_SPEED,
                    help="prior velocity std at initiation, m/s")
-    p.add_argument("--init-accel", type=float, default=10.0,
+    p.add_argument("--init-accel", type=float, default=defaults.INIT_ACCEL,
                    help="prior acceleration std at initiation (ca), m/s^2")
-    p.add_argument("--delete-after", type=float, default=30.0,
+    p.add_argument("--delete-after", type=float, default=defaults.DELETE_AFTER,
                    help="delete a track after this many seconds without a measurement")
-    p.add_argument("--sr", type=float, default=10.0, help="default range noise std, m")
-    p.add_argument("--saz", type=float, default=math.radians(0.5),
+    p.add_argument("--sr", type=float, default=defaults.SR, help="default range noise std, m")
+    p.add_argument("--saz", type=float, default=defaults.SAZ,
                    help="default azimuth noise std, rad")
-    p.add_argument("--sel", type=float, default=math.radians(0.5),
+    p.add_argument("--sel", type=float, default=defaults.SEL,
                    help="default elevation noise std, rad")
-    p.add_argument("--sigma", type=float, default=1.0,
+    p.add_argument("--sigma", type=float, default=defaults.SIGMA,
                    help="default Cartesian noise std, m")
-    p.add_argument("--blend-speed", type=float, default=0.0, metavar="M/S",
+    p.add_argument("--blend-speed", type=float, default=defaults.BLEND_SPEED, metavar="M/S",
                    help="when a correction lands, absorb it into the drawn position at this "
                         "speed relative to the track instead of stepping: every frame moves "
                         "at most SPEED / --rate beyond the track's own motion, and a "
                         "correction of d metres takes d / SPEED seconds (0: off; default)")
-    p.add_argument("--blend", type=float, default=0.0, metavar="SECONDS",
+    p.add_argument("--blend", type=float, default=defaults.BLEND, metavar="SECONDS",
                    help="absorb each correction over this period instead of stepping; with "
                         "--blend-speed, the longest a correction may take (0: plain "
                         "prediction, the contract's lockstep semantics; default)")
-    p.add_argument("--lag", type=float, default=0.0, metavar="SECONDS",
+    p.add_argument("--lag", type=float, default=defaults.LAG, metavar="SECONDS",
                    help="publish frames for now - lag, smoothed between the two filtered "
                         "states that bracket the instant (accuracy rather than latency)")
     p.add_argument("--no-display-keys", action="store_true",
@@ -112,18 +124,14 @@ def main(argv: list[str] | None = None) -> None:
     steady_malloc()  # before Zenoh starts its threads
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    order, update, filt, q = make_filter(args)
-    table = TrackTable(TableConfig(order=order, q=q, update=update, filter=filt,
-                                   init_speed=args.init_speed, blend=args.blend,
-                                   blend_speed=args.blend_speed, rate=args.rate, lag=args.lag,
-                                   init_accel=args.init_accel, delete_after=args.delete_after))
+    tracker = Tracker(tracker_config(args))
     conf = zenoh_config(args, serve=True)
     if args.clock == "lockstep" and not args.config:
         patient(conf)  # lockstep drops nothing: wait for a slow subscriber
     session = zenoh.open(conf)
-    svc = TrackService(session, Keys(args.ns), table, clock=args.clock, rate=args.rate,
+    svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
-                       defaults=(args.sr, args.saz, args.sel, args.sigma),
+                       noise=(args.sr, args.saz, args.sel, args.sigma),
                        per_target_display=not args.no_display_keys,
                        meas_keys=args.meas or None).start()
     done = threading.Event()

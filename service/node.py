@@ -3,8 +3,9 @@
 Measurements wait in Zenoh's own FIFO channels (Zenoh's receive thread never needs the
 GIL for them, so a busy worker cannot throttle the link); the worker moves them to its
 inbox in batches. Clock messages and queries come by callback into the same inbox. One
-worker thread owns the track table, so the table needs no locks. Data flows one way:
-wire -> validate -> table (convert, predict, update) -> clock -> publication.
+worker thread owns the tracker, so the tracker needs no locks. Data flows one way:
+wire (decode, validate) -> tracking (associate, update, delete, initiate; display state)
+-> clock -> publication (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -21,11 +22,23 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from . import __version__
-from .clock import Lockstep, Realtime
-from .table import Snapshot, States, TrackTable
-from .validate import Measurement, Rejected, parse_clock, parse_measurement
-from .wire import CHUNK, Keys, pack, pack_displays, pack_frame, pack_tracks, unpack
+from . import __version__, defaults
+from .encode import pack_displays, pack_frame, pack_tracks
+from .tracking.clock import Lockstep, Realtime
+from .tracking.display import Snapshot
+from .tracking.store import States
+from .tracking.tracker import Tracker
+from .wire import (
+    CHUNK,
+    PROTOCOL_VERSION,
+    Keys,
+    Measurement,
+    Rejected,
+    pack,
+    parse_clock,
+    parse_measurement,
+    unpack,
+)
 
 log = logging.getLogger("track-service")
 MAX_BATCH = 256  # inputs per worker step: bounds how long a due frame waits
@@ -57,14 +70,15 @@ class Counters:
 class TrackService:
     """One tracker instance on one Zenoh session."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys, table: TrackTable, *,
-                 clock: str = "lockstep", rate: float = 30.0, instance: str = "0",
-                 defaults: tuple[float, float, float, float] = (10.0, 0.01, 0.01, 1.0),
+    def __init__(self, session: zenoh.Session, keys: Keys, tracker: Tracker, *,
+                 clock: str = defaults.CLOCK, instance: str = "0",
+                 noise: tuple[float, float, float, float] = defaults.NOISE,
                  per_target_display: bool = True, meas_keys: list[str] | None = None) -> None:
-        self.session, self.keys, self.table = session, keys, table
+        self.session, self.keys, self.tracker = session, keys, tracker
+        rate = tracker.config.display.rate
         self.realtime = clock == "realtime"
         self.clock = Realtime(rate) if self.realtime else Lockstep(rate)
-        self.rate, self.instance, self.defaults = rate, instance, defaults
+        self.rate, self.instance, self.noise = rate, instance, noise
         self.per_target_display = per_target_display
         self.count = Counters()
         self.started = time.monotonic()
@@ -207,7 +221,7 @@ class TrackService:
         try:
             if len(chunks) != 2:
                 raise Rejected("measurement key must be <ns>/meas/<sensor>/<target>")
-            m = parse_measurement(chunks[0], chunks[1], payload, self.defaults)
+            m = parse_measurement(chunks[0], chunks[1], payload, self.noise)
         except Rejected as exc:
             self._reject(key, sensor, str(exc))
             return None
@@ -232,7 +246,9 @@ class TrackService:
         if not pending:
             return
         blocks: dict[int, States] = {}  # the updated tracks, in order, once each block
-        for out in self.table.apply(pending):
+        outcomes, deleted = self.tracker.track(pending)
+        self._deleted(deleted)
+        for out in outcomes:
             m = out.meas
             if out.reason is not None:
                 self._reject(self.keys.meas(m.sensor, m.target), m.sensor, out.reason)
@@ -257,21 +273,21 @@ class TrackService:
         return ke
 
     def _frames_before(self, t: float, pending: list[Measurement]) -> None:
-        due = self.clock.due_before(t - self.table.config.lag)
+        due = self.clock.due_before(t - self.tracker.config.display.lag)
         if due:
             self._flush(pending)
             for instant in due:
                 self._publish_frame(instant)
 
     def _tick(self) -> None:
-        instant = self.clock.due(time.time() - self.table.config.lag)
+        instant = self.clock.due(time.time() - self.tracker.config.display.lag)
         if instant is not None:
             self.count.frames_missed = self.clock.missed
             self._publish_frame(instant)
 
     def _publish_frame(self, t: float) -> None:
-        self._delete(self.table.stale(t))
-        snap = self.table.snapshot(t, detail=self.per_target_display)
+        self._deleted(self.tracker.step([], now=t))  # an empty scan: coast and delete
+        snap = self.tracker.snapshot(t, detail=self.per_target_display)
         snap = self._finite(snap)
         if snap.ids is not self.frame_ids[0]:
             self.frame_ids = (snap.ids, pack(snap.ids))
@@ -299,10 +315,10 @@ class TrackService:
                         [snap.status[i] for i in pick] if snap.status else [],
                         [snap.shown[i] for i in pick] if snap.shown else [])
 
-    def _delete(self, ids: list[str]) -> None:
+    def _deleted(self, ids: list[str]) -> None:
+        """Announce deleted tracks: a Zenoh delete on each of their keys."""
         if not ids:
             return
-        self.table.delete(ids)
         for track_id in ids:
             for key in self.track_keys.pop(track_id, None) or ():
                 self.session.delete(key, congestion_control=self.block)  # never dropped
@@ -312,10 +328,11 @@ class TrackService:
     def status(self) -> dict[str, Any]:
         c = self.count
         return {
-            "tracks": len(self.table), "meas_accepted": c.meas_accepted,
+            "tracks": len(self.tracker), "meas_accepted": c.meas_accepted,
             "meas_rejected": c.meas_rejected, "frames_published": c.frames_published,
             "uptime_s": time.monotonic() - self.started, "version": __version__,
-            "protocol": 1, "instance": self.instance, "clock": type(self.clock).__name__.lower(),
+            "protocol": PROTOCOL_VERSION, "instance": self.instance,
+            "clock": type(self.clock).__name__.lower(),
             "rate": self.rate, "meas_lost": c.meas_lost, "frames_missed": c.frames_missed,
             "tracks_deleted": c.tracks_deleted,
             "frames_skipped": getattr(self.clock, "skipped", 0),
@@ -330,9 +347,9 @@ class TrackService:
                 query.reply(self.keys.status, pack(self.status()))
             else:
                 sel = zenoh.KeyExpr(str(query.key_expr))
-                for track_id in list(self.table.where):
+                for track_id in list(self.tracker.store.where):
                     key = zenoh.KeyExpr(self.keys.tracks(track_id))
                     if sel.intersects(key):
-                        query.reply(key, pack(self.table.state(track_id)))
+                        query.reply(key, pack(self.tracker.state(track_id)))
         finally:
             query.drop()

@@ -10,11 +10,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from .wire import CHUNK, unpack
-
-
-class Rejected(ValueError):
-    """An input that breaks the contract."""
+from .codec import Rejected, decode_map, unpack
+from .keys import CHUNK
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,13 +48,6 @@ def _vec(msg: dict[str, Any], key: str, sizes: tuple[int, ...]) -> tuple[float, 
     return tuple(_num({key: x}, key) for x in v)
 
 
-def decode_map(payload: bytes) -> dict[str, Any]:
-    msg = unpack(payload) if payload else None
-    if not isinstance(msg, dict):
-        raise Rejected("payload must be a MessagePack map")
-    return msg
-
-
 POLAR_3D = frozenset(("t", "r", "az", "el", "sr", "saz", "sel", "seq"))
 
 
@@ -82,10 +72,7 @@ def parse_full(
     for what, chunk in (("sensor", sensor), ("target", target)):
         if not CHUNK.fullmatch(chunk):
             raise Rejected(f"{what} chunk '{chunk}' must be letters, digits, '-' or '_'")
-    try:
-        msg = decode_map(payload)
-    except ValueError as exc:
-        raise Rejected(str(exc)) from None
+    msg = decode_map(payload)
     if "t" not in msg:
         raise Rejected("missing required field 't'")
     t = _num(msg, "t")
@@ -146,10 +133,7 @@ def _fast_polar(sensor: str, target: str, payload: bytes) -> tuple | None:
 
 
 def parse_clock(payload: bytes) -> float:
-    try:
-        msg = decode_map(payload)
-    except ValueError as exc:
-        raise Rejected(str(exc)) from None
+    msg = decode_map(payload)
     if "t" not in msg:
         raise Rejected("clock message needs field 't'")
     return _num(msg, "t")

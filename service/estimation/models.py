@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from . import work
+from . import scratch
 
 
 def axis_transition(dt: np.ndarray, order: int) -> np.ndarray:
@@ -68,8 +68,8 @@ def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
     dt = np.broadcast_to(np.asarray(dt, dtype=float), (n_rows,))
     q = np.asarray(q, dtype=float)
     xp, pp = np.empty((n_rows, n)), np.empty((n_rows, n, n))
-    for lo, hi in work.chunks(n_rows):
-        xs, ps = work.to_soa(x[lo:hi], "pred.x"), work.to_soa(p[lo:hi], "pred.p")
+    for lo, hi in scratch.chunks(n_rows):
+        xs, ps = scratch.to_soa(x[lo:hi], "pred.x"), scratch.to_soa(p[lo:hi], "pred.p")
         predict_soa(xs, ps, dt[lo:hi], order, dim, q[lo:hi] if q.ndim else q)
         np.copyto(xp[lo:hi].T, xs)
         np.copyto(np.moveaxis(pp[lo:hi], 0, -1), ps)
@@ -91,7 +91,7 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
     dt = np.asarray(dt, dtype=float)
     powers = [None, dt] + [dt ** k / math.factorial(k) for k in range(2, order)]  # Phi[a, a+k]
     blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
-    tmp = work.work("pred.tmp", (dim, dim), n_rows)
+    tmp = scratch.buffer("pred.tmp", (dim, dim), n_rows)
     for a in range(order):
         for c in range(a + 1, order):
             x[blk[a]] += np.multiply(x[blk[c]], powers[c - a], out=tmp[0])

@@ -1,6 +1,6 @@
-"""Work arrays of the filter kernels: kept per thread and reused, batch axis last.
+"""Scratch buffers of the filter kernels: kept per thread and reused, batch axis last.
 
-The kernels (`models.predict_soa`, `convert.cmkf_soa`, `kalman.update_soa`) run on
+The kernels (`models.predict_soa`, `ucm.cmkf_soa`, `kalman.update_soa`) run on
 "structure of arrays" blocks: a covariance of n x n entries over N rows is an (n, n, N)
 array, so every entry is a contiguous run of N numbers and the arithmetic is a few
 large element-wise operations (and np.einsum contractions over the small leading axes)
@@ -27,7 +27,7 @@ CHUNK = 10_000
 _local = threading.local()
 
 
-def work(name: str, shape: tuple[int, ...], n: int) -> np.ndarray:
+def buffer(name: str, shape: tuple[int, ...], n: int) -> np.ndarray:
     """The work array `name` of shape (*shape, n), contiguous: the start of a float buffer
     of this thread, kept between calls (its content is whatever the last user left).
     Each kernel uses its own names; a name must not be held across a call that reuses it."""
@@ -57,6 +57,6 @@ def chunks(n: int) -> list[tuple[int, int]]:
 
 def to_soa(a: np.ndarray, name: str) -> np.ndarray:
     """Rows (k, *shape) copied into the work array `name` of shape (*shape, k)."""
-    out = work(name, a.shape[1:], len(a))
+    out = buffer(name, a.shape[1:], len(a))
     np.copyto(out, np.moveaxis(a, 0, -1))
     return out

@@ -1,10 +1,14 @@
-"""Linear Kalman update on stacked arrays, position-measurement form (H = [I 0 ...])."""
+"""Linear Kalman update on stacked arrays, position-measurement form (H = [I 0 ...]):
+the fast batch-last kernel `update_soa` (textbook form: `reference.joseph_update`) and
+the EKF's linearised update.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
-from . import work
+from . import scratch
+from .linalg import ldl_inverse, ldl_solve
 
 # Floor added to the innovation covariance so an exact measurement of an exactly known
 # position (R = 0, P = 0) gives a zero gain instead of a division by zero (m^2).
@@ -66,10 +70,10 @@ def update_full(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
     m = z.shape[1]
     xn, pn = np.empty((n_rows, n)), np.empty((n_rows, n, n))
     nis, det, ok = np.empty(n_rows), np.empty(n_rows), np.empty(n_rows, dtype=bool)
-    for lo, hi in work.chunks(n_rows):
-        xs, pout = work.to_soa(x[lo:hi], "upda.x"), work.work("upda.pn", (n, n), hi - lo)
-        update_soa(xs, work.to_soa(p[lo:hi], "upda.p"), work.to_soa(z[lo:hi], "upda.z"),
-                   work.to_soa(r[lo:hi], "upda.r"), pout, nis[lo:hi], det[lo:hi])
+    for lo, hi in scratch.chunks(n_rows):
+        xs, pout = scratch.to_soa(x[lo:hi], "upda.x"), scratch.buffer("upda.pn", (n, n), hi - lo)
+        update_soa(xs, scratch.to_soa(p[lo:hi], "upda.p"), scratch.to_soa(z[lo:hi], "upda.z"),
+                   scratch.to_soa(r[lo:hi], "upda.r"), pout, nis[lo:hi], det[lo:hi])
         ok[lo:hi] = finite(xs, pout, nis[lo:hi], m)
         np.copyto(xn[lo:hi].T, xs)
         np.copyto(np.moveaxis(pn[lo:hi], 0, -1), pout)
@@ -114,20 +118,20 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     axes (batch axis last), which keep each accumulation in one pass over the batch."""
     n, k = x.shape
     m = z.shape[0]
-    nu = np.subtract(z, x[:m], out=work.work("upd.nu", (m,), k))
-    s0 = np.add(p[:m, :m], r, out=work.work("upd.s", (m, m), k))  # S without the floor
-    sinv = work.work("upd.si", (m, m), k)
+    nu = np.subtract(z, x[:m], out=scratch.buffer("upd.nu", (m,), k))
+    s0 = np.add(p[:m, :m], r, out=scratch.buffer("upd.s", (m, m), k))  # S without the floor
+    sinv = scratch.buffer("upd.si", (m, m), k)
     ldl_inverse(s0, sinv, det, S_FLOOR)
     # one buffer [P[:m]; K'; E'] (3m, n): the Joseph operands [P[:m]; K'] and [K'; E']
     # are two overlapping slices of it
-    ops = work.work("upd.ops", (3 * m, n), k)
+    ops = scratch.buffer("upd.ops", (3 * m, n), k)
     up, lk = ops[:2 * m], ops[m:]
     kt, et = ops[m:2 * m], ops[2 * m:]  # K' and E' (m, n)
     ops[:m] = p[:m]
     np.einsum("abn,bin->ain", sinv, p[:m], out=kt)
-    sn = np.einsum("abn,bn->an", sinv, nu, out=work.work("upd.sn", (m,), k))  # S^-1 nu
+    sn = np.einsum("abn,bn->an", sinv, nu, out=scratch.buffer("upd.sn", (m,), k))  # S^-1 nu
     np.einsum("an,an->n", nu, sn, out=nis)
-    x += np.einsum("ain,an->in", kt, nu, out=work.work("upd.dx", (n,), k))
+    x += np.einsum("ain,an->in", kt, nu, out=scratch.buffer("upd.dx", (n,), k))
     np.einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
     np.subtract(p[:m], et, out=et)
     # P - [K E] [P[:m]; K'], its upper triangle row by row, then mirrored
@@ -136,78 +140,6 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
         np.subtract(p[i, i:], row, out=row)
     for i in range(n - 1):
         p_out[i + 1:, i] = p_out[i, i + 1:]
-
-
-def ldl_inverse(s: np.ndarray, out: np.ndarray, det: np.ndarray, floor: float = 0.0) -> None:
-    """(S + floor I)^-1 into out (m, m, N) and its determinant into det, for symmetric S
-    (m, m, N), batch axis last (its lower triangle is read); entry by entry for small m:
-    S = L D L' (Golub & Van Loan 2013, alg. 4.1.1) without pivoting (S is a covariance),
-    then S^-1 = M' D^-1 M with M = L^-1. A row with a zero pivot (singular S) gets NaN,
-    flagged by the caller's finiteness mask as in `solve`."""
-    m = s.shape[0]
-    low, piv, inv_piv = _ldl(s, floor)
-    inv_l: dict = {}  # M = L^-1 below its unit diagonal
-    for j in range(m):
-        for i in range(j + 1, m):
-            v = -low[i, j]
-            for q in range(j + 1, i):
-                v = v - low[i, q] * inv_l[q, j]
-            inv_l[i, j] = v
-    for i in range(m):
-        for j in range(i, m):  # sum over q >= j of M[q, i] M[q, j] / d_q
-            acc = out[i, j]
-            np.multiply(inv_piv[j], 1.0 if i == j else inv_l[j, i], out=acc)
-            for q in range(j + 1, m):
-                mi = inv_l[q, i] if q != i else 1.0
-                acc += inv_piv[q] * (mi * inv_l[q, j])
-            if i != j:
-                out[j, i] = acc
-    np.copyto(det, piv[0])
-    for pj in piv[1:]:
-        det *= pj
-
-
-def _ldl(s: np.ndarray, floor: float) -> tuple[dict, list, list]:
-    """L (below its unit diagonal), D and D^-1 of S + floor I = L D L' (lower triangle of
-    s (m, m, N) read); D^-1 is NaN where a pivot is zero."""
-    m = s.shape[0]
-    low, piv, inv_piv = {}, [], []
-    for j in range(m):
-        pj = s[j, j] + floor
-        for q in range(j):
-            pj -= low[j, q] ** 2 * piv[q]
-        piv.append(pj)
-        if pj.all():
-            inv_piv.append(np.divide(1.0, pj))
-        else:
-            inv_piv.append(np.divide(1.0, pj, out=np.full_like(pj, np.nan), where=pj != 0))
-        for i in range(j + 1, m):
-            v = s[i, j].copy()
-            for q in range(j):
-                v -= low[i, q] * low[j, q] * piv[q]
-            low[i, j] = v * inv_piv[j]
-    return low, piv, inv_piv
-
-
-def ldl_solve(s: np.ndarray, b: np.ndarray, det: np.ndarray, floor: float = 0.0) -> None:
-    """S^-1 b in place and det S into det, for symmetric S + floor I, S (m, m, N) (its
-    lower triangle is read) and right-hand sides b (m, k, N), batch axis last; entry by
-    entry for small m: S = L D L' (Golub & Van Loan 2013, alg. 4.1.1), then
-    substitution, without pivoting (S is a covariance). A row with a zero pivot (singular
-    S) gets NaN, flagged by the caller's finiteness mask as in `solve`."""
-    m = s.shape[0]
-    low, piv, inv_piv = _ldl(s, floor)
-    tmp = work.work("ldl.tmp", b.shape[1:-1], b.shape[-1])
-    for i in range(m):  # L y = b
-        for q in range(i):
-            b[i] -= np.multiply(b[q], low[i, q], out=tmp)
-    for i in reversed(range(m)):  # D L' x = y
-        b[i] *= inv_piv[i]
-        for q in range(i + 1, m):
-            b[i] -= np.multiply(b[q], low[q, i], out=tmp)
-    np.copyto(det, piv[0])
-    for pj in piv[1:]:
-        det *= pj
 
 
 def _update_linearised(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,

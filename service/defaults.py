@@ -1,0 +1,41 @@
+"""Every default of the service, once: the CLI (`service.__main__`), the estimation and
+tracking classes and the tests read them from here.
+
+Protocol constants (version, namespace, endpoint, statuses, key names) live with the
+wire contract, `service.wire`.
+"""
+
+from __future__ import annotations
+
+import math
+
+# ---------------------------------------------------------------- display
+RATE = 30.0  # Hz: display instants n / RATE (PROTOCOL.md)
+CLOCK = "realtime"  # or "lockstep"
+BLEND = 0.0  # s: absorb a correction over this period (0: plain prediction)
+BLEND_SPEED = 0.0  # m/s: absorb a correction at this speed (0: no speed limit)
+LAG = 0.0  # s: display instants lag the clock, smoothed when bracketed
+
+# ---------------------------------------------------------------- filters
+FILTER = "imm"  # imm, cv, ca, ekf, vdf
+Q_CV = 1.0  # m/s^2: white acceleration std per axis (CV, and the IMM's modes' unit)
+Q_CA = 0.5  # m/s^3: white jerk std per axis (CA)
+IMM_CT_Q = 3.0  # IMM turn models' noise as a multiple of the CV/CA noise
+IMM_TURN_DEG = 1.8  # deg/s: the IMM's coordinated-turn rates are +- this
+IMM_SOJOURN = 200.0  # s: mean time in one IMM mode (staying probability exp(-dt / sojourn))
+VDF_DETECT = 35.0  # VDF manoeuvre detection threshold (fading NIS sum)
+VDF_SETTLE = 13.0  # VDF return-to-CV threshold (fading acceleration significance)
+
+# ---------------------------------------------------------------- track life
+INIT_SPEED = 1000.0  # m/s: prior std of the velocity at initiation
+INIT_ACCEL = 10.0  # m/s^2: prior std of the acceleration at initiation (order-3 states)
+COAST_AFTER = 2.5  # coasting once the age exceeds this many of the track's scan intervals
+DELETE_AFTER = 30.0  # s of simulation time without a measurement
+
+# ---------------------------------------------------------------- sensor noise
+# used when a measurement gives none (PROTOCOL.md: the service's configured defaults)
+SR = 10.0  # m: range
+SAZ = math.radians(0.5)  # rad: azimuth
+SEL = math.radians(0.5)  # rad: elevation
+SIGMA = 1.0  # m: each Cartesian axis
+NOISE = (SR, SAZ, SEL, SIGMA)

@@ -1,0 +1,41 @@
+"""The EKF baseline's measurement terms (SCENARIOS.md, B): polar measurements kept polar
+and linearised at the prediction; the CMKF's converted measurements are in `ucm`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .measurements import MeasurementBatch
+from .polar import polar_linearised
+from .ucm import cmkf_arrays
+
+
+def ekf_arrays(batch: MeasurementBatch, pred: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Polar measurements kept polar (z, R = diag of the noise variances), with the
+    Jacobian h and predicted measurement hx at the predicted position pred (N, d);
+    Cartesian ones as in the CMKF (h = I, hx = position)."""
+    dim = batch.dim
+    z, r = cmkf_arrays(batch, None)
+    h = np.broadcast_to(np.eye(dim), (len(batch), dim, dim)).copy()
+    hx = pred.copy()
+    polar = batch.polar
+    if polar.any():
+        origin, sig = batch.origin[polar, :dim], batch.sigmas[polar]
+        hx[polar], h[polar], z[polar] = polar_linearised(pred[polar] - origin,
+                                                         batch.values[polar])
+        r[polar] = sig[:, :, None] ** 2 * np.eye(dim)
+    return z, r, h, hx
+
+
+@dataclass
+class EKFConversion:
+    """The measurements of a batch for the filters (`filters.Convert`): called with
+    predicted states xp (N, n) and covariances pp it returns z, R, h, hx (`ekf_arrays`)."""
+
+    batch: MeasurementBatch
+
+    def __call__(self, xp: np.ndarray, pp: np.ndarray) -> tuple:
+        return ekf_arrays(self.batch, xp[:, :self.batch.dim])

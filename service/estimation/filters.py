@@ -1,0 +1,96 @@
+"""Filters over a layout of tracks: how one batch of rows is predicted and updated.
+
+Every filter works on stacked arrays (rows of a `tracking.store.TrackArrays`) and
+returns the output estimate (x, P) of each row; the tracker stores it and the display
+state predicts it. `SingleModelFilter` is one model (the CMKF, or the EKF baseline);
+`imm.IMM` mixes several models; `vdf.VDF` switches between CV and CA on a manoeuvre
+detector. In the tracker loop a filter is the updater (Stone Soup's word): prediction
+and update are fused per batch. Pure NumPy, no Zenoh.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import kalman, models, scratch
+from .measurements import MeasurementBatch
+from .ucm import CMKFConversion, cmkf_soa
+
+# (x_pred (N, n), P_pred (N, n, n)) -> (z, R[, h, hx]) converted for those predictions
+Convert = Callable[[np.ndarray, np.ndarray], tuple]
+
+
+Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # x, P, nis, ok
+
+
+@dataclass
+class SingleModelFilter:
+    """One motion model ("cv" or "ca") with the CMKF, or the EKF on polar input."""
+
+    kind: str = "cv"
+    q: float = 1.0
+    order: int = 2
+    fields: dict[str, tuple] = field(default_factory=dict)
+
+    def initiate(self, arrays: Any, rows: np.ndarray) -> None:
+        """Nothing beyond the table's own x and P."""
+
+    def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
+        standard = (self.kind, self.order) in (("cv", 2), ("ca", 3))  # F, Q of models.predict
+        if standard and isinstance(convert, CMKFConversion):
+            return cmkf_step(arrays.x[rows], arrays.p[rows], dt, self.order, arrays.dim, self.q,
+                             convert.batch)
+        if standard:
+            xp, pp = models.predict(arrays.x[rows], arrays.p[rows], dt, self.order, arrays.dim,
+                                    self.q)
+        else:
+            f, qm = models.motion(self.kind, dt, self.order, arrays.dim, self.q)
+            xp, pp = predict(arrays.x[rows], arrays.p[rows], f, qm)
+        return kalman.update(xp, pp, *convert(xp, pp))
+
+    def labels(self, arrays: Any, rows: np.ndarray) -> list[str | dict[str, float]]:
+        return [self.kind] * len(rows)
+
+
+def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+              q: float | np.ndarray, batch: MeasurementBatch) -> Result:
+    """The filter core: prediction (`models.predict_soa`), conversion of the measurements
+    at the prediction (`ucm.cmkf_soa`) and CMKF update (`kalman.update_soa`) of rows
+    x (N, n), P (N, n, n) over their own dt, in one pass per chunk of rows on batch-last
+    work arrays. Returns new arrays: posterior x, P, NIS and the mask of finite rows."""
+    n_rows, n = x.shape
+    dt = np.broadcast_to(np.asarray(dt, dtype=float), (n_rows,))
+    q = np.asarray(q, dtype=float)
+    xn, pn = np.empty((n_rows, n)), np.empty((n_rows, n, n))
+    nis, det, ok = np.empty(n_rows), np.empty(n_rows), np.empty(n_rows, dtype=bool)
+    for lo, hi in scratch.chunks(n_rows):
+        k = hi - lo
+        xs, ps = scratch.to_soa(x[lo:hi], "step.x"), scratch.to_soa(p[lo:hi], "step.p")
+        models.predict_soa(xs, ps, dt[lo:hi], order, dim, q[lo:hi] if q.ndim else q)
+        zs, rs = scratch.buffer("step.z", (dim,), k), scratch.buffer("step.r", (dim, dim), k)
+        cmkf_soa(batch.rows(lo, hi), xs[:dim], ps[:dim, :dim], zs, rs)
+        pout = scratch.buffer("step.pn", (n, n), k)
+        kalman.update_soa(xs, ps, zs, rs, pout, nis[lo:hi], det[lo:hi])
+        ok[lo:hi] = kalman.finite(xs, pout, nis[lo:hi], dim)
+        np.copyto(xn[lo:hi].T, xs)
+        np.copyto(np.moveaxis(pn[lo:hi], 0, -1), pout)
+    return xn, pn, nis, ok
+
+
+def predict(x: np.ndarray, p: np.ndarray, f: np.ndarray, q: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """x (N, n), P (N, n, n) predicted by full transition matrices F and noise Q (N, n, n)."""
+    xp = (f @ x[:, :, None])[:, :, 0]  # matmul: much faster than einsum on small matrices
+    return xp, kalman.symmetrise(f @ p @ f.transpose(0, 2, 1) + q)
+
+
+def moments(x: np.ndarray, p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of Gaussian mixtures: x (N, M, n), P (N, M, n, n), w (N, M)."""
+    mean = np.einsum("nm,nmi->ni", w, x)
+    d = x - mean[:, None]
+    cov = np.einsum("nm,nmij->nij", w, p + d[..., :, None] * d[..., None, :])
+    return mean, kalman.symmetrise(cov)

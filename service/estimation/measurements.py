@@ -1,0 +1,57 @@
+"""Measurements as columns, the input of the filter kernels: `MeasurementBatch.of`
+turns the validated records of the wire contract (`service.wire.Measurement`) into one
+array per field, once per batch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from itertools import chain
+from operator import attrgetter
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from ..wire import Measurement
+
+
+@dataclass
+class MeasurementBatch:
+    """N measurements of one dimension d as columns: the filter core's input (the
+    (N, d) arrays are column-major: the kernels read them a column at a time)."""
+
+    t: np.ndarray  # (N,) s
+    polar: np.ndarray  # (N,) bool: polar (r, az[, el]) or Cartesian position
+    values: np.ndarray  # (N, d): (r, az[, el]) or the position
+    sigmas: np.ndarray  # (N, d): (sr, saz[, sel]) or the std of each axis
+    origin: np.ndarray  # (N, 3): sensor position
+
+    @classmethod
+    def of(cls, meas: Sequence[Measurement], dim: int) -> MeasurementBatch:
+        """Columns of validated records (`validate.Measurement`) that all have dimension
+        `dim` (values and sigmas of `dim` numbers each)."""
+        n = len(meas)
+        flat = chain.from_iterable
+
+        def column(name: str, width: int) -> np.ndarray:
+            a = np.fromiter(flat(map(attrgetter(name), meas)), float)
+            if a.size != n * width:
+                raise ValueError(f"measurements of mixed dimensions in one {dim}-D batch")
+            return np.asfortranarray(a.reshape(n, width))  # each of its columns contiguous
+
+        return cls(np.fromiter(map(attrgetter("t"), meas), float, n),
+                   np.fromiter(map(attrgetter("polar"), meas), bool, n),
+                   column("values", dim), column("sigmas", dim), column("sensor_pos", 3))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def dim(self) -> int:
+        return self.values.shape[1]
+
+    def rows(self, lo: int, hi: int) -> MeasurementBatch:
+        return MeasurementBatch(self.t[lo:hi], self.polar[lo:hi], self.values[lo:hi],
+                                self.sigmas[lo:hi], self.origin[lo:hi])

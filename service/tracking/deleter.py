@@ -1,0 +1,24 @@
+"""Track deletion: which tracks end."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .store import TrackStore
+
+
+class UpdateTimeDeleter:
+    """Deletes tracks with no measurement for longer than `delete_after` seconds of
+    simulation time (Stone Soup's UpdateTimeDeleter)."""
+
+    def __init__(self, delete_after: float) -> None:
+        self.delete_after = delete_after
+
+    def delete_tracks(self, store: TrackStore, now: float) -> list[str]:
+        """Ids of the tracks to delete at time `now` (the store is not changed)."""
+        out: list[str] = []
+        for arrays in store.layouts.values():
+            rows, ids = arrays.live()
+            old = np.flatnonzero(now - arrays.t[rows] > self.delete_after)
+            out += [ids[i] for i in old.tolist()]
+        return out

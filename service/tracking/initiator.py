@@ -1,0 +1,47 @@
+"""Track initiation: a new track from a measurement no track has claimed."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..estimation.measurements import MeasurementBatch
+from ..estimation.ucm import cmkf_arrays
+from ..wire import Measurement
+from .store import TrackArrays, TrackStore
+
+
+class SinglePointInitiator:
+    """One-point initiation: position from the converted measurement (UCM at the
+    measured point for polar ones), velocity (and acceleration) zero with a wide prior of
+    std `init_speed` (`init_accel`); the second measurement then gives the two-point
+    difference in the limit of a diffuse prior (Mallick & La Scala, 'Comparison of
+    single-point and two-point difference track initiation', 2008)."""
+
+    def __init__(self, init_speed: float, init_accel: float) -> None:
+        self.init_speed, self.init_accel = init_speed, init_accel
+
+    def initiate(self, store: TrackStore, dim: int, meas: Sequence[Measurement]
+                 ) -> tuple[TrackArrays, np.ndarray, list[str | None]]:
+        """New tracks, one per measurement, named by its target label: the layout, the
+        rows created and, per measurement, None or the reason it started no track."""
+        arrays = store.layout(dim)
+        z, r = cmkf_arrays(MeasurementBatch.of(meas, dim), None)
+        finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
+        prior = [self.init_speed**2, self.init_accel**2][: arrays.order - 1]
+        rows = []
+        for m, zi, ri, ok in zip(meas, z, r, finite, strict=True):
+            if not ok:
+                continue
+            row = store.add(m.target, dim)[1]
+            rows.append(row)
+            arrays.x[row] = 0.0
+            arrays.x[row, :dim] = zi
+            arrays.p[row] = np.diag(np.repeat([0.0, *prior], dim))
+            arrays.p[row, :dim, :dim] = ri
+            arrays.t[row] = arrays.t_first[row] = m.t
+            arrays.updates[row] = 1
+            arrays.nis[row] = 0.0
+        reasons = [None if ok else "conversion gave a non-finite value" for ok in finite]
+        return arrays, np.array(rows, dtype=int), reasons

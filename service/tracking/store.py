@@ -1,0 +1,163 @@
+"""The track store: every track's state and covariance in stacked arrays.
+
+Tracks with the same state layout (dimension 2 or 3, model order) share one
+`TrackArrays`: predicting all of them, or updating a batch of them, is one vectorised
+operation over their rows. A track's row stays its own until it is deleted; freed rows
+are reused. Other components keep their own per-row columns beside these (`Columns`:
+the filter's extra fields here, the display state's in `display`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+# shape codes of per-row columns: "" scalar, "n" state, "nn" covariance, "d" position,
+# "dd" position covariance
+SHAPE_CODES = ("", "n", "nn", "d", "dd")
+
+
+class Columns:
+    """Named arrays with one row per track slot, grown together: `shapes` maps a name to
+    the shape of one row (`dtypes` to its dtype, float by default)."""
+
+    def __init__(self, shapes: dict[str, tuple[int, ...]],
+                 dtypes: dict[str, type] | None = None, capacity: int = 0) -> None:
+        self.shapes = dict(shapes)
+        self.dtypes = dtypes or {}
+        self.capacity = 0
+        for name, shape in self.shapes.items():
+            setattr(self, name, np.zeros((0, *shape), dtype=self.dtypes.get(name, float)))
+        self.grow(capacity)
+
+    def grow(self, capacity: int) -> None:
+        """At least `capacity` rows; existing rows keep their values, new rows are zero."""
+        if capacity <= self.capacity:
+            return
+        for name, shape in self.shapes.items():
+            old = getattr(self, name)
+            grown = np.zeros((capacity, *shape), dtype=old.dtype)
+            grown[:self.capacity] = old
+            setattr(self, name, grown)
+        self.capacity = capacity
+
+
+class TrackArrays(Columns):
+    """Tracks of one layout: states x (cap, n), covariances p (cap, n, n), the time of
+    the last update t, the first update t_first, the update count, the last NIS, and the
+    per-row fields a filter asks for (`extra`: name -> (shape code, modes))."""
+
+    def __init__(self, dim: int, order: int, extra: dict[str, tuple] | None = None,
+                 capacity: int = 64) -> None:
+        self.dim, self.order, self.n = dim, order, dim * order
+        n = self.n
+        codes = dict(zip(SHAPE_CODES, ((), (n,), (n, n), (dim,), (dim, dim)), strict=True))
+        shapes: dict[str, tuple[int, ...]] = {
+            "x": (n,), "p": (n, n), "t": (), "t_first": (), "nis": (), "updates": (),
+            "alive": ()}
+        for name, (code, modes) in (extra or {}).items():
+            shapes[name] = ((modes,) if modes else ()) + codes[code]
+        self.ids: list[str | None] = []
+        self.free: list[int] = []
+        self._live: tuple[np.ndarray, list[str]] | None = None
+        super().__init__(shapes, {"alive": bool, "updates": np.int64}, capacity)
+
+    def grow(self, capacity: int) -> None:
+        old = self.capacity
+        super().grow(capacity)
+        self.ids.extend([None] * (self.capacity - old))
+        self.free.extend(range(self.capacity - 1, old - 1, -1))
+
+    def add(self, track_id: str) -> int:
+        if not self.free:
+            self.grow(2 * self.capacity)
+        row = self.free.pop()
+        self.ids[row] = track_id
+        self.alive[row] = True
+        self._live = None
+        return row
+
+    def remove(self, row: int) -> None:
+        self.ids[row] = None
+        self.alive[row] = False
+        self.free.append(row)
+        self._live = None
+
+    def live(self) -> tuple[np.ndarray, list[str]]:
+        """Rows of the live tracks and their ids, cached until a track comes or goes
+        (every display frame asks)."""
+        if self._live is None:
+            rows = np.flatnonzero(self.alive)
+            ids = self.ids
+            self._live = (rows, [ids[i] for i in rows.tolist()])  # type: ignore[misc]
+        return self._live
+
+    def rows(self) -> np.ndarray:
+        return self.live()[0]
+
+
+@dataclass
+class States:
+    """Filtered states of tracks of one layout, as columns: the `tracks/<id>` bodies."""
+
+    ids: list[str]
+    t: np.ndarray  # (N,)
+    pos: np.ndarray  # (N, 3), zero-padded for 2-D tracks
+    vel: np.ndarray  # (N, 3)
+    x: np.ndarray  # (N, n)
+    p: np.ndarray  # (N, n * n), row-major
+    models: list  # per track: the filter's model label (str, or IMM mode probabilities)
+    nis: np.ndarray  # (N,)
+    updates: np.ndarray  # (N,) int
+
+    def body(self, i: int) -> dict:
+        return {"t": float(self.t[i]), "id": self.ids[i], "pos": self.pos[i].tolist(),
+                "vel": self.vel[i].tolist(), "x": self.x[i].tolist(), "P": self.p[i].tolist(),
+                "model": self.models[i], "nis": float(self.nis[i]),
+                "updates": int(self.updates[i])}
+
+
+class TrackStore:
+    """All tracks, keyed by id: one `TrackArrays` per dimension, all of one model order
+    (the filter's), with the filter's extra fields."""
+
+    def __init__(self, order: int, extra: dict[str, tuple] | None = None) -> None:
+        self.order, self.extra = order, dict(extra or {})
+        self.layouts: dict[int, TrackArrays] = {}
+        self.where: dict[str, tuple[TrackArrays, int]] = {}
+
+    def __len__(self) -> int:
+        return len(self.where)
+
+    def __contains__(self, track_id: str) -> bool:
+        return track_id in self.where
+
+    def layout(self, dim: int) -> TrackArrays:
+        if dim not in self.layouts:
+            self.layouts[dim] = TrackArrays(dim, self.order, self.extra)
+        return self.layouts[dim]
+
+    def add(self, track_id: str, dim: int) -> tuple[TrackArrays, int]:
+        arrays = self.layout(dim)
+        hit = self.where[track_id] = (arrays, arrays.add(track_id))
+        return hit
+
+    def remove(self, ids: Iterable[str]) -> None:
+        for track_id in ids:
+            arrays, row = self.where.pop(track_id)
+            arrays.remove(row)
+
+    def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray,
+               labels: list) -> States:
+        """The filtered states of rows of one layout, as columns (`labels`: the filter's
+        model label of each row)."""
+        r = np.asarray(rows, dtype=int)
+        d, n = arrays.dim, len(r)
+        x = arrays.x[r]
+        pos, vel = np.zeros((n, 3)), np.zeros((n, 3))
+        pos[:, :d], vel[:, :d] = x[:, :d], x[:, d:2 * d]
+        ids = arrays.ids
+        return States([ids[i] for i in r.tolist()], arrays.t[r], pos, vel,  # type: ignore[misc]
+                      x, arrays.p[r].reshape(n, -1), labels, arrays.nis[r], arrays.updates[r])

@@ -1,0 +1,107 @@
+"""Zenoh session options shared by the service and every client, in the style of the
+zenoh-python examples (mode, connect, listen, config file; multicast scouting off)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from .keys import DEFAULT_NS, Keys
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def add_zenoh_args(parser: argparse.ArgumentParser, ns: bool = True) -> None:
+    """Zenoh options in the style of the zenoh-python examples."""
+    g = parser.add_argument_group("zenoh")
+    g.add_argument("--mode", choices=("peer", "client", "router"), help="session mode")
+    g.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to connect to (repeatable)")
+    g.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to listen on (repeatable)")
+    g.add_argument("-c", "--config", metavar="FILE.json5", help="Zenoh configuration file")
+    if ns:
+        g.add_argument("--ns", default=DEFAULT_NS, help="key namespace (default %(default)s)")
+
+
+def zenoh_config(args: argparse.Namespace, serve: bool = False) -> Any:
+    """Build a zenoh.Config from parsed options.
+
+    Multicast scouting is off unless the config file turns it on. With no endpoint
+    given, a serving process (the tracker) listens on DEFAULT_ENDPOINT and a client
+    process connects to it; anything else listens on loopback only.
+    """
+    import zenoh
+
+    conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
+    if not args.config:
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    if args.mode:
+        conf.insert_json5("mode", json.dumps(args.mode))
+    connect, listen = list(args.connect), list(args.listen)
+    if not args.config and not connect and not listen:
+        (listen if serve else connect).append(DEFAULT_ENDPOINT)
+    if not args.config and not listen and (args.mode or "peer") != "client":
+        listen.append("tcp/127.0.0.1:0")
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    return conf
+
+
+def peer_config(endpoint: str) -> Any:
+    """A peer that connects to `endpoint` and listens on loopback only, multicast
+    scouting off: the session of a tool or test talking to one known service."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    return conf
+
+
+BLOCK_WAIT_US = 600_000_000  # 10 minutes
+
+
+def patient(conf: Any) -> Any:
+    """Let BLOCK puts wait for a slow receiver instead of closing its link after Zenoh's
+    default 5 s of blocked transmission (which loses data): for lockstep services and
+    for feeds, which must drop nothing (PROTOCOL.md)."""
+    conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close",
+                      str(BLOCK_WAIT_US))
+    return conf
+
+
+def open_session(args: argparse.Namespace, serve: bool = False) -> Any:
+    import zenoh
+
+    return zenoh.open(zenoh_config(args, serve))
+
+
+def wait_for_tracker(session: Any, keys: Keys, count: int = 1, timeout: float = 30.0) -> bool:
+    """Block until `count` tracker liveliness tokens are alive, or `timeout` s pass."""
+    import threading
+
+    import zenoh
+
+    seen: set[str] = set()
+    ready = threading.Event()
+
+    def on_token(sample: Any) -> None:
+        key = str(sample.key_expr)
+        if sample.kind == zenoh.SampleKind.PUT:
+            seen.add(key)
+        else:
+            seen.discard(key)
+        if len(seen) >= count:
+            ready.set()
+
+    sub = session.liveliness().declare_subscriber(keys.alive("*"), on_token, history=True)
+    try:
+        return ready.wait(timeout)
+    finally:
+        sub.undeclare()
