@@ -11,10 +11,10 @@ over the predicted position: `convert.cmkf_soa`).
 
 - ours: the filter core `filters.cmkf_step` (prediction, conversion, CMKF update) on the
   stacked arrays of all N targets and the columns of their measurements
-  (`convert.MeasurementBatch`), timed as one vectorised step; building those columns
+  (`measurements.MeasurementBatch`), timed as one vectorised step; building those columns
   from the validated `Measurement` records is timed on its own ("decode"), and the parts
-  through their own entry points (`models.predict`, `table.measurement_arrays` on the
-  columns, `kalman.update`). Also the whole table step `TrackTable.apply` (which adds
+  through their own entry points (`models.predict`, `ucm.cmkf_arrays` on the
+  columns, `kalman.update`). Also the whole table step `Tracker.track` (which adds
   decoding, the bookkeeping and the per-track `tracks/` message dicts) on the following
   scans.
 - FilterPy: one `filterpy.kalman.KalmanFilter` per target, F and Q (Q from FilterPy's own
@@ -52,10 +52,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
-from service import filters, kalman, models  # noqa: E402
-from service.convert import MeasurementBatch  # noqa: E402
-from service.table import TableConfig, TrackTable, measurement_arrays  # noqa: E402
-from service.validate import Measurement  # noqa: E402
+from service.estimation import filters, kalman, models  # noqa: E402
+from service.estimation.measurements import MeasurementBatch  # noqa: E402
+from service.estimation.ucm import cmkf_arrays  # noqa: E402
+from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from service.wire import Measurement  # noqa: E402
 
 try:
     from filterpy.common import Q_discrete_white_noise
@@ -91,7 +92,7 @@ DIM, ORDER, N_STATE = 3, 2, 6
 T = 1.0  # s, scan period
 Q = 1.0  # m/s^2, white acceleration std per axis
 SR, SA = 20.0, math.radians(0.2)  # radar noise: range m, azimuth and elevation rad
-PRIOR_SCANS = 3  # scans through TrackTable.apply before the timed step (initiate + 2)
+PRIOR_SCANS = 3  # scans through Tracker.track before the timed step (initiate + 2)
 CHECK = 5  # targets whose posteriors are compared across the three filters
 RTOL = 1e-6
 # ours [x y z vx vy vz] <-> Stone Soup [x vx y vy z vz]
@@ -160,16 +161,16 @@ def ours_step(x, p, batch):
 def ours_parts(x, p, batch):
     """The same step through the parts' own entry points (row-major arrays between them)."""
     xp, pp = models.predict(x, p, np.full(len(x), T), ORDER, DIM, Q)
-    z, r = measurement_arrays(batch, DIM, xp[:, :DIM], pp[:, :DIM, :DIM])
+    z, r = cmkf_arrays(batch, xp[:, :DIM], pp[:, :DIM, :DIM])
     xn, pn, _, ok = kalman.update(xp, pp, z, r)
     return xn, pn, ok
 
 
 def bench_ours(n: int, reps: int, seed: int) -> dict:
     data = scans(n, PRIOR_SCANS + 1 + reps, seed)
-    table = TrackTable(TableConfig(order=ORDER, q=Q))
+    table = Tracker(TrackerConfig(order=ORDER, q=Q))
     for scan in data[:PRIOR_SCANS]:
-        assert all(o.reason is None for o in table.apply(scan))
+        assert all(o.reason is None for o in table.track(scan)[0])
     x0, p0 = prior(table, data[PRIOR_SCANS])
     meas = data[PRIOR_SCANS]
     dt = np.full(n, T)
@@ -180,8 +181,8 @@ def bench_ours(n: int, reps: int, seed: int) -> dict:
     res["predict"] = best_of(lambda: models.predict(x0, p0, dt, ORDER, DIM, Q), reps)
     xp, pp = models.predict(x0, p0, dt, ORDER, DIM, Q)
     pred, pred_cov = xp[:, :DIM], pp[:, :DIM, :DIM]
-    res["convert"] = best_of(lambda: measurement_arrays(batch, DIM, pred, pred_cov), reps)
-    z, r = measurement_arrays(batch, DIM, pred, pred_cov)
+    res["convert"] = best_of(lambda: cmkf_arrays(batch, pred, pred_cov), reps)
+    z, r = cmkf_arrays(batch, pred, pred_cov)
     res["update"] = best_of(lambda: kalman.update(xp, pp, z, r), reps)
     res["ref"] = reference()
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -190,21 +191,21 @@ def bench_ours(n: int, reps: int, seed: int) -> dict:
     xn, pn, ok = ours_step(x0, p0, batch)
     assert ok.all()
     xs, ps, _ = ours_parts(x0, p0, batch)
-    same_posterior("predict + measurement_arrays + update", xs[:CHECK], ps[:CHECK],
+    same_posterior("predict + cmkf_arrays + update", xs[:CHECK], ps[:CHECK],
                    xn[:CHECK], pn[:CHECK])
 
     # the whole table step: the table moves on, so the best of R *successive* scans,
     # after the timed step's own scan as warm-up (where it must give the same posterior)
     first, *later = data[PRIOR_SCANS:]
-    table.apply(first)
+    table.track(first)
     xa, pa = prior(table, first[:CHECK])
-    same_posterior("TrackTable.apply", xa, pa, xn[:CHECK], pn[:CHECK])
+    same_posterior("Tracker.track", xa, pa, xn[:CHECK], pn[:CHECK])
     res["apply"] = min(_timed_apply(table, scan) for scan in later)
     res.update(x0=x0, p0=p0, z=z, r=r, xn=xn, pn=pn)
     return res
 
 
-def prior(table: TrackTable, meas: list[Measurement]) -> tuple[np.ndarray, np.ndarray]:
+def prior(table: Tracker, meas: list[Measurement]) -> tuple[np.ndarray, np.ndarray]:
     """States and covariances of the measured targets, from the table's public
     `state` (the tracks/ message body)."""
     states = [table.state(m.target) for m in meas]
@@ -212,9 +213,9 @@ def prior(table: TrackTable, meas: list[Measurement]) -> tuple[np.ndarray, np.nd
             np.array([s["P"] for s in states]).reshape(len(meas), N_STATE, N_STATE))
 
 
-def _timed_apply(table: TrackTable, scan: list[Measurement]) -> float:
+def _timed_apply(table: Tracker, scan: list[Measurement]) -> float:
     t0 = time.perf_counter()
-    out = table.apply(scan)
+    out = table.track(scan)[0]
     dt = time.perf_counter() - t0
     assert all(o.reason is None for o in out)
     return dt
@@ -334,7 +335,7 @@ def main(argv: list[str] | None = None) -> None:
         rows.append((o, m, peer_us))
         print(f"# N={n}: done ({', '.join(f'{k} timed on {m}' for k in peer_us) or 'ours'})",
               flush=True)
-    agree = ", ".join(["ours", "ours by parts", "TrackTable.apply", *(k for k, _ in peers)])
+    agree = ", ".join(["ours", "ours by parts", "Tracker.track", *(k for k, _ in peers)])
     print(f"# posteriors of the first {CHECK} targets agree to {RTOL:g} relative: {agree}")
 
     print("\nours, one vectorised step over N targets (us per target-step)")
@@ -350,7 +351,7 @@ def main(argv: list[str] | None = None) -> None:
           "  step = filters.cmkf_step: predict + convert + update on arrays, in one pass;\n"
           "  predict, convert, update = the parts through their own entry points (each with\n"
           "  its own row-major input and output: they add up to more than step);\n"
-          "  p+u = predict + update; apply = TrackTable.apply, the whole table step (decode,\n"
+          "  p+u = predict + update; apply = Tracker.track, the whole table step (decode,\n"
           "  bookkeeping, tracks/ message dicts); faults = minor page faults per step call;\n"
           "  ref = us of the reference np.multiply, timed just before step")
 

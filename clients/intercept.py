@@ -307,7 +307,7 @@ class Interceptors:
     waited past Zenoh's `wait_before_close` and the link was reset, losing frames).
     A slow interceptor therefore slows the lockstep service down instead of losing data.
     Typical in-process use, on the session that publishes the scenario (e.g.
-    clients.eval.run_through_service's):
+    clients.evaluate.run_through_service's):
 
         ic = Interceptors(Law(guidance="intercept")).attach(session, keys,
                                                            like="maneuver-", truth=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service import clock
+from service.tracking import clock
 
 RATE = 30.0
 

@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from service import convert
+from service.estimation import polar, ucm
 
 N_MC = 200_000
 K_SE = 5.0
@@ -72,9 +72,9 @@ def _swap_xy(cov):
 @pytest.mark.parametrize(("r", "az", "el", "sr", "saz", "sel"), GEOMETRIES_3D)
 def test_ucm_3d_unbiased_and_covariance(r, az, el, sr, saz, sel):
     truth, rm, am, em = _draw(1, r, az, el, sr, saz, sel)
-    z = convert.unbiased(rm, am, em, np.full(N_MC, saz), np.full(N_MC, sel))
+    z = polar.unbiased(rm, am, em, np.full(N_MC, saz), np.full(N_MC, sel))
     err = z - truth
-    cov = convert.ucm_covariance(truth, np.array([sr]), np.array([saz]), np.array([sel]))[0]
+    cov = polar.ucm_covariance(truth, np.array([sr]), np.array([saz]), np.array([sel]))[0]
 
     assert np.abs(_mean_z(err)).max() < K_SE, _mean_z(err)
     zc = _cov_z(err, cov)
@@ -84,7 +84,7 @@ def test_ucm_3d_unbiased_and_covariance(r, az, el, sr, saz, sel):
 
     # Power: the plain conversion is biased by p (1 - lb le) along x, y (p (1 - le) in z)
     # with these angle noises, and the compass/math x-y swap is visibly wrong.
-    plain = convert.polar_to_cartesian(rm, am, em) - truth
+    plain = polar.polar_to_cartesian(rm, am, em) - truth
     assert np.abs(_mean_z(plain)).max() > K_SE
     assert np.abs(_cov_z(err, _swap_xy(cov))).max() > K_SE
 
@@ -92,17 +92,17 @@ def test_ucm_3d_unbiased_and_covariance(r, az, el, sr, saz, sel):
 @pytest.mark.parametrize(("r", "az", "sr", "saz"), GEOMETRIES_2D)
 def test_ucm_2d_unbiased_and_covariance(r, az, sr, saz):
     truth, rm, am, _ = _draw(2, r, az, None, sr, saz, None)
-    z = convert.unbiased(rm, am, None, np.full(N_MC, saz), None)
+    z = polar.unbiased(rm, am, None, np.full(N_MC, saz), None)
     assert z.shape == (N_MC, 2)
     err = z - truth
-    cov = convert.ucm_covariance(truth, np.array([sr]), np.array([saz]), None)[0]
+    cov = polar.ucm_covariance(truth, np.array([sr]), np.array([saz]), None)[0]
     assert cov.shape == (2, 2)
 
     assert np.abs(_mean_z(err)).max() < K_SE, _mean_z(err)
     zc = _cov_z(err, cov)
     assert np.abs(zc).max() < K_SE, zc
 
-    plain = convert.polar_to_cartesian(rm, am, None) - truth
+    plain = polar.polar_to_cartesian(rm, am, None) - truth
     assert np.abs(_mean_z(plain)).max() > K_SE
     assert np.abs(_cov_z(err, _swap_xy(cov))).max() > K_SE
 
@@ -112,9 +112,9 @@ def test_ucm_covariance_vectorised_over_rows():
     pts = np.array([[1000.0, 2000.0, 300.0], [-500.0, -10.0, 8000.0], [3.0, -4000.0, -200.0]])
     sr, saz, sel = np.array([10.0, 20.0, 5.0]), np.array([0.01, 0.02, 0.03]), np.array(
         [0.02, 0.01, 0.005])
-    batch = convert.ucm_covariance(pts, sr, saz, sel)
+    batch = polar.ucm_covariance(pts, sr, saz, sel)
     for i in range(3):
-        one = convert.ucm_covariance(pts[i:i + 1], sr[i:i + 1], saz[i:i + 1], sel[i:i + 1])
+        one = polar.ucm_covariance(pts[i:i + 1], sr[i:i + 1], saz[i:i + 1], sel[i:i + 1])
         np.testing.assert_allclose(batch[i], one[0], rtol=1e-12)
 
 
@@ -134,7 +134,7 @@ def test_ucm_small_noise_limit_is_linearised_covariance():
     ])
     lin = jac @ np.diag([sr**2, saz**2, sel**2]) @ jac.T
     p = np.array([[r * ce * sa, r * ce * ca, r * se]])
-    cov = convert.ucm_covariance(p, np.array([sr]), np.array([saz]), np.array([sel]))[0]
+    cov = polar.ucm_covariance(p, np.array([sr]), np.array([saz]), np.array([sel]))[0]
     # Entries are O(1) m^2 while the terms subtracted are O(r^2) = 2.5e7 m^2, so the
     # comparison is limited by cancellation (~1e-16 * 2.5e7 * few) and O(s^2) terms.
     np.testing.assert_allclose(cov, lin, rtol=1e-3, atol=1e-3)
@@ -146,10 +146,10 @@ def test_compass_axes():
     r = np.array([100.0, 100.0, 100.0, 100.0])
     az = np.array([0.0, math.pi / 2, math.pi, 0.0])
     el = np.array([0.0, 0.0, 0.0, math.pi / 2])
-    p = convert.polar_to_cartesian(r, az, el)
+    p = polar.polar_to_cartesian(r, az, el)
     np.testing.assert_allclose(p, [[0, 100, 0], [100, 0, 0], [0, -100, 0], [0, 0, 100]],
                                atol=1e-12)
-    p2 = convert.polar_to_cartesian(r[:3], az[:3], None)
+    p2 = polar.polar_to_cartesian(r[:3], az[:3], None)
     np.testing.assert_allclose(p2, [[0, 100], [100, 0], [0, -100]], atol=1e-12)
 
 
@@ -159,11 +159,11 @@ def test_polar_to_cartesian_matches_protocol_formula():
     r = rng.uniform(1.0, 1e5, 1000)
     az = rng.uniform(-math.pi, math.pi, 1000)
     el = rng.uniform(-1.5, 1.5, 1000)
-    p = convert.polar_to_cartesian(r, az, el)
+    p = polar.polar_to_cartesian(r, az, el)
     expected = np.stack([r * np.cos(el) * np.sin(az), r * np.cos(el) * np.cos(az),
                          r * np.sin(el)], -1)
     np.testing.assert_allclose(p, expected, rtol=1e-13, atol=1e-9)
-    p2 = convert.polar_to_cartesian(r, az, None)
+    p2 = polar.polar_to_cartesian(r, az, None)
     np.testing.assert_allclose(p2, np.stack([r * np.sin(az), r * np.cos(az)], -1),
                                rtol=1e-13, atol=1e-9)
 
@@ -173,11 +173,11 @@ def test_round_trip_3d_and_2d():
     r = rng.uniform(1.0, 1e5, 1000)
     az = rng.uniform(-math.pi + 1e-6, math.pi, 1000)  # arctan2 range (-pi, pi]
     el = rng.uniform(-1.55, 1.55, 1000)
-    r2, az2, el2 = convert.cartesian_to_polar(convert.polar_to_cartesian(r, az, el))
+    r2, az2, el2 = polar.cartesian_to_polar(polar.polar_to_cartesian(r, az, el))
     np.testing.assert_allclose(r2, r, rtol=1e-12)
     np.testing.assert_allclose(az2, az, atol=1e-9)
     np.testing.assert_allclose(el2, el, atol=1e-12)
-    r3, az3, el3 = convert.cartesian_to_polar(convert.polar_to_cartesian(r, az, None))
+    r3, az3, el3 = polar.cartesian_to_polar(polar.polar_to_cartesian(r, az, None))
     assert el3 is None
     np.testing.assert_allclose(r3, r, rtol=1e-12)
     np.testing.assert_allclose(az3, az, atol=1e-12)
@@ -186,11 +186,11 @@ def test_round_trip_3d_and_2d():
 def test_cartesian_to_polar_hand_values():
     # (3, 4, 12): r = 13; az = atan2(x=3, y=4) (east of north); el = atan2(12, 5).
     # (-1, -1): south-west, az = -3 pi / 4.
-    r, az, el = convert.cartesian_to_polar(np.array([[3.0, 4.0, 12.0]]))
+    r, az, el = polar.cartesian_to_polar(np.array([[3.0, 4.0, 12.0]]))
     np.testing.assert_allclose(r, [13.0])
     np.testing.assert_allclose(az, [math.atan2(3.0, 4.0)])
     np.testing.assert_allclose(el, [math.atan2(12.0, 5.0)])
-    r, az, el = convert.cartesian_to_polar(np.array([[-1.0, -1.0]]))
+    r, az, el = polar.cartesian_to_polar(np.array([[-1.0, -1.0]]))
     np.testing.assert_allclose(r, [math.sqrt(2.0)])
     np.testing.assert_allclose(az, [-3 * math.pi / 4])
     assert el is None
@@ -200,13 +200,13 @@ def test_unbiased_divides_by_bias_factors():
     # lb = exp(-saz^2/2), le = exp(-sel^2/2): x, y divided by lb le, z by le.
     r, az, el, saz, sel = 1000.0, 0.5, 0.3, 0.2, 0.1
     lb, le = math.exp(-0.02), math.exp(-0.005)
-    z = convert.unbiased(np.array([r]), np.array([az]), np.array([el]), np.array([saz]),
+    z = polar.unbiased(np.array([r]), np.array([az]), np.array([el]), np.array([saz]),
                          np.array([sel]))[0]
     ce = math.cos(el)
     np.testing.assert_allclose(z, [r * ce * math.sin(az) / (lb * le),
                                    r * ce * math.cos(az) / (lb * le),
                                    r * math.sin(el) / le], rtol=1e-13)
-    z2 = convert.unbiased(np.array([r]), np.array([az]), None, np.array([saz]), None)[0]
+    z2 = polar.unbiased(np.array([r]), np.array([az]), None, np.array([saz]), None)[0]
     np.testing.assert_allclose(z2, [r * math.sin(az) / lb, r * math.cos(az) / lb], rtol=1e-13)
 
 
@@ -215,8 +215,8 @@ def test_expected_covariance_tends_to_r_at_mean_for_a_tight_prediction():
     # equals R at the predicted point (the decorrelated UCM of Bordonaro et al.).
     p = np.array([[3000.0, -8000.0, 4000.0]])
     args = (np.array([50.0]), np.array([0.01]), np.array([0.01]))
-    r0 = convert.ucm_covariance(p, *args)
-    r1 = convert.ucm_covariance_expected(p, np.eye(3)[None] * 1e-4, *args,
+    r0 = polar.ucm_covariance(p, *args)
+    r1 = ucm.ucm_covariance_expected(p, np.eye(3)[None] * 1e-4, *args,
                                          np.array([2.0]))
     np.testing.assert_allclose(r1, r0, rtol=1e-6)
 
@@ -232,14 +232,14 @@ def test_expected_covariance_near_zenith_matches_monte_carlo():
     cov = np.diag([60.0**2, 60.0**2, 10.0**2])
     truth = mean + rng.standard_normal((n, 3)) @ np.sqrt(cov)
     sr, sa = 50.0, np.radians(0.5)
-    r, az, el = convert.cartesian_to_polar(truth)
+    r, az, el = polar.cartesian_to_polar(truth)
     rm, am, em = (r + sr * rng.standard_normal(n), az + sa * rng.standard_normal(n),
                   el + sa * rng.standard_normal(n))
-    z = convert.unbiased(rm, am, em, np.full(n, sa), np.full(n, sa))
+    z = polar.unbiased(rm, am, em, np.full(n, sa), np.full(n, sa))
     sel = np.abs(np.angle(np.exp(1j * (am - np.radians(30))))) < np.radians(2)
     err = (z - truth)[sel]
     mc = np.cov(err.T)
-    got = convert.ucm_covariance_expected(mean[None], cov[None], np.array([sr]),
+    got = ucm.ucm_covariance_expected(mean[None], cov[None], np.array([sr]),
                                           np.array([sa]), np.array([sa]),
                                           np.array([np.radians(30)]))[0]
     scale = np.sqrt(np.trace(mc))

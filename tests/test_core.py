@@ -9,9 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from service import convert, filters, kalman, models, work
-from service.table import measurement_arrays
-from service.validate import Measurement
+from service.estimation import filters, kalman, linalg, models, polar, scratch
+from service.estimation.measurements import MeasurementBatch
+from service.estimation.ucm import cmkf_arrays
+from service.wire import Measurement
 
 
 def polar3(target: str, t: float, r: float, az: float, el: float,
@@ -26,21 +27,21 @@ def cart3(target: str, t: float, pos: tuple[float, float, float]) -> Measurement
 def test_batch_columns_from_records():
     meas = [polar3("a", 1.0, 5000.0, 0.3, 0.1, (1.0, 2.0, 3.0)),
             cart3("b", 2.0, (10.0, 20.0, 30.0))]
-    b = convert.MeasurementBatch.of(meas, 3)
+    b = MeasurementBatch.of(meas, 3)
     assert len(b) == 2 and b.dim == 3
     np.testing.assert_array_equal(b.t, [1.0, 2.0])
     np.testing.assert_array_equal(b.polar, [True, False])
     np.testing.assert_array_equal(b.values, [[5000.0, 0.3, 0.1], [10.0, 20.0, 30.0]])
     np.testing.assert_array_equal(b.sigmas, [[15.0, 0.004, 0.006], [3.0, 4.0, 5.0]])
     np.testing.assert_array_equal(b.origin, [[1.0, 2.0, 3.0], [0.0, 0.0, 0.0]])
-    empty = convert.MeasurementBatch.of([], 3)
+    empty = MeasurementBatch.of([], 3)
     assert len(empty) == 0 and empty.values.shape == (0, 3)
 
 
 def test_batch_rejects_mixed_dimensions():
     two = Measurement("s", "c", 0.0, 2, False, (1.0, 2.0), (1.0, 1.0), (0.0, 0.0, 0.0), None)
     with pytest.raises(ValueError, match="mixed dimensions"):
-        convert.MeasurementBatch.of([cart3("a", 0.0, (1.0, 2.0, 3.0)), two], 3)
+        MeasurementBatch.of([cart3("a", 0.0, (1.0, 2.0, 3.0)), two], 3)
 
 
 def scene(n: int, order: int, seed: int = 1):
@@ -65,10 +66,10 @@ def scene(n: int, order: int, seed: int = 1):
             meas.append(cart3(f"t{i}", dt[i], tuple(truth.tolist())))
         else:
             origin = tuple(rng.uniform(-500.0, 500.0, 3).tolist())
-            r, az, el = convert.cartesian_to_polar((truth - origin)[None])
+            r, az, el = polar.cartesian_to_polar((truth - origin)[None])
             meas.append(polar3(f"t{i}", dt[i], float(r[0]), float(az[0]), float(el[0]),
                                origin))
-    return x, p, dt, convert.MeasurementBatch.of(meas, dim)
+    return x, p, dt, MeasurementBatch.of(meas, dim)
 
 
 @pytest.mark.parametrize("order", [2, 3])
@@ -77,7 +78,7 @@ def test_cmkf_step_equals_the_parts(order):
     q = 0.7
     xn, pn, nis, ok = filters.cmkf_step(x, p, dt, order, 3, q, batch)
     xp, pp = models.predict(x, p, dt, order, 3, q)
-    z, r = measurement_arrays(batch, 3, xp[:, :3], pp[:, :3, :3])
+    z, r = cmkf_arrays(batch, xp[:, :3], pp[:, :3, :3])
     xr, pr, nisr, okr = kalman.update(xp, pp, z, r)
     assert ok.all() and okr.all()
     np.testing.assert_allclose(xn, xr, rtol=1e-12, atol=1e-9)
@@ -89,8 +90,8 @@ def test_cmkf_step_equals_the_parts(order):
 def test_chunks_give_the_same_rows(monkeypatch):
     x, p, dt, batch = scene(23, 2)
     whole = filters.cmkf_step(x, p, dt, 2, 3, 1.0, batch)
-    monkeypatch.setattr(work, "CHUNK", 5)
-    assert work.chunks(23) == [(0, 4), (4, 9), (9, 13), (13, 18), (18, 23)]
+    monkeypatch.setattr(scratch, "CHUNK", 5)
+    assert scratch.chunks(23) == [(0, 4), (4, 9), (9, 13), (13, 18), (18, 23)]
     parts = filters.cmkf_step(x, p, dt, 2, 3, 1.0, batch)
     for a, b in zip(whole, parts, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-12)
@@ -99,7 +100,7 @@ def test_chunks_give_the_same_rows(monkeypatch):
 def test_joseph_update_matches_row_major_reference():
     # P+ = (I - KH) P (I - KH)' + K R K' with K = P H' S^-1 (S with the 1e-9 floor)
     x, p, dt, batch = scene(12, 2, seed=4)
-    z, r = measurement_arrays(batch, 3, x[:, :3], p[:, :3, :3])
+    z, r = cmkf_arrays(batch, x[:, :3], p[:, :3, :3])
     xn, pn, nis, _ = kalman.update(x, p, z, r)
     h = np.hstack([np.eye(3), np.zeros((3, 3))])
     for i in range(len(x)):
@@ -120,7 +121,7 @@ def test_expected_ucm_eigen_points_match_numpy_eigh():
     a = rng.normal(size=(200, 3, 3))
     cov = a @ a.transpose(0, 2, 1)
     cov[:50] = np.diag([400.0, 400.0 * (1 + 1e-9), 25.0])  # two almost equal
-    vals, vecs = convert._eigh(np.ascontiguousarray(cov.transpose(1, 2, 0)), 3)
+    vals, vecs = linalg.eigh(np.ascontiguousarray(cov.transpose(1, 2, 0)), 3)
     got = np.sort(np.array(vals).T, axis=1)
     want = np.linalg.eigvalsh(cov)
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * want.max())
@@ -132,8 +133,8 @@ def test_expected_ucm_eigen_points_match_numpy_eigh():
 
 
 def test_work_arrays_are_kept():
-    a = work.work("test.a", (2, 3), 50)
-    b = work.work("test.a", (2, 3), 50)
-    c = work.work("test.a", (2, 3), 20)
+    a = scratch.buffer("test.a", (2, 3), 50)
+    b = scratch.buffer("test.a", (2, 3), 50)
+    c = scratch.buffer("test.a", (2, 3), 20)
     assert a is b and c.base is a.base and c.flags.c_contiguous
     assert math.prod(c.shape) == 120

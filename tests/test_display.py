@@ -1,4 +1,4 @@
-"""Unit tests of service.display blending (pure NumPy through TrackTable, no Zenoh).
+"""Unit tests of the display state's blending (pure NumPy through the Tracker, no Zenoh).
 
 Frames are drawn as the lockstep service draws them: every display instant before a
 measurement's time is drawn from the states held before it is applied."""
@@ -10,9 +10,18 @@ import math
 import numpy as np
 import pytest
 
-from service import display
-from service.table import TableConfig, TrackTable
-from service.validate import Measurement
+from service.tracking import display
+from service.tracking.display import DisplayConfig
+from service.tracking.tracker import Tracker, TrackerConfig
+from service.wire import Measurement
+
+DISPLAY = {"blend", "blend_speed", "rate", "lag", "coast_after"}
+
+
+def make(**kw) -> Tracker:
+    """A tracker whose config takes the display's options too."""
+    disp = DisplayConfig(**{k: kw.pop(k) for k in list(kw) if k in DISPLAY})
+    return Tracker(TrackerConfig(**kw, display=disp))
 
 RATE = 30.0
 
@@ -22,14 +31,14 @@ def cart(target, t, pos):
                        (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), None)
 
 
-def replay(config: TableConfig, jumps: dict[str, float], t_jump: float = 4.0,
-           t_end: float = 5.0) -> tuple[TrackTable, np.ndarray, dict[str, np.ndarray],
+def replay(config: dict, jumps: dict[str, float], t_jump: float = 4.0,
+           t_end: float = 5.0) -> tuple[Tracker, np.ndarray, dict[str, np.ndarray],
                                         dict[str, list[str]]]:
     """Targets at 10 m/s along x, measured exactly at 1 Hz up to t_jump, where each
     target's measurement is displaced by jumps[target] metres along y (an unmodelled
     manoeuvre). Returns the table, frame instants in [3 s, t_end) and per target the
     drawn positions and what each frame shows."""
-    table = TrackTable(config)
+    table = make(**config)
     n = 3 * int(RATE)
     drawn: dict[str, list[np.ndarray]] = {k: [] for k in jumps}
     shown: dict[str, list[str]] = {k: [] for k in jumps}
@@ -49,16 +58,19 @@ def replay(config: TableConfig, jumps: dict[str, float], t_jump: float = 4.0,
     for k in range(int(t_jump) + 1):
         if k > 3:
             frames_until(k)
-        table.apply([cart(name, k, (10.0 * k, d if k >= t_jump else 0.0, 0.0))
+        table.track([cart(name, k, (10.0 * k, d if k >= t_jump else 0.0, 0.0))
                      for name, d in jumps.items()])
     frames_until(t_end)
     return table, np.array(instants), {k: np.array(v) for k, v in drawn.items()}, shown
 
 
-def estimate(table: TrackTable, name: str, t: np.ndarray) -> np.ndarray:
+def estimate(table: Tracker, name: str, t: np.ndarray) -> np.ndarray:
     """The filter's own prediction of a track (what plain prediction draws)."""
-    bank, row = table.where[name]
-    xs, _ = display.predicted(bank, np.full(len(t), row), t, table.config.q)
+    arrays, row = table.store.where[name]
+    rows = np.full(len(t), row)
+    axis_cov = table.display.columns(arrays).axis_cov[rows]
+    xs, _ = display.predicted(arrays.x[rows], arrays.t[rows], axis_cov, t, table.config.q,
+                              arrays.order, arrays.dim)
     return xs[:, 0]
 
 
@@ -77,7 +89,7 @@ def test_blend_period_speed_period_and_both():
 def test_speed_limit_bounds_every_step_and_absorbs_small_corrections_at_once():
     speed = 2.4
     jumps = {"big": 0.9, "small": 0.05, "none": 0.0}  # three rows of one bank
-    table, t, drawn, shown = replay(TableConfig(order=2, q=0.1, blend_speed=speed), jumps)
+    table, t, drawn, shown = replay(dict(order=2, q=0.1, blend_speed=speed), jumps)
     after = t >= 4.0 - 1e-9
     step_max = speed / RATE
     for name in jumps:
@@ -104,7 +116,7 @@ def test_speed_limit_bounds_every_step_and_absorbs_small_corrections_at_once():
 
 def test_fixed_period_holds_every_correction_equally_long():
     jumps = {"big": 0.9, "small": 0.05}
-    table, t, _, shown = replay(TableConfig(order=2, q=0.1, blend=0.35), jumps)
+    table, t, _, shown = replay(dict(order=2, q=0.1, blend=0.35), jumps)
     after = t >= 4.0 - 1e-9
     counts = {k: int((np.array(v)[after] == "blend").sum()) for k, v in shown.items()}
     assert counts["big"] == counts["small"] == math.ceil(0.35 * RATE) - 1
@@ -114,8 +126,8 @@ def test_fixed_period_holds_every_correction_equally_long():
                                     dict(blend_speed=2.4, blend=0.21)])
 def test_blending_leaves_the_filter_output_alone(config):
     jumps = {"a": 0.9}
-    plain, t, drawn_plain, _ = replay(TableConfig(order=2, q=0.1), jumps)
-    blended, _, drawn, _ = replay(TableConfig(order=2, q=0.1, **config), jumps)
+    plain, t, drawn_plain, _ = replay(dict(order=2, q=0.1), jumps)
+    blended, _, drawn, _ = replay(dict(order=2, q=0.1, **config), jumps)
     assert plain.state("a") == blended.state("a")  # tracks/ carries the raw filter output
     before = t < 4.0 - 1e-9
     np.testing.assert_allclose(drawn["a"][before], drawn_plain["a"][before], atol=1e-6)
@@ -124,7 +136,7 @@ def test_blending_leaves_the_filter_output_alone(config):
 
 def test_period_caps_the_speed_limit():
     jumps = {"a": 0.9}
-    _, t, _, shown = replay(TableConfig(order=2, q=0.1, blend_speed=2.4, blend=0.21), jumps)
+    _, t, _, shown = replay(dict(order=2, q=0.1, blend_speed=2.4, blend=0.21), jumps)
     after = t >= 4.0 - 1e-9
     assert int((np.array(shown["a"])[after] == "blend").sum()) == math.ceil(0.21 * RATE) - 1
 
@@ -132,12 +144,12 @@ def test_period_caps_the_speed_limit():
 def test_tentative_tracks_snap_to_their_first_estimates():
     # a CA track is tentative until its third update: the one-point start (velocity 0)
     # is no display state worth blending from, so the second update is drawn at once
-    table = TrackTable(TableConfig(order=3, q=0.5, blend_speed=2.4))
-    table.apply([cart("a", 0.0, (0.0, 0.0, 0.0))])
-    table.apply([cart("a", 1.0, (10.0, 0.0, 0.0))])
+    table = make(order=3, q=0.5, blend_speed=2.4)
+    table.track([cart("a", 0.0, (0.0, 0.0, 0.0))])
+    table.track([cart("a", 1.0, (10.0, 0.0, 0.0))])
     snap = table.snapshot(1.0)
     assert snap.shown == ["prediction"]
     np.testing.assert_allclose(snap.pos[0], [10.0, 0.0, 0.0], atol=1e-9)
-    table.apply([cart("a", 2.0, (20.0, 0.0, 0.0))])
-    table.apply([cart("a", 3.0, (31.0, 0.0, 0.0))])  # confirmed: a 1 m surprise blends
+    table.track([cart("a", 2.0, (20.0, 0.0, 0.0))])
+    table.track([cart("a", 3.0, (31.0, 0.0, 0.0))])  # confirmed: a 1 m surprise blends
     assert table.snapshot(3.0).shown == ["blend"]

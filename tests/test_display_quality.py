@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from conftest import Collector
 
-from clients import eval as track_eval
+from clients import evaluate as track_eval
 
 SPEED = "2.4"  # m/s: at most 0.08 m per frame beyond the track's own motion at 30 Hz
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from clients import eval as track_eval
+from clients import evaluate as track_eval
 from clients import metrics
 
 RUNS, SEED = 20, 1

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from clients import eval as track_eval
+from clients import evaluate as track_eval
 from clients.intercept import (
     Interceptor,
     Interceptors,
@@ -160,7 +160,7 @@ FILTERS = service_filters()
 # (service arguments, allowed mean capture time over the physical limit). Measured with
 # 5 runs, seed 0: the default filter (IMM since 0c9ac8e; CV before: 645 s, +7.6 %)
 # 646 s (+7.8 %): its velocity lags the slow turn, so the collision course aims short;
-# the IMM at scenario C's low process noise (clients.eval.SERVICE_ARGS) 618 s (+3.1 %).
+# the IMM at scenario C's low process noise (clients.evaluate.SERVICE_ARGS) 618 s (+3.1 %).
 CASES = [pytest.param([], 0.10, id="default-filter")]
 if "imm" in FILTERS:
     CASES.append(pytest.param(["--filter", "imm", *track_eval.SERVICE_ARGS["maneuver"]],

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service import kalman
+from service.estimation import kalman
 
 RTOL = 1e-8
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clients import eval as track_eval
+from clients import evaluate as track_eval
 
 RUNS, SEED = 20, 3
 

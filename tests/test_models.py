@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service import models
+from service.estimation import models
 
 DT = np.array([2.0])
 Q_STD = 3.0

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.wire import pack, pack_displays, unpack
+from service.encode import pack_displays, pack_frame, pack_tracks
+from service.wire import pack, unpack
 
 
 def test_pack_displays_decodes_to_the_same_maps_as_pack():
@@ -28,7 +29,6 @@ def test_pack_displays_decodes_to_the_same_maps_as_pack():
 
 
 def test_pack_tracks_decodes_to_the_same_maps_as_pack():
-    from service.wire import pack_tracks
     rng = np.random.default_rng(4)
     n, k = 3, 6
     t, x, p = rng.random(n) * 100, rng.normal(size=(n, k)), rng.normal(size=(n, k * k))
@@ -47,7 +47,6 @@ def test_pack_tracks_decodes_to_the_same_maps_as_pack():
 
 
 def test_pack_frame_decodes_to_the_same_map_as_pack():
-    from service.wire import pack_frame
     ids = ["a", "b" * 40]
     pos, vel, sigma = np.arange(6.0).reshape(2, 3), -np.arange(6.0).reshape(2, 3), np.ones(2)
     want = {"t": 2.5, "ids": ids, "pos": pos.astype("<f8").tobytes(),
