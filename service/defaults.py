@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 # ---------------------------------------------------------------- display
-RATE = 30.0  # Hz: display instants n / RATE (PROTOCOL.md)
+RATE = 30.0  # Hz: display instants n / RATE (docs/protocol.md)
 CLOCK = "realtime"  # or "lockstep"
 BLEND = 0.0  # s: absorb a correction over this period (0: plain prediction)
 BLEND_SPEED = 0.0  # m/s: absorb a correction at this speed (0: no speed limit)
@@ -33,7 +33,7 @@ COAST_AFTER = 2.5  # coasting once the age exceeds this many of the track's scan
 DELETE_AFTER = 30.0  # s of simulation time without a measurement
 
 # ---------------------------------------------------------------- sensor noise
-# used when a measurement gives none (PROTOCOL.md: the service's configured defaults)
+# used when a measurement gives none (docs/protocol.md: the service's configured defaults)
 SR = 10.0  # m: range
 SAZ = math.radians(0.5)  # rad: azimuth
 SEL = math.radians(0.5)  # rad: elevation

@@ -1,4 +1,4 @@
-"""The EKF baseline's measurement terms (SCENARIOS.md, B): polar measurements kept polar
+"""The EKF baseline's measurement terms (docs/scenarios.md, B): polar measurements kept polar
 and linearised at the prediction; the CMKF's converted measurements are in `ucm`."""
 
 from __future__ import annotations

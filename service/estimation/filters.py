@@ -11,7 +11,7 @@ and update are fused per batch. Pure NumPy, no Zenoh.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -27,14 +27,18 @@ Convert = Callable[[np.ndarray, np.ndarray], tuple]
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # x, P, nis, ok
 
 
-@dataclass
+@dataclass(frozen=True)
 class SingleModelFilter:
     """One motion model ("cv" or "ca") with the CMKF, or the EKF on polar input."""
 
     kind: str = "cv"
     q: float = 1.0
     order: int = 2
-    fields: dict[str, tuple] = field(default_factory=dict)
+
+    @property
+    def fields(self) -> dict[str, tuple]:
+        """Per-row arrays this filter keeps in the track store: none."""
+        return {}
 
     def initiate(self, arrays: Any, rows: np.ndarray) -> None:
         """Nothing beyond the table's own x and P."""

@@ -23,7 +23,7 @@ def standard_modes(q: float = defaults.Q_CV, ct_q: float = defaults.IMM_CT_Q,
             ("ct+", "ct", ct_q * q, w), ("ct-", "ct", ct_q * q, -w))
 
 
-@dataclass
+@dataclass(frozen=True)
 class IMM:
     """Interacting multiple model filter (Blom & Bar-Shalom 1988; Bar-Shalom, Li &
     Kirubarajan 2001, sec. 11.6.6) on converted measurements, vectorised over rows.
@@ -37,11 +37,13 @@ class IMM:
         default_factory=lambda: standard_modes())
     sojourn: float = defaults.IMM_SOJOURN
     order: int = 3
-    fields: dict[str, tuple] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
+    @property
+    def fields(self) -> dict[str, tuple]:
+        """Per-row arrays kept in the track store: each mode's state, covariance and
+        probability."""
         m = len(self.modes)
-        self.fields = {"mode_x": ("n", m), "mode_p": ("nn", m), "mode_prob": ("", m)}
+        return {"mode_x": ("n", m), "mode_p": ("nn", m), "mode_prob": ("", m)}
 
     def initiate(self, arrays: Any, rows: np.ndarray) -> None:
         arrays.mode_x[rows] = arrays.x[rows, None]

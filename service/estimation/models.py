@@ -1,6 +1,6 @@
 """Kinematic motion models on stacked arrays (no Zenoh, no per-track objects).
 
-State layout (PROTOCOL.md): position, velocity[, acceleration], each block `dim` long,
+State layout (docs/protocol.md): position, velocity[, acceleration], each block `dim` long,
 so x = kron(derivative order, axis). A model of `order` 2 is nearly-constant velocity
 (CV), order 3 nearly-constant acceleration (CA). Process noise is the discrete
 piecewise-constant white noise of the next derivative (Bar-Shalom, Li & Kirubarajan

@@ -1,4 +1,4 @@
-"""Polar radar geometry: compass azimuth (PROTOCOL.md: x = r cos el sin az,
+"""Polar radar geometry: compass azimuth (docs/protocol.md: x = r cos el sin az,
 y = r cos el cos az, z = r sin el; the math-convention bearing is pi/2 - az), the
 unbiased converted measurement (UCM) and its error covariance at a known position (Mo,
 Song, Zhou, Sun & Bar-Shalom, IEEE TAES 34(3), 1998), and the EKF's linearised terms.
@@ -89,7 +89,7 @@ def polar_linearised(rel: np.ndarray, meas: np.ndarray
     predicted measurement h(rel) = (r, az[, el]), its Jacobian (N, d, d) with respect to
     the position, and the measurement with its azimuth unwrapped to lie within pi of the
     prediction. Near the zenith the 1/rho^2 azimuth terms blow up: that is the EKF's
-    weakness this baseline exists to show (SCENARIOS.md, B)."""
+    weakness this baseline exists to show (docs/scenarios.md, B)."""
     r, az, el = cartesian_to_polar(rel)
     x, y = rel[:, 0], rel[:, 1]
     rho2 = x**2 + y**2

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -12,7 +12,7 @@ from . import kalman, models
 from .filters import Convert, Result, predict
 
 
-@dataclass
+@dataclass(frozen=True)
 class VDF:
     """Variable-dimension filter (Bar-Shalom & Birmiwal, IEEE TAES 18(5), 1982; Bar-Shalom,
     Li & Kirubarajan 2001, sec. 11.4), as scenario C specifies it.
@@ -33,11 +33,13 @@ class VDF:
     accel_prior: float = 1.0  # m/s^2, std of the acceleration at a CA restart
     window: int = 5
     order: int = 3
-    fields: dict[str, tuple] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
+    @property
+    def fields(self) -> dict[str, tuple]:
+        """Per-row arrays kept in the track store: the model in use, the detector's
+        state, and the last `window` + 1 updates (for the CA restart)."""
         w = self.window + 1
-        self.fields = {"ca": ("", None), "armed": ("", None), "rho": ("", None),
+        return {"ca": ("", None), "armed": ("", None), "rho": ("", None),
                        "hist_x": ("n", w), "hist_p": ("nn", w), "hist_z": ("d", w),
                        "hist_r": ("dd", w), "hist_t": ("", w), "hist_count": ("", None)}
 

@@ -1,4 +1,4 @@
-"""Display clocks: which display instants n / rate to publish, and when (PROTOCOL.md).
+"""Display clocks: which display instants n / rate to publish, and when (docs/protocol.md).
 
 `Lockstep` follows the simulation time of the inputs; `Realtime` follows the wall clock,
 with simulation time = wall time + an offset learned from the inputs.

@@ -1,4 +1,4 @@
-"""The wire contract (PROTOCOL.md version 1, docs/protocol.md): keys, MessagePack codecs,
+"""The wire contract (version 1, docs/protocol.md): keys, MessagePack codecs,
 the checks of input messages and the Zenoh session options.
 
 The one package that both the service and the clients import. It needs only msgpack
@@ -13,6 +13,7 @@ from .session import (
     BLOCK_WAIT_US,
     DEFAULT_ENDPOINT,
     add_zenoh_args,
+    free_port,
     open_session,
     patient,
     peer_config,
@@ -23,7 +24,7 @@ from .session import (
 __all__ = [
     "BLOCK_WAIT_US", "CHUNK", "DEFAULT_ENDPOINT", "DEFAULT_NS", "PROTOCOL_VERSION", "SHOWN",
     "STATUSES", "Keys", "Measurement", "Rejected", "add_zenoh_args", "decode_frame",
-    "decode_map", "f64_bin", "f64_list", "open_session", "pack", "parse_clock", "parse_full",
-    "parse_measurement", "patient", "peer_config", "unpack", "wait_for_tracker",
+    "decode_map", "f64_bin", "f64_list", "free_port", "open_session", "pack", "parse_clock",
+    "parse_full", "parse_measurement", "patient", "peer_config", "unpack", "wait_for_tracker",
     "zenoh_config",
 ]

@@ -1,4 +1,4 @@
-"""Key expressions of the contract (PROTOCOL.md, docs/protocol.md) and its constants."""
+"""Key expressions of the contract (docs/protocol.md) and its constants."""
 
 from __future__ import annotations
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import socket
 from typing import Any
 
 from .keys import DEFAULT_NS, Keys
@@ -23,6 +24,14 @@ def add_zenoh_args(parser: argparse.ArgumentParser, ns: bool = True) -> None:
     g.add_argument("-c", "--config", metavar="FILE.json5", help="Zenoh configuration file")
     if ns:
         g.add_argument("--ns", default=DEFAULT_NS, help="key namespace (default %(default)s)")
+
+
+def free_port() -> int:
+    """A TCP port that is free on 127.0.0.1 now (bound to port 0, then released), for the
+    loopback endpoint `tcp/127.0.0.1:<port>` of a process about to be started."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def zenoh_config(args: argparse.Namespace, serve: bool = False) -> Any:
@@ -70,7 +79,7 @@ BLOCK_WAIT_US = 600_000_000  # 10 minutes
 def patient(conf: Any) -> Any:
     """Let BLOCK puts wait for a slow receiver instead of closing its link after Zenoh's
     default 5 s of blocked transmission (which loses data): for lockstep services and
-    for feeds, which must drop nothing (PROTOCOL.md)."""
+    for feeds, which must drop nothing (docs/protocol.md)."""
     conf.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close",
                       str(BLOCK_WAIT_US))
     return conf

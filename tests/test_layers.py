@@ -1,0 +1,117 @@
+"""The data's way is one direction (docs/architecture.md): wire contract -> estimation ->
+tracking -> the Zenoh adapter -> clients. Every import of the product's modules is read
+from the source and checked against the rules; the wire package is also imported in a
+fresh interpreter to show it loads neither NumPy nor Zenoh."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+STDLIB = set(sys.stdlib_module_names) | {"__future__"}
+
+# package -> (allowed third-party top-level modules, allowed service sub-packages/modules)
+RULES: dict[str, tuple[set[str], set[str]]] = {
+    "service.wire": ({"msgpack", "zenoh"}, {"service.wire"}),
+    "service.defaults": (set(), set()),
+    "service.estimation": ({"numpy"}, {"service.estimation", "service.wire",
+                                       "service.defaults"}),
+    "service.tracking": ({"numpy", "scipy"}, {"service.tracking", "service.estimation",
+                                              "service.wire", "service.defaults"}),
+    "clients": ({"numpy", "zenoh", "msgpack", "matplotlib"}, {"service.wire", "clients"}),
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path) -> list[str]:
+    """Every module the file imports (relative imports resolved), wherever it stands."""
+    name = module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+                # `from . import x`: x may be a module of the package
+                out += [f"{mod}.{a.name}" for a in node.names] if not node.module else [mod]
+            else:
+                out.append(node.module or "")
+    return out
+
+
+def rule_for(name: str) -> tuple[str, tuple[set[str], set[str]]] | None:
+    for prefix, rule in RULES.items():
+        if name == prefix or name.startswith(prefix + "."):
+            return prefix, rule
+    return None
+
+
+def under(name: str, allowed: set[str]) -> bool:
+    return any(name == a or name.startswith(a + ".") for a in allowed)
+
+
+FILES = sorted(p for d in ("service", "clients") for p in (ROOT / d).rglob("*.py"))
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_imports_follow_the_layers(path: Path) -> None:
+    found = rule_for(module_name(path))
+    if found is None:  # the adapter (service.node, service.encode, service.__main__)
+        return
+    _, (third_party, ours) = found
+    bad = []
+    for imp in imports(path):
+        top = imp.split(".")[0]
+        if top in STDLIB:
+            continue
+        if top in ("service", "clients"):
+            ok = under(imp, ours) or (imp == "service" and "service.wire" in ours)
+        else:
+            ok = top in third_party
+        if not ok:
+            bad.append(imp)
+    assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+
+
+def test_the_rules_catch_a_wrong_import(tmp_path: Path) -> None:
+    """The checker itself: an estimation module importing tracking is reported."""
+    rule = rule_for("service.estimation.kalman")
+    assert rule is not None
+    _, (_, ours) = rule
+    assert not under("service.tracking.store", ours)
+    assert not under("zenoh", ours)
+    assert under("service.wire", ours)
+    assert rule_for("service.node") is None
+
+
+def test_every_layer_has_files() -> None:
+    """The rules are not vacuous: each governed package has modules that were checked."""
+    names = {module_name(p) for p in FILES}
+    for prefix in RULES:
+        assert any(n == prefix or n.startswith(prefix + ".") for n in names), prefix
+
+
+def test_wire_and_estimation_load_without_zenoh() -> None:
+    """In a fresh interpreter: the wire package pulls in neither NumPy nor Zenoh, and the
+    estimation and tracking packages do not pull in Zenoh."""
+    code = (
+        "import sys\n"
+        "import service.wire\n"
+        "assert 'numpy' not in sys.modules and 'zenoh' not in sys.modules, 'wire'\n"
+        "import service.estimation.filters, service.estimation.imm, service.estimation.vdf\n"
+        "import service.tracking.tracker\n"
+        "assert 'zenoh' not in sys.modules, 'estimation/tracking'\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
