@@ -59,7 +59,6 @@ import math
 import os
 import platform
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -76,19 +75,15 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout
 
-from service.wire import Keys, unpack, wait_for_tracker  # noqa: E402
+from clients.procs import stop  # noqa: E402
+from service.wire import Keys, free_port, unpack, wait_for_tracker  # noqa: E402
 
 CLK = os.sysconf("SC_CLK_TCK")
 RATE = 30.0
+STOP_WAIT = 20.0  # s a process is given to exit on SIGTERM before it is killed
 
 
 # ---------------------------------------------------------------- /proc
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _stat_fields(path: str) -> list[str]:
     with open(path) as f:
         text = f.read()
@@ -166,18 +161,6 @@ def head(payload: bytes) -> tuple[float, int]:
 def pct(a: np.ndarray | list, q: float) -> float:
     a = np.asarray(a, float)
     return float(np.percentile(a, q)) if a.size else float("nan")
-
-
-def stop(proc: subprocess.Popen | None, timeout: float = 20.0) -> None:
-    """Terminate, wait, then kill."""
-    if proc is None or proc.poll() is not None:
-        return
-    proc.terminate()
-    try:
-        proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(timeout=timeout)
 
 
 def sample_suffix(n: int, sample: int) -> tuple[str, int]:
@@ -359,7 +342,7 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
             feed.wait(timeout=duration + args.feed_timeout)
         except subprocess.TimeoutExpired:
             res["feed_timeout"] = True
-            stop(feed)
+            stop(feed, timeout=STOP_WAIT)
         feed_end = time.time()
         time.sleep(args.tail)  # let the service drain what it has queued
         res["final_status"] = poller.ask(timeout=10)[2]
@@ -378,8 +361,8 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
             poller.halt.set()
         if sampler is not None:
             sampler.halt.set()
-        stop(feed)
-        stop(svc)
+        stop(feed, timeout=STOP_WAIT)
+        stop(svc, timeout=STOP_WAIT)
         if session is not None:
             session.close()
         if svc is not None and svc.returncode not in (0, -15, None):

@@ -7,15 +7,12 @@ of a scenario, and the terminal display; Ctrl-C stops all three.
 from __future__ import annotations
 
 import argparse
-import socket
 import subprocess
 import sys
 
+from service.wire import free_port
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from .procs import stop
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -40,9 +37,7 @@ def main(argv: list[str] | None = None) -> None:
         pass
     finally:
         for proc in (feed, service):
-            proc.terminate()
-        for proc in (feed, service):
-            proc.wait(timeout=10)
+            stop(proc, timeout=10)
 
 
 if __name__ == "__main__":

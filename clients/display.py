@@ -37,13 +37,10 @@ def main(argv: list[str] | None = None) -> None:
     add_zenoh_args(p)
     p.add_argument("--hz", type=float, default=4.0, help="screen refresh rate")
     p.add_argument("--max-rows", type=int, default=40)
-    p.add_argument("--exit-after", type=float, default=0.0,
-                   help="print the table once after this many seconds of data and exit")
     args = p.parse_args(argv)
     keys = Keys(args.ns)
     rows: dict[str, dict[str, Any]] = {}
     lock = threading.Lock()
-    first = threading.Event()
 
     def on_sample(s: Any) -> None:
         tid = str(s.key_expr).rsplit("/", 1)[-1]
@@ -56,17 +53,10 @@ def main(argv: list[str] | None = None) -> None:
                 rows[tid] = {k: msg[k] for k in ("t", "pos", "vel", "sigma", "status", "age")}
             except (ValueError, KeyError, TypeError):
                 return
-        first.set()
 
     session = open_session(args)
     sub = session.declare_subscriber(keys.display("*"), on_sample)
     try:
-        if args.exit_after:
-            if first.wait(60):
-                time.sleep(args.exit_after)
-            with lock:
-                print(render(rows, args.ns, max((r["t"] for r in rows.values()), default=None)))
-            return
         while True:
             with lock:
                 shown = dict(sorted(rows.items())[: args.max_rows])

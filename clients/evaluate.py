@@ -11,13 +11,12 @@ maximum error and the largest visual jump.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
-import socket
 import subprocess
 import sys
 import threading
-import time
 import uuid
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,10 +24,11 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from service.wire import Keys, decode_frame, peer_config, unpack, wait_for_tracker
+from service.wire import Keys, decode_frame, free_port, peer_config, unpack, wait_for_tracker
 
 from . import feed, metrics, scenarios
 from .intercept import Interceptors, Law, summary_line
+from .procs import stop
 
 START = {"display": 3.0, "radar3d": 20.0, "maneuver": 20.0}  # s: after initiation
 # service options per scenario: scenario C's target has no process noise, only two
@@ -43,12 +43,6 @@ class Collected:
     interception: dict[str, dict] = field(default_factory=dict)  # guidance -> summary
 
 
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
-
-
 def run_through_service(scenario: str, runs: int, seed: int, service_args: list[str],
                         endpoint: str | None = None, ns: str | None = None,
                         intercept: list[str] | None = None) -> Collected:
@@ -58,13 +52,14 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
     ns = ns or f"eval{uuid.uuid4().hex[:8]}"
     proc = None
     if endpoint is None:
-        endpoint = free_endpoint()
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
         proc = subprocess.Popen([sys.executable, "-m", "service", "--clock", "lockstep",
                                  "-l", endpoint, "--ns", ns, *service_args],
                                 stdout=subprocess.DEVNULL)  # keep --json output clean
     keys = Keys(ns)
     out = Collected()
     done = threading.Event()
+    arrived = threading.Condition()  # notified by every tracks/ message
     scans = list(scenarios.SCENARIOS[scenario](runs=runs, seed=seed))
     rate = float(service_args[service_args.index("--rate") + 1]) \
         if "--rate" in service_args else 30.0
@@ -75,7 +70,9 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
     def on_track(s: Any) -> None:
         if s.kind == zenoh.SampleKind.PUT:
             m = unpack(s.payload.to_bytes())
-            out.tracks[(m["id"], round(m["t"], 6))] = m
+            with arrived:
+                out.tracks[(m["id"], round(m["t"], 6))] = m
+                arrived.notify_all()
 
     def on_frame(s: Any) -> None:
         m = unpack(s.payload.to_bytes())
@@ -102,24 +99,19 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
             ic.detach()
         if not done.wait(600):
             raise SystemExit("track-eval: the service did not publish the last frame")
-        deadline = time.monotonic() + 30
-        while len(out.tracks) < runs * len(scans) and time.monotonic() < deadline:
-            time.sleep(0.05)  # tracks/ and frame travel on separate keys
-        if len(out.tracks) < runs * len(scans):
-            print(f"track-eval: WARNING: {runs * len(scans) - len(out.tracks)} of "
-                  f"{runs * len(scans)} tracks/ messages missing; figures are partial",
-                  file=sys.stderr)
+        # tracks/ and frame travel on separate keys: the last tracks/ may still be on its way
+        expected = runs * len(scans)
+        with arrived:
+            arrived.wait_for(lambda: len(out.tracks) >= expected, timeout=30)
+            missing = expected - len(out.tracks)
+        if missing > 0:
+            print(f"track-eval: WARNING: {missing} of {expected} tracks/ messages missing; "
+                  "figures are partial", file=sys.stderr)
         for sub in subs:
             sub.undeclare()
     finally:
         session.close()
-        if proc is not None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(proc)
     return out
 
 
@@ -134,16 +126,20 @@ def truth_arrays(scenario: str, runs: int, seed: int) -> tuple[np.ndarray, np.nd
     return np.array(ts), np.array(states).transpose(1, 0, 2)
 
 
+@functools.cache
+def flight_a() -> scenarios.FlightA:
+    return scenarios.FlightA()
+
+
 def truth_at(scenario: str, ts: np.ndarray, states: np.ndarray, t: float) -> np.ndarray:
     """True positions (runs, 3) at any instant: scenario A from its flight model, B and C
     exactly by their piecewise-constant accelerations between scans."""
     if scenario == "display":
-        return np.repeat(scenarios.FlightA().state(t)[0], states.shape[0], axis=0)
-    k = int(np.clip(np.searchsorted(ts, t + 1e-9) - 1, 0, len(ts) - 1))
-    tau = t - ts[k]
-    p, v = states[:, k, :3], states[:, k, 3:]
-    a = (states[:, k + 1, 3:] - v) / (ts[k + 1] - ts[k]) if k + 1 < len(ts) else 0.0 * v
-    return p + v * tau + 0.5 * a * tau**2
+        return np.repeat(flight_a().state(t)[0], states.shape[0], axis=0)
+    pos, vel = states[..., :3].swapaxes(0, 1), states[..., 3:].swapaxes(0, 1)  # (K, runs, 3)
+    acc = np.zeros_like(vel)
+    acc[:-1] = np.diff(vel, axis=0) / np.diff(ts)[:, None, None]
+    return scenarios.interpolate(ts, pos, vel, acc, t)[0][0]
 
 
 # ---------------------------------------------------------------- evaluation
@@ -358,7 +354,7 @@ def plot_display(collected: dict[str, Collected], outdir: str,
     import matplotlib.pyplot as plt
 
     os.makedirs(outdir, exist_ok=True)
-    flight = scenarios.FlightA()
+    flight = flight_a()
     fig, ax = plt.subplots(3, len(spans), figsize=(10, 7), sharex="col")
     for label, col in collected.items():
         fr = sorted((t, trs[0]["pos"]) for t, trs in col.frames if trs)

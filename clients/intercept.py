@@ -70,6 +70,8 @@ import zenoh
 
 from service.wire import CHUNK, Keys, add_zenoh_args, open_session, pack, unpack
 
+from .scenarios import interpolate
+
 GUIDANCE = ("pure", "pn", "intercept")
 PN_FORMS = ("true", "pure")
 DEFAULT_START = (7000.0, 6000.0)
@@ -235,7 +237,8 @@ class Interceptor:
 # ---------------------------------------------------------------- truth
 class Truth:
     """True states of one target at scan instants, interpolated with constant acceleration
-    (the sample's `acc`, else the velocity difference to the next sample, else 0)."""
+    (the sample's `acc`, else the velocity difference to the next sample, else 0) by
+    clients.scenarios.interpolate."""
 
     def __init__(self) -> None:
         self.t: list[float] = []
@@ -272,14 +275,10 @@ class Truth:
 
     def pos(self, t: float | np.ndarray) -> np.ndarray:
         """True position(s) at t: (3,) for a float, (n, 3) for an array."""
-        tt = np.atleast_1d(np.asarray(t, dtype=float))
-        ts = np.asarray(self.t)
-        k = np.clip(np.searchsorted(ts, tt + EPS_T) - 1, 0, len(ts) - 1)
         P = np.stack([r[0] for r in self.rows])
         V = np.stack([r[1] for r in self.rows])
-        A = np.stack([self.acc(i) for i in range(len(ts))])
-        tau = (tt - ts[k])[:, None]
-        out = P[k] + V[k] * tau + 0.5 * A[k] * tau**2
+        A = np.stack([self.acc(i) for i in range(len(self.t))])
+        out = interpolate(np.asarray(self.t), P, V, A, t, eps=EPS_T)[0]
         return out if np.ndim(t) else out[0]
 
 
@@ -334,6 +333,7 @@ class Interceptors:
         self.token: Any = None
         self.error: BaseException | None = None
         self.until: float | None = None  # frames after this simulation time are ignored
+        self.pub_lock = threading.Lock()  # a publisher is not undeclared during its put
 
     # -------------------------------------------------------- wiring
     def attach(self, session: Any, keys: Keys, targets: Iterable[str] | None = None,
@@ -383,9 +383,11 @@ class Interceptors:
         if self.token is not None:
             self.token.undeclare()
             self.token = None
-        for p in self.pubs.values():
-            p.undeclare()
-        self.pubs = {}
+        with self.pub_lock:  # after a put under way; no publisher is declared after this
+            self.publish = False
+            for p in self.pubs.values():
+                p.undeclare()
+            self.pubs = {}
 
     # -------------------------------------------------------- samples
     def _wanted(self, tid: str) -> bool:
@@ -434,35 +436,48 @@ class Interceptors:
                 plane = st.planes[tid] = Interceptor(tid, self.law)
             moved = plane.frame(t, p, v)
             st.ended.discard(tid)
+            # wake wait() on the first frame (its idle limit starts) and when this target
+            # reaches the end (wait() may be done); not on every frame: a waiter woken that
+            # often would take the GIL and this lock from Zenoh's receive thread
+            wake = st.last_frame_wall is None or (
+                moved and self._at_end_locked(plane, self.until))
             st.last_frame_wall = time.monotonic()
             state = plane.display(self.name) if moved and self.publish else None
         if state is not None:
-            pub = self.pubs.get(tid)
-            if pub is None:
-                pub = self.pubs[tid] = self.session.declare_publisher(
-                    self.keys.display(f"{self.name}-{tid}"),
-                    congestion_control=zenoh.CongestionControl.BLOCK)
-            pub.put(pack(state))
+            with self.pub_lock:
+                if self.publish:
+                    pub = self.pubs.get(tid)
+                    if pub is None:
+                        pub = self.pubs[tid] = self.session.declare_publisher(
+                            self.keys.display(f"{self.name}-{tid}"),
+                            congestion_control=zenoh.CongestionControl.BLOCK)
+                    pub.put(pack(state))
+        if wake:  # once the frame's state is out
+            with self.cond:
+                self.cond.notify_all()
 
     # -------------------------------------------------------- completion
+    def _at_end_locked(self, plane: Interceptor, until: float | None) -> bool:
+        """Whether `plane` has had its frames up to `until`, or without it, every frame
+        strictly before the end the feed announced on `<ns>/clock` (unknown: False)."""
+        if plane.t is None:
+            return False
+        if until is not None:
+            return plane.t >= until - EPS_T
+        end = self.state.clock_end
+        # no frame before end is due any more
+        return end is not None and plane.t + max(plane.dt, EPS_T) >= end - EPS_T
+
     def _done_locked(self, until: float | None) -> bool:
         st = self.state
         if not st.planes:
             return False
         if self.targets is not None and not self.targets <= set(st.planes) | st.ended:
             return False
-        end = until if until is not None else st.clock_end
-        if end is None:
+        if until is None and st.clock_end is None:
             return False
-        for tid, plane in st.planes.items():
-            if tid in st.ended or plane.t is None:
-                continue
-            if until is not None:
-                if plane.t < until - EPS_T:
-                    return False
-            elif plane.t + max(plane.dt, EPS_T) < end - EPS_T:  # a frame before end is due
-                return False
-        return True
+        return all(self._at_end_locked(plane, until) for tid, plane in st.planes.items()
+                   if tid not in st.ended and plane.t is not None)
 
     def done(self, until: float | None = None) -> bool:
         """True once every target's frames reached `until`, or, without it, the end the
@@ -473,22 +488,32 @@ class Interceptors:
     def wait(self, until: float | None = None, timeout: float | None = None,
              idle: float | None = None, stop: threading.Event | None = None) -> bool:
         """Block until done(until), `timeout` s, `idle` s without a frame (after the first
-        one), or `stop` is set. Returns done(until). Frames after `until` are ignored."""
+        one), or `stop` is set. Returns done(until). Frames after `until` are ignored.
+
+        `stop` is not polled: whoever sets it must then call wake() (from another thread
+        than this one; a signal handler runs in the main thread: see main())."""
         deadline = None if timeout is None else time.monotonic() + timeout
         with self.cond:
             if until is not None:
                 self.until = until
             while not self._done_locked(until):
-                now = time.monotonic()
-                if deadline is not None and now >= deadline:
-                    break
                 if stop is not None and stop.is_set():
                     break
-                last = self.state.last_frame_wall
-                if idle and last is not None and now - last >= idle:
-                    break
-                self.cond.wait(0.1)  # frames do not notify: poll their progress
+                limits = [] if deadline is None else [deadline]
+                last = self.state.last_frame_wall  # moved on by every frame
+                if idle and last is not None:
+                    limits.append(last + idle)
+                wake_at = min(limits, default=None)
+                now = time.monotonic()
+                if wake_at is not None and now >= wake_at:
+                    break  # timeout, or idle
+                self.cond.wait(None if wake_at is None else wake_at - now)
             return self._done_locked(until)
+
+    def wake(self) -> None:
+        """Make wait() look at its conditions again (after its `stop` event was set)."""
+        with self.cond:
+            self.cond.notify_all()
 
     # -------------------------------------------------------- results
     def results(self) -> list[dict[str, Any]]:
@@ -630,17 +655,27 @@ def main(argv: list[str] | None = None) -> None:
               capture=args.capture, nav=args.nav, max_turn=math.radians(args.max_turn),
               pn_form=args.pn_form,
               hold=not args.no_hold)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    session = open_session(args)
     ic = Interceptors(law, name=args.name)
+    stop = threading.Event()
+
+    def on_signal(*_: Any) -> None:
+        stop.set()
+        ic.wake()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    session = open_session(args)
     try:
         ic.attach(session, Keys(args.ns), targets=args.target or None,
                   like=args.targets_like, truth=args.truth,
                   token=args.instance or uuid.uuid4().hex[:8])
         print("track-intercept: ready", file=sys.stderr, flush=True)
-        ic.wait(until=args.until, idle=args.idle or None, stop=stop)
+        # wait on another thread: the signal handlers run in this one, where one could
+        # come between the waiter's look at `stop` and its wait, and its wake be lost
+        waiter = threading.Thread(target=ic.wait, name="intercept-wait", kwargs={
+            "until": args.until, "idle": args.idle or None, "stop": stop})
+        waiter.start()
+        waiter.join()
         ic.detach()
         rows = ic.results()
         summ = ic.summary(rows)

@@ -15,6 +15,23 @@ import numpy as np
 Scan = tuple[float, list[tuple[str, dict]], list[tuple[str, dict]]]
 
 
+def interpolate(ts: np.ndarray, pos: np.ndarray, vel: np.ndarray, acc: np.ndarray,
+                t: float | np.ndarray, eps: float = 1e-6,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, velocity and acceleration at time(s) t from states sampled at the
+    instants ts (ascending, K of them), with constant acceleration from the last sample at
+    or before t (`eps` s of tolerance; before ts[0], from the first sample).
+
+    pos, vel, acc: (K, ...) arrays, the sample instant first; returns three arrays of shape
+    (len(t), ...) (one row for a float t). Exact for piecewise-constant accelerations that
+    change only at sample instants."""
+    ts = np.asarray(ts, dtype=float)
+    tt = np.atleast_1d(np.asarray(t, dtype=float))
+    k = np.clip(np.searchsorted(ts, tt + eps) - 1, 0, len(ts) - 1)
+    tau = (tt - ts[k]).reshape(-1, *[1] * (np.ndim(pos) - 1))
+    return pos[k] + vel[k] * tau + 0.5 * acc[k] * tau**2, vel[k] + acc[k] * tau, acc[k]
+
+
 def _truth(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray | None = None) -> dict:
     out = {"pos": [float(v) for v in pos], "vel": [float(v) for v in vel]}
     if acc is not None:
@@ -49,11 +66,9 @@ class FlightA:
         self.acc = np.gradient(vel, self.step, axis=0)
 
     def state(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Position, velocity and acceleration at time(s) t, interpolated."""
-        tt = np.atleast_1d(np.asarray(t, dtype=float))
-        out = [np.stack([np.interp(tt, self.t, a[:, i]) for i in range(3)], 1)
-               for a in (self.pos, self.vel, self.acc)]
-        return out[0], out[1], out[2]
+        """Position, velocity and acceleration at time(s) t, (len(t), 3) each: constant
+        acceleration from the grid point at or before t."""
+        return interpolate(self.t, self.pos, self.vel, self.acc, t)
 
 
 def display(runs: int = 1, seed: int = 0) -> Iterator[Scan]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -13,13 +12,8 @@ from typing import Any
 import pytest
 import zenoh
 
-from service.wire import Keys, peer_config, unpack, wait_for_tracker
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from clients.procs import stop
+from service.wire import Keys, free_port, peer_config, unpack, wait_for_tracker
 
 
 def client_session(endpoint: str) -> zenoh.Session:
@@ -66,13 +60,8 @@ class ServiceProc:
         return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=True)
 
     def stop(self) -> str:
-        self.proc.terminate()
-        try:
-            _, err = self.proc.communicate(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            _, err = self.proc.communicate()
-        return err
+        """Terminate the service (then kill it); its stderr."""
+        return stop(self.proc)
 
 
 @pytest.fixture

@@ -20,11 +20,12 @@ from typing import Any
 
 import pytest
 import zenoh
-from conftest import Collector, free_port
+from conftest import Collector
 
 from clients import feed as feed_cli
+from clients.procs import stop
 from service import __main__ as service_cli
-from service.wire import Keys, unpack, wait_for_tracker
+from service.wire import Keys, free_port, unpack, wait_for_tracker
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPOSE = ROOT / "docker-compose.yml"
@@ -228,18 +229,7 @@ def get_all(session: zenoh.Session, selector: str) -> list[tuple[str, dict]]:
     return [(str(r.replier_id), unpack(r.ok.payload.to_bytes())) for r in replies]
 
 
-def stop(procs: list[subprocess.Popen]) -> None:
-    """Terminate the processes last-started first, each waited for before the next
-    (the shards close their sessions while the router is still there)."""
-    for p in reversed(procs):
-        p.terminate()
-        try:
-            p.communicate(timeout=15)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.communicate()
-
-
+@pytest.mark.slow
 def test_loopback_mirror_tracks_every_target_once():
     services = compose()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -311,4 +301,7 @@ def test_loopback_mirror_tracks_every_target_once():
     finally:
         if session is not None:
             session.close()
-        stop(procs)
+        # last-started first, each waited for before the next: the shards close their
+        # sessions while the router is still there
+        for p in reversed(procs):
+            stop(p)

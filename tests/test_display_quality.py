@@ -9,6 +9,8 @@ from conftest import Collector
 
 from clients import evaluate as track_eval
 
+pytestmark = pytest.mark.slow
+
 SPEED = "2.4"  # m/s: at most 0.08 m per frame beyond the track's own motion at 30 Hz
 
 

@@ -8,6 +8,8 @@ import pytest
 from clients import evaluate as track_eval
 from clients import metrics
 
+pytestmark = pytest.mark.slow
+
 RUNS, SEED = 20, 1
 
 

@@ -192,7 +192,7 @@ def test_singular_innovation_row_flagged_not_raised():
     z = np.array([[1.0, 0.0], [1.0, 0.0]])
     r = np.array([np.zeros((2, 2)), np.eye(2)])
     xn, pn, nis, ok = kalman.update(x, p, z, r)
-    assert ok[1]
+    assert ok.tolist() == [False, True]  # row 0 flagged (singular S), row 1 good
     # row 1 alone: S = 2 I, K = I/2 -> x = [0.5, 0], P = I/2, NIS = 1/2
     np.testing.assert_allclose(xn[1], [0.5, 0.0], rtol=1e-8)
     np.testing.assert_allclose(nis[1], 0.5, rtol=1e-8)

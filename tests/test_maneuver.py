@@ -8,6 +8,8 @@ import pytest
 
 from clients import evaluate as track_eval
 
+pytestmark = pytest.mark.slow
+
 RUNS, SEED = 20, 3
 
 
@@ -40,7 +42,12 @@ def test_vdf_detects_both_turns_and_errors_fall_after_the_switch(reports):
 
 def test_imm_beats_vdf_in_turns_and_stays_close_to_cv_when_straight(reports):
     imm, vdf, cv = reports["imm"], reports["vdf"], reports["cv"]
+    # measured (20 runs, seed 3): IMM / VDF position RMSE 55 / 103 m in the slow turn,
+    # 78 / 143 m in the fast turn; on the straight leg IMM / CV 41 / 35 m, peak per-scan
+    # RMSE 87 / 83 m
     for name in ("slow turn", "fast turn"):
         assert phase(imm, name)["pos_rmse"] < phase(vdf, name)["pos_rmse"]
-    assert phase(imm, "straight")["pos_rmse"] <= 1.25 * phase(cv, "straight")["pos_rmse"]
-    assert isinstance(imm["windows"][0], dict)
+    straight_imm, straight_cv = phase(imm, "straight"), phase(cv, "straight")
+    assert straight_imm["pos_rmse"] <= 1.25 * straight_cv["pos_rmse"]
+    # and its worst scan of the straight leg too, not only its average
+    assert straight_imm["pos_peak"] <= 1.25 * straight_cv["pos_peak"]
