@@ -32,6 +32,19 @@ INIT_ACCEL = 10.0  # m/s^2: prior std of the acceleration at initiation (order-3
 COAST_AFTER = 2.5  # coasting once the age exceeds this many of the track's scan intervals
 DELETE_AFTER = 30.0  # s of simulation time without a measurement
 
+# ---------------------------------------------------------------- unlabelled scans (plots/)
+ASSOCIATOR = "gnn"  # gnn or jpda
+GATE_PROBABILITY = 0.999  # chi-square gate: a true detection falls outside it 1 in 1,000
+PD = 0.9  # detection probability of a sensor
+CLUTTER_DENSITY = None  # false detections per m^2 (2-D) or m^3 (3-D); None: estimated
+JPDA_MAX_EVENTS = 5000  # joint events enumerated per cluster; more: cheap JPDA
+MAX_SPEED = 340.0  # m/s: a new track's velocity prior has std MAX_SPEED / 3 per axis
+CONFIRM_M, CONFIRM_N = 3, 4  # confirmed once detected in 3 of its last 4 scans ...
+CONFIRM_SCORE = 4.6  # ... with a track score (log-likelihood ratio) of at least ln 100
+DELETE_MISSES = 4  # a confirmed track is deleted after this many consecutive misses
+DELETE_SIGMA = 2000.0  # m: ... or when its position sigma exceeds this
+REORDER = 0.5  # s of simulation time a scan waits for older scans of other sensors
+
 # ---------------------------------------------------------------- sensor noise
 # used when a measurement gives none (docs/protocol.md: the service's configured defaults)
 SR = 10.0  # m: range

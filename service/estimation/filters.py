@@ -56,6 +56,9 @@ class SingleModelFilter:
             xp, pp = predict(arrays.x[rows], arrays.p[rows], f, qm)
         return kalman.update(xp, pp, *convert(xp, pp))
 
+    def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
+        """The tracker added dp to the covariances of rows: nothing more is kept."""
+
     def labels(self, arrays: Any, rows: np.ndarray) -> list[str | dict[str, float]]:
         return [self.kind] * len(rows)
 

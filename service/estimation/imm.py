@@ -92,6 +92,11 @@ class IMM:
         _, _, nis, _ = kalman.update(xbar, pbar, *conv)  # NIS of the mixture prediction
         return x, p, nis, ok
 
+    def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
+        """The tracker added dp to the combined covariances of rows (the spread of a PDA
+        update): every mode's covariance takes it too."""
+        arrays.mode_p[rows] += dp[:, None]
+
     def labels(self, arrays: Any, rows: np.ndarray) -> list[dict[str, float]]:
         names = [name for name, *_ in self.modes]
         return [dict(zip(names, mu, strict=True)) for mu in arrays.mode_prob[rows].tolist()]

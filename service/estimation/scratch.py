@@ -50,6 +50,8 @@ def buffer(name: str, shape: tuple[int, ...], n: int) -> np.ndarray:
 def chunks(n: int) -> list[tuple[int, int]]:
     """(start, stop) of the row chunks of a batch of n rows: the fewest chunks of at most
     CHUNK rows, of equal length (to a row)."""
+    if n <= 0:
+        return []
     k = -(-n // CHUNK)
     edges = [n * i // k for i in range(k + 1)]
     return list(zip(edges[:-1], edges[1:], strict=True))

@@ -112,5 +112,9 @@ class VDF:
             t = tk
         return x, p
 
+    def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
+        """The tracker added dp to the covariances of rows: the history keeps the
+        filtered states as they were."""
+
     def labels(self, arrays: Any, rows: np.ndarray) -> list[str]:
         return ["ca" if ca else "cv" for ca in arrays.ca[rows].tolist()]

@@ -10,10 +10,27 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..wire import Measurement
-from .store import TrackStore
+from .store import TrackArrays, TrackStore
 
 TIME_TOL = 1e-6  # s: measurements this close to the track time count as simultaneous
+
+
+@dataclass
+class WeightedUpdate:
+    """Tracks of one layout each updated by an equivalent measurement z (T, d) with
+    covariance r (T, d, d) standing for several weighted detections (`association.pda`),
+    with the spread of those detections (T, n, n) added to the posterior covariance;
+    `mass`: each track's probability of having been detected."""
+
+    arrays: TrackArrays
+    rows: np.ndarray
+    z: np.ndarray
+    r: np.ndarray
+    mass: np.ndarray
+    spread: np.ndarray
 
 
 @dataclass
@@ -21,9 +38,13 @@ class Hypotheses:
     """One scan's associations, as indices into the scan's measurements."""
 
     updates: dict[int, list[int]] = field(default_factory=dict)  # by dimension: track hits
+    track: dict[int, str] = field(default_factory=dict)  # measurement -> the track it updates
+    weighted: list[WeightedUpdate] = field(default_factory=list)  # JPDA's updates
     unassociated: dict[int, list[int]] = field(default_factory=dict)  # by dimension: new
     rejected: dict[int, str] = field(default_factory=dict)  # index -> reason
-    missed: list[str] = field(default_factory=list)  # tracks that had no detection
+    detected: list[str] = field(default_factory=list)  # tracks the scan saw (M-of-N)
+    missed: list[str] = field(default_factory=list)  # tracks the scan should have seen
+    score: dict[str, float] = field(default_factory=dict)  # track -> log-likelihood ratio
 
 
 class LabelAssociator:
@@ -48,7 +69,8 @@ class LabelAssociator:
             pending = later
         return out
 
-    def associate(self, store: TrackStore, scan: Sequence[Measurement]) -> Hypotheses:
+    def associate(self, store: TrackStore, scan: Sequence[Measurement],
+                  now: float | None = None) -> Hypotheses:
         hyp = Hypotheses()
         for i, m in enumerate(scan):
             hit = store.where.get(m.target)
@@ -63,4 +85,5 @@ class LabelAssociator:
                                    f"update at t={arrays.t[row]:.6f}")
             else:
                 hyp.updates.setdefault(m.dim, []).append(i)
+                hyp.track[i] = m.target
         return hyp

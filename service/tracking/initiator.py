@@ -22,14 +22,16 @@ class SinglePointInitiator:
     def __init__(self, init_speed: float, init_accel: float) -> None:
         self.init_speed, self.init_accel = init_speed, init_accel
 
-    def initiate(self, store: TrackStore, dim: int, meas: Sequence[Measurement]
-                 ) -> tuple[TrackArrays, np.ndarray, list[str | None]]:
+    def initiate(self, store: TrackStore, dim: int, meas: Sequence[Measurement],
+                 speed: float | None = None) -> tuple[TrackArrays, np.ndarray, list[str | None]]:
         """New tracks, one per measurement, named by its target label: the layout, the
-        rows created and, per measurement, None or the reason it started no track."""
+        rows created and, per measurement, None or the reason it started no track.
+        `speed`: the velocity prior's std instead of `init_speed`."""
         arrays = store.layout(dim)
         z, r = cmkf_arrays(MeasurementBatch.of(meas, dim), None)
         finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
-        prior = [self.init_speed**2, self.init_accel**2][: arrays.order - 1]
+        speed = self.init_speed if speed is None else speed
+        prior = [speed**2, self.init_accel**2][: arrays.order - 1]
         rows = []
         for m, zi, ri, ok in zip(meas, z, r, finite, strict=True):
             if not ok:

@@ -56,13 +56,19 @@ class TrackArrays(Columns):
         codes = dict(zip(SHAPE_CODES, ((), (n,), (n, n), (dim,), (dim, dim)), strict=True))
         shapes: dict[str, tuple[int, ...]] = {
             "x": (n,), "p": (n, n), "t": (), "t_first": (), "nis": (), "updates": (),
-            "alive": ()}
+            "alive": (),
+            # tracks of unlabelled scans: detections in the last scans as bits (newest
+            # lowest), scans seen, consecutive misses, track score, confirmed (M of N)
+            "plot": (), "hits": (), "scans": (), "misses": (), "score": (),
+            "confirmed": ()}
         for name, (code, modes) in (extra or {}).items():
             shapes[name] = ((modes,) if modes else ()) + codes[code]
         self.ids: list[str | None] = []
         self.free: list[int] = []
         self._live: tuple[np.ndarray, list[str]] | None = None
-        super().__init__(shapes, {"alive": bool, "updates": np.int64}, capacity)
+        ints = dict.fromkeys(("updates", "hits", "scans", "misses"), np.int64)
+        super().__init__(shapes, {"alive": bool, "plot": bool, "confirmed": bool, **ints},
+                         capacity)
 
     def grow(self, capacity: int) -> None:
         old = self.capacity
@@ -76,6 +82,9 @@ class TrackArrays(Columns):
         row = self.free.pop()
         self.ids[row] = track_id
         self.alive[row] = True
+        self.plot[row], self.confirmed[row] = False, False
+        self.hits[row] = self.scans[row] = self.misses[row] = 0
+        self.score[row] = 0.0
         self._live = None
         return row
 

@@ -4,14 +4,16 @@ Each scan of measurements is associated with the tracks, the associated tracks a
 predicted and updated, the others coast, stale tracks are deleted and unassociated
 measurements start new tracks (`Tracker.step`). Each step is a component with Stone
 Soup's name (associator, updater, deleter, initiator) so that one can be swapped
-without touching the rest; the display state follows every change.
+without touching the rest; the display state follows every change. Labelled
+measurements go through the `LabelAssociator`; unlabelled radar scans through the GNN
+or JPDA associator (`association`), and their tracks live by M of N (`life`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,11 +23,16 @@ from ..estimation.filters import SingleModelFilter
 from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import CMKFConversion
 from ..wire import Measurement
-from .associator import LabelAssociator
+from .association import GNNAssociator, JPDAAssociator, SensorModels
+from .associator import Hypotheses, LabelAssociator, WeightedUpdate
 from .deleter import UpdateTimeDeleter
-from .display import DisplayConfig, DisplayState
+from .display import DisplayConfig, DisplayState, Snapshot
 from .initiator import SinglePointInitiator
+from .life import CompositeDeleter, MofNDeleter, update_life
 from .store import States, TrackArrays, TrackStore
+
+if TYPE_CHECKING:
+    from ..wire.plots import PlotScan
 
 
 @dataclass(frozen=True)
@@ -40,6 +47,30 @@ class TrackerConfig:
     init_accel: float = defaults.INIT_ACCEL  # m/s^2: prior std of acceleration (order 3)
     delete_after: float = defaults.DELETE_AFTER  # s of simulation time without a measurement
     display: DisplayConfig = field(default_factory=DisplayConfig)
+    # unlabelled scans (plots/)
+    associator: str = defaults.ASSOCIATOR  # "gnn" or "jpda"
+    sensors: SensorModels = field(default_factory=SensorModels)
+    gate_probability: float = defaults.GATE_PROBABILITY
+    max_speed: float = defaults.MAX_SPEED  # m/s: a new track's velocity std is a third
+    confirm_m: int = defaults.CONFIRM_M
+    confirm_n: int = defaults.CONFIRM_N
+    confirm_score: float = defaults.CONFIRM_SCORE
+    delete_misses: int = defaults.DELETE_MISSES
+    delete_sigma: float = defaults.DELETE_SIGMA
+
+
+@dataclass(frozen=True)
+class EquivalentConversion:
+    """A PDA update as one equivalent measurement per track (`association.pda`): called
+    with the filter's own prediction it returns z and R~ = R / b + ((1 - b) / b) H P H'."""
+
+    z: np.ndarray
+    r: np.ndarray
+    mass: np.ndarray
+
+    def __call__(self, xp: np.ndarray, pp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d, b = self.z.shape[1], self.mass[:, None, None]
+        return self.z, self.r / b + (1 - b) / b * pp[:, :d, :d]
 
 
 @dataclass
@@ -60,10 +91,15 @@ class Tracker:
         kind = {2: "cv", 3: "ca"}.get(c.order, "cv")
         self.updater = c.filter or SingleModelFilter(kind, c.q, c.order)
         self.associator = LabelAssociator()
+        scans = {"gnn": GNNAssociator, "jpda": JPDAAssociator}[c.associator]
+        self.scan_associator = scans(c.q, c.sensors, c.gate_probability)
         self.initiator = SinglePointInitiator(c.init_speed, c.init_accel)
-        self.deleter = UpdateTimeDeleter(c.delete_after)
+        self.deleter = CompositeDeleter(
+            UpdateTimeDeleter(c.delete_after),
+            MofNDeleter(c.confirm_m, c.confirm_n, c.delete_misses, c.delete_sigma))
         self.display = DisplayState(c.display, c.q)
         self.store = TrackStore(self.updater.order, self.updater.fields)
+        self.numbers: dict[str, int] = {}  # per sensor: the last track number given
 
     def __len__(self) -> int:
         return len(self.store)
@@ -78,18 +114,26 @@ class Tracker:
             deleted += self.step([outcomes[i] for i in scan])
         return outcomes, deleted
 
-    def step(self, scan: Sequence[Outcome], now: float | None = None) -> list[str]:
+    def track_scan(self, scan: PlotScan) -> tuple[list[Outcome], list[str]]:
+        """Apply one unlabelled scan (all its detections at one time): one `step` with
+        the scan associator. Returns each detection's outcome and the tracks deleted."""
+        outcomes = [Outcome(m) for m in scan.detections]
+        return outcomes, self.step(outcomes, scan.t, self.scan_associator)
+
+    def step(self, scan: Sequence[Outcome], now: float | None = None,
+             associator: Any = None) -> list[str]:
         """One scan at time `now` (default: its newest measurement): associate, predict
         and update, coast, delete, initiate. Fills in each measurement's outcome and
         returns the ids of the tracks deleted."""
         meas = [o.meas for o in scan]
-        hypotheses = self.associator.associate(self.store, meas)
+        hypotheses = (associator or self.associator).associate(self.store, meas, now)
         for i, reason in hypotheses.rejected.items():
             scan[i].reason = reason
         for dim, idx in hypotheses.updates.items():
-            self.update(dim, [scan[i] for i in idx])
-        # coast: tracks without a detection keep their filtered state, which the display
-        # state predicts to every instant; their status turns to coasting with age
+            self.update(dim, [scan[i] for i in idx], [hypotheses.track[i] for i in idx])
+        for weighted in hypotheses.weighted:
+            self.update_weighted(weighted, scan, now)
+        self.coast(hypotheses)
         if now is None:
             now = max((m.t for m in meas), default=None)
         deleted = self.delete(now) if now is not None else []
@@ -98,12 +142,12 @@ class Tracker:
         return deleted
 
     # ------------------------------------------------------------ the steps
-    def update(self, dim: int, scan: list[Outcome]) -> None:
-        """Predict and update the tracks of measurements associated in one layout."""
+    def update(self, dim: int, scan: list[Outcome], tracks: list[str]) -> None:
+        """Predict and update `tracks` (of one layout) with their measurements."""
         store = self.store
         arrays = store.layout(dim)
         meas = [o.meas for o in scan]
-        rows = np.array([store.where[m.target][1] for m in meas], dtype=int)
+        rows = np.array([store.where[k][1] for k in tracks], dtype=int)
         t = np.array([m.t for m in meas])
         batch = MeasurementBatch.of(meas, dim)  # the records as columns, once
         conversion = EKFConversion(batch) if self.config.conversion == "ekf" else \
@@ -118,6 +162,34 @@ class Tracker:
                                           ("update gave a non-finite state", np.nan)
                                           for k, v in zip(ok, nis, strict=True)])
 
+    def update_weighted(self, w: WeightedUpdate, scan: Sequence[Outcome], t: float) -> None:
+        """Update tracks each with the equivalent measurement of its weighted detections
+        (JPDA), then add the spread of those detections to their covariances."""
+        arrays, rows = w.arrays, w.rows
+        times = np.full(len(rows), t)
+        xn, pn, nis, ok = self.updater.update(arrays, rows, times - arrays.t[rows],
+                                              EquivalentConversion(w.z, w.r, w.mass))
+        pn = pn + w.spread
+        self.updater.inflate(arrays, rows[ok], w.spread[ok])
+        good = rows[ok]
+        self.display.update(arrays, good, times[ok], xn[ok], pn[ok])
+        arrays.x[good], arrays.p[good], arrays.nis[good] = xn[ok], pn[ok], nis[ok]
+        arrays.t[good] = t
+        arrays.updates[good] += 1
+        block = self.states(arrays, good)
+        for out in scan:  # every detection shares the block of the tracks it updated
+            if out.states is None:
+                out.states = block
+                break
+
+    def coast(self, hypotheses: Hypotheses) -> None:
+        """Tracks without a detection keep their filtered state, which the display state
+        predicts to every instant (labelled ones turn coasting with age); unlabelled ones
+        count the scan as a detection or a miss (M of N)."""
+        c = self.config
+        update_life(self.store, hypotheses.detected, hypotheses.missed, hypotheses.score,
+                    c.confirm_m, c.confirm_n, c.confirm_score)
+
     def delete(self, now: float) -> list[str]:
         """Remove the tracks the deleter picks at time `now`; their ids."""
         ids = self.deleter.delete_tracks(self.store, now)
@@ -125,9 +197,19 @@ class Tracker:
         return ids
 
     def initiate(self, dim: int, scan: list[Outcome]) -> None:
-        """Start a track from each unassociated measurement of one layout."""
-        arrays, rows, reasons = self.initiator.initiate(self.store, dim,
-                                                        [o.meas for o in scan])
+        """Start a track from each unassociated measurement of one layout: named by its
+        label, or, unlabelled, `<sensor>-<n>` with n counting per sensor from 1 (never
+        reused in a run), tentative until confirmed M of N."""
+        meas = [o.meas for o in scan]
+        unlabelled = bool(meas) and not meas[0].target
+        if unlabelled:
+            meas = [replace(m, target=self._new_id(m.sensor)) for m in meas]
+        speed = self.config.max_speed / 3 if unlabelled else None
+        arrays, rows, reasons = self.initiator.initiate(self.store, dim, meas, speed)
+        if unlabelled:
+            arrays.plot[rows], arrays.hits[rows], arrays.scans[rows] = True, 1, 1
+            arrays.confirmed[rows] = self.config.confirm_m <= 1 and \
+                self.config.confirm_score <= 0
         self.updater.initiate(arrays, rows)
         self.display.initiate(arrays, rows)
         self._settle(scan, arrays, rows, [(r, 0.0 if r is None else np.nan) for r in reasons])
@@ -142,6 +224,10 @@ class Tracker:
             if reason is None:
                 out.states = block
 
+    def _new_id(self, sensor: str) -> str:
+        n = self.numbers[sensor] = self.numbers.get(sensor, 0) + 1
+        return f"{sensor}-{n}"
+
     # ------------------------------------------------------------ queries
     def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray) -> States:
         """The filtered states of rows of one layout, as columns."""
@@ -153,6 +239,6 @@ class Tracker:
         arrays, row = self.store.where[track_id]
         return self.states(arrays, [row]).body(0)
 
-    def snapshot(self, t: float, detail: bool = True) -> Any:
+    def snapshot(self, t: float, detail: bool = True) -> Snapshot:
         """Every track as the display shows it at instant t (`display.DisplayState`)."""
         return self.display.snapshot(self.store, t, detail)

@@ -1,0 +1,287 @@
+"""Data association of unlabelled radar scans: global nearest neighbour and JPDA.
+
+Both start from the gated pairs (`gating`) and treat each independent cluster alone.
+The score of a pair is the log-likelihood ratio of "track i produced detection j" to "j
+is clutter": ln(Pd N(nu; 0, S) / lambda), with the sensor's detection probability Pd and
+clutter density lambda (`SensorModels`); a track detecting nothing scores ln(1 - Pd)
+(Bar-Shalom, Willett & Tian, "Tracking and Data Fusion", 2011, ch. 6-7; Blackman &
+Popoli, "Design and Analysis of Modern Tracking Systems", 1999, ch. 6).
+
+- `GNNAssociator`: the most likely joint assignment of each cluster, solved as a
+  rectangular assignment with one missed-detection column per track (SciPy's
+  `linear_sum_assignment`); a cluster of one track and one detection is decided by
+  comparing the two scores, without the solver.
+- `JPDAAssociator`: the marginal association probabilities beta of every pair over all
+  feasible joint events of the cluster, enumerated exactly while a cluster has at most
+  `max_events` events, else by Fitzgerald's "cheap JPDA" approximation
+  (beta_ij = G_ij / (T_i + S_j - G_ij + 1 - Pd), IEEE AES Magazine 1985, with the
+  row sums T and column sums S of the likelihood ratios G). Each track is then updated
+  once with the probabilistic data association (PDA) of its detections.
+
+Any filter (single model, IMM, VDF) is the updater: association scores and the PDA
+weights use the combined (moment-matched) state of the track predicted by its motion
+model of the store's order; an IMM thus enters the association through its mixture
+estimate, not through per-mode likelihoods (docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .. import defaults
+from ..estimation.measurements import MeasurementBatch
+from ..wire import Measurement
+from .associator import Hypotheses, WeightedUpdate
+from .gating import Gating, gate, gate_threshold, split
+from .store import TrackStore
+
+UNLIKELY = 1e12  # cost of a pair outside the gate in an assignment matrix
+
+
+@dataclass
+class SensorModel:
+    pd: float = defaults.PD
+    clutter_density: float | None = None  # per m^dim; None: estimated from the scans
+    estimate: float = 0.0  # running estimate of the clutter density
+
+
+@dataclass
+class SensorModels:
+    """Detection probability and clutter density of each sensor: from configuration
+    (`--pd`, `--clutter-density`, or a JSON file {sensor: {pd, clutter_density}}) or,
+    for the density, estimated: the detections of a scan that fall in no gate, per unit
+    of the volume (area in 2-D) of the box that holds the scan's detections, averaged
+    over scans with weight `smoothing`."""
+
+    pd: float = defaults.PD
+    clutter_density: float | None = defaults.CLUTTER_DENSITY
+    per_sensor: dict[str, SensorModel] = field(default_factory=dict)
+    smoothing: float = 0.1
+
+    @classmethod
+    def from_file(cls, path: str | Path, pd: float = defaults.PD,
+                  clutter_density: float | None = defaults.CLUTTER_DENSITY) -> SensorModels:
+        data = json.loads(Path(path).read_text())
+        out = cls(pd, clutter_density)
+        for name, cfg in data.items():
+            out.per_sensor[name] = SensorModel(float(cfg.get("pd", pd)),
+                                               cfg.get("clutter_density", clutter_density))
+        return out
+
+    def model(self, sensor: str) -> SensorModel:
+        m = self.per_sensor.get(sensor)
+        if m is None:
+            m = self.per_sensor[sensor] = SensorModel(self.pd, self.clutter_density)
+        return m
+
+    def density(self, sensor: str, z: np.ndarray, ungated: int) -> float:
+        """The clutter density to use for this scan of `sensor` (then updates the
+        estimate with it)."""
+        m = self.model(sensor)
+        if m.clutter_density is not None:
+            return float(m.clutter_density)
+        if len(z) > 1:
+            extent = np.maximum(np.ptp(z, axis=0), 1.0)
+            seen = ungated / float(np.prod(extent))
+            m.estimate = seen if m.estimate <= 0 else \
+                (1 - self.smoothing) * m.estimate + self.smoothing * seen
+        return max(m.estimate, 1e-15)
+
+
+class _ScanAssociator:
+    """What GNN and JPDA share: gating one scan (all detections of one sensor and time)
+    against the unlabelled tracks of its layout."""
+
+    def __init__(self, q: float, sensors: SensorModels | None = None,
+                 gate_probability: float = defaults.GATE_PROBABILITY) -> None:
+        self.q, self.sensors = q, sensors or SensorModels()
+        self.gate_probability = gate_probability
+
+    def scans(self, meas: Sequence[Measurement]) -> list[list[int]]:
+        return [list(range(len(meas)))] if meas else []
+
+    def _gate(self, store: TrackStore, scan: Sequence[Measurement]
+              ) -> tuple[Gating, float, float]:
+        m0 = scan[0]
+        arrays = store.layout(m0.dim)
+        rows = arrays.rows()
+        rows = rows[arrays.plot[rows] & (arrays.t[rows] <= m0.t + 1e-6)]
+        batch = MeasurementBatch.of(scan, m0.dim)
+        g = gate(arrays, rows, batch, m0.t, self.q, gate_threshold(self.gate_probability,
+                                                                    m0.dim))
+        ungated = len(scan) - len(np.unique(g.dj))
+        lam = self.sensors.density(m0.sensor, g.z, ungated)
+        return g, self.sensors.model(m0.sensor).pd, lam
+
+    def _nothing_seen(self, store: TrackStore, now: float | None) -> Hypotheses:
+        """An empty scan: the sensor saw none of the unlabelled tracks (of any layout:
+        an empty scan says nothing of its dimension)."""
+        hyp = Hypotheses()
+        for arrays in store.layouts.values():
+            rows, ids = arrays.live()
+            seen = arrays.plot[rows] & (arrays.t[rows] <= (np.inf if now is None else now))
+            hyp.missed += [ids[i] for i in np.flatnonzero(seen).tolist()]
+        # the miss costs ln(1 - Pd) of the sensor, unknown here: of the default
+        miss = float(np.log1p(-min(self.sensors.pd, 1 - 1e-12)))
+        hyp.score = dict.fromkeys(hyp.missed, miss)
+        return hyp
+
+    @staticmethod
+    def _base(g: Gating, n: int) -> Hypotheses:
+        hyp = Hypotheses()
+        gated = np.zeros(n, dtype=bool)
+        gated[g.dj] = True
+        if not gated.all():
+            hyp.unassociated[g.arrays.dim] = np.flatnonzero(~gated).tolist()
+        return hyp
+
+
+class GNNAssociator(_ScanAssociator):
+    """Global nearest neighbour: the best joint assignment of each cluster."""
+
+    def associate(self, store: TrackStore, scan: Sequence[Measurement],
+                  now: float | None = None) -> Hypotheses:
+        if not scan:
+            return self._nothing_seen(store, now)
+        g, pd, lam = self._gate(store, scan)
+        hyp = self._base(g, len(scan))
+        score = np.log(pd) + g.loglik - np.log(lam)  # ln likelihood ratio of each pair
+        miss = np.log1p(-pd) if pd < 1 else -UNLIKELY
+        single, groups = split(g)
+        chosen = [single[score[single] > miss]]
+        for k in groups:  # one rectangular assignment per cluster
+            tracks, ti = np.unique(g.ti[k], return_inverse=True)
+            dets, dj = np.unique(g.dj[k], return_inverse=True)
+            nt, nd = len(tracks), len(dets)
+            cost = np.full((nt, nd + nt), UNLIKELY)
+            cost[ti, dj] = -score[k]
+            cost[np.arange(nt), nd + np.arange(nt)] = -miss
+            r, c = linear_sum_assignment(cost)
+            hit = c < nd
+            lookup = {(a, b): pair for a, b, pair in zip(ti, dj, k, strict=True)}
+            chosen.append(np.array([lookup[a, b] for a, b in zip(r[hit], c[hit], strict=True)
+                                    if (a, b) in lookup], dtype=int))
+        pairs = np.concatenate(chosen) if chosen else np.zeros(0, dtype=int)
+        ids = g.arrays.ids
+        assigned = set()
+        for pair in pairs.tolist():
+            i, j = int(g.ti[pair]), int(g.dj[pair])
+            hyp.updates.setdefault(g.arrays.dim, []).append(j)
+            hyp.track[j] = ids[int(g.rows[i])]  # type: ignore[assignment]
+            assigned.add(i)
+        # gated but unassigned detections: clutter, or the start of a new track
+        used = set(hyp.track)
+        rest = sorted(set(g.dj.tolist()) - used)
+        if rest:
+            hyp.unassociated.setdefault(g.arrays.dim, []).extend(rest)
+            hyp.unassociated[g.arrays.dim].sort()
+        gain = dict(zip(g.ti[pairs].tolist(), score[pairs].tolist(), strict=True))
+        for i, r in enumerate(g.rows.tolist()):
+            (hyp.detected if i in assigned else hyp.missed).append(ids[r])  # type: ignore[arg-type]
+            hyp.score[ids[r]] = gain.get(i, miss)  # type: ignore[index]
+        return hyp
+
+
+class JPDAAssociator(_ScanAssociator):
+    """Joint probabilistic data association: each track updated with all its gated
+    detections, weighted by their marginal association probabilities."""
+
+    def __init__(self, q: float, sensors: SensorModels | None = None,
+                 gate_probability: float = defaults.GATE_PROBABILITY,
+                 max_events: int = defaults.JPDA_MAX_EVENTS) -> None:
+        super().__init__(q, sensors, gate_probability)
+        self.max_events = max_events
+
+    def associate(self, store: TrackStore, scan: Sequence[Measurement],
+                  now: float | None = None) -> Hypotheses:
+        if not scan:
+            return self._nothing_seen(store, now)
+        g, pd, lam = self._gate(store, scan)
+        hyp = self._base(g, len(scan))
+        ratio = np.exp(np.log(pd) + g.loglik - np.log(lam))  # G of each pair
+        beta = np.zeros(len(ratio))
+        single, groups = split(g)
+        beta[single] = ratio[single] / (ratio[single] + (1 - pd))
+        for k in groups:
+            beta[k] = self._marginals(g.ti[k], g.dj[k], ratio[k], 1 - pd)
+        update, mass = pda(g, beta)
+        if len(update.rows):
+            hyp.weighted.append(update)
+        ids = g.arrays.ids
+        # the track score gains the log of the track's likelihood ratio, detected or not
+        gain = np.log(np.bincount(g.ti, ratio, len(g.rows)) + (1 - pd))
+        for r, b, s in zip(g.rows.tolist(), mass.tolist(), gain.tolist(), strict=True):
+            # M-of-N counts a track as seen when it was more likely detected than not
+            (hyp.detected if b >= 0.5 else hyp.missed).append(ids[r])  # type: ignore[arg-type]
+            hyp.score[ids[r]] = s  # type: ignore[index]
+        # a gated detection mostly explained as clutter may start a track too
+        claimed = np.bincount(g.dj, beta, len(scan))
+        weak = sorted(set(g.dj[claimed[g.dj] < 0.5].tolist()))
+        if weak:
+            new = hyp.unassociated.setdefault(g.arrays.dim, [])
+            new.extend(weak)
+            new.sort()
+        return hyp
+
+    def _marginals(self, ti: np.ndarray, dj: np.ndarray, g: np.ndarray,
+                   miss: float) -> np.ndarray:
+        """beta of each pair of one cluster: exact over the joint events, or cheap JPDA."""
+        tracks, ti = np.unique(ti, return_inverse=True)
+        dets, dj = np.unique(dj, return_inverse=True)
+        counts = np.bincount(ti, minlength=len(tracks)) + 1
+        if float(np.prod(counts.astype(float))) > self.max_events:
+            t_sum = np.bincount(ti, g, len(tracks))
+            s_sum = np.bincount(dj, g, len(dets))
+            return g / (t_sum[ti] + s_sum[dj] - g + miss)
+        options = [[(-1, miss)] + [(int(dj[k]), float(g[k])) for k in np.flatnonzero(ti == i)]
+                   for i in range(len(tracks))]
+        index = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(ti, dj, strict=True))}
+        mass = np.zeros(len(g))
+        total = 0.0
+        for event in itertools.product(*options):
+            used = [d for d, _ in event if d >= 0]
+            if len(used) != len(set(used)):
+                continue  # a detection claimed twice
+            w = float(np.prod([v for _, v in event]))
+            total += w
+            for i, (d, _) in enumerate(event):
+                if d >= 0:
+                    mass[index[i, d]] += w
+        return mass / total if total > 0 else mass
+
+
+def pda(g: Gating, beta: np.ndarray) -> tuple[WeightedUpdate, np.ndarray]:
+    """The PDA update of every gated track as one equivalent measurement: with
+    b = sum_j beta_j and beta_0 = 1 - b, the combined innovation nu = sum_j beta_j nu_j
+    equals the update of a Kalman filter by z~ = H x + nu / b with covariance
+    R~ = R / b + (beta_0 / b) H P H' (the gain scales by b and P - K~ S~ K~' = P - b K S K'),
+    plus the spread of the innovations K (sum_j beta_j nu_j nu_j' - nu nu') K' added to P
+    afterwards (Bar-Shalom, Willett & Tian 2011, sec. 6.4). R is the beta-weighted mean of
+    the detections' covariances; the gain K of the spread is that of the gating
+    prediction. Returns the update of the tracks with any detection mass, and the mass
+    (probability of detection) of every gated track."""
+    t_count, d = len(g.rows), g.arrays.dim
+    b = np.bincount(g.ti, beta, t_count)
+    nu = np.zeros((t_count, d))
+    np.add.at(nu, g.ti, beta[:, None] * g.nu)
+    second = np.zeros((t_count, d, d))
+    np.add.at(second, g.ti, beta[:, None, None] * g.nu[:, :, None] * g.nu[:, None, :])
+    r = np.zeros((t_count, d, d))
+    np.add.at(r, g.ti, beta[:, None, None] * g.r[g.dj])
+    some = b > 1e-9
+    safe = np.where(some, b, 1.0)
+    r_mean = r / safe[:, None, None]
+    z = g.xp[:, :d] + nu / safe[:, None]
+    s = g.pp[:, :d, :d] + r_mean
+    gain = np.linalg.solve(s, g.pp[:, :d, :]).transpose(0, 2, 1)  # K = P H' S^-1 (n, d)
+    spread_d = second - nu[:, :, None] * nu[:, None, :]
+    spread = gain @ spread_d @ gain.transpose(0, 2, 1)
+    return WeightedUpdate(g.arrays, g.rows[some], z[some], r_mean[some], b[some],
+                          spread[some]), b

@@ -1,0 +1,108 @@
+"""Gating of unlabelled detections: which (track, detection) pairs may belong together.
+
+The gate is the chi-square test on the innovation of the converted measurement,
+nu' S^-1 nu <= gamma with S = H P H' + R, where the track is predicted to the scan time
+and R is the detection's UCM covariance at its converted point (the same conversion the
+filters use; the update itself then averages R over the prediction). A KD-tree over the
+detections (SciPy's `cKDTree`) proposes for each track only the detections within a
+radius that bounds its gate, so no tracks x detections matrix is ever built; the pairs
+that pass are split into independent clusters (connected components of the bipartite
+gate graph), which the associators resolve one at a time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from scipy.stats import chi2
+
+from ..estimation import models
+from ..estimation.measurements import MeasurementBatch
+from ..estimation.ucm import cmkf_arrays
+from .store import TrackArrays
+
+
+@dataclass
+class Gating:
+    """The gated pairs of one scan in one layout. Tracks are `rows` of `arrays`
+    (predicted to the scan time: `xp`, `pp`), detections the scan's converted points
+    `z` with covariances `r`. Pair k joins track `ti[k]` and detection `dj[k]`, with
+    squared Mahalanobis distance `d2[k]` and log-likelihood `loglik[k]` of the
+    innovation; `cluster[k]` numbers its independent cluster."""
+
+    arrays: TrackArrays
+    rows: np.ndarray  # (T,) store rows of the candidate tracks
+    xp: np.ndarray  # (T, n) predicted states
+    pp: np.ndarray  # (T, n, n)
+    z: np.ndarray  # (D, d) converted detections
+    r: np.ndarray  # (D, d, d)
+    ti: np.ndarray  # (K,) track index of each pair (into rows)
+    dj: np.ndarray  # (K,) detection index
+    d2: np.ndarray  # (K,)
+    loglik: np.ndarray  # (K,)
+    nu: np.ndarray  # (K, d) innovations
+    cluster: np.ndarray  # (K,) cluster label of each pair
+
+
+def gate_threshold(probability: float, dim: int) -> float:
+    """The chi-square gate gamma with P(d2 <= gamma) = probability for a true pair."""
+    return float(chi2.ppf(probability, dim))
+
+
+def gate(arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch, t: float,
+         q: float, gamma: float) -> Gating:
+    """Predict the tracks `rows` to `t` and find the pairs within the gate `gamma`."""
+    d, o = arrays.dim, arrays.order
+    xp, pp = models.predict(arrays.x[rows], arrays.p[rows], t - arrays.t[rows], o, d, q)
+    z, r = cmkf_arrays(batch, None)
+    mean, cov = xp[:, :d], pp[:, :d, :d]
+    empty = np.zeros(0, dtype=int)
+    if not len(rows) or not len(z):
+        return Gating(arrays, rows, xp, pp, z, r, empty, empty, np.zeros(0), np.zeros(0),
+                      np.zeros((0, d)), empty)
+    # the gate's largest semi-axis is sqrt(gamma lambda_max(S)) <= sqrt(gamma (tr P + tr R))
+    tr_r = np.trace(r, axis1=1, axis2=2).max()
+    radius = np.sqrt(gamma * (np.trace(cov, axis1=1, axis2=2) + tr_r))
+    near = cKDTree(z).query_ball_point(mean, radius, return_sorted=False)
+    counts = np.fromiter(map(len, near), int, len(near))
+    ti = np.repeat(np.arange(len(rows)), counts)
+    dj = np.fromiter((j for js in near for j in js), int, int(counts.sum()))
+    nu = z[dj] - mean[ti]
+    s = cov[ti] + r[dj]
+    sol = np.linalg.solve(s, nu[:, :, None])[:, :, 0] if len(ti) else nu
+    d2 = np.einsum("ki,ki->k", nu, sol)
+    keep = d2 <= gamma
+    ti, dj, d2, nu, s = ti[keep], dj[keep], d2[keep], nu[keep], s[keep]
+    logdet = np.linalg.slogdet(s)[1] if len(s) else np.zeros(0)
+    loglik = -0.5 * (d2 + logdet + d * np.log(2 * np.pi))
+    return Gating(arrays, rows, xp, pp, z, r, ti, dj, d2, loglik, nu,
+                  clusters(ti, dj, len(rows), len(z)))
+
+
+def clusters(ti: np.ndarray, dj: np.ndarray, n_tracks: int, n_dets: int) -> np.ndarray:
+    """Cluster label of each pair: connected components of the graph whose nodes are the
+    tracks and the detections and whose edges are the pairs."""
+    if not len(ti):
+        return np.zeros(0, dtype=int)
+    n = n_tracks + n_dets
+    graph = coo_matrix((np.ones(len(ti)), (ti, n_tracks + dj)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return labels[ti]
+
+
+def split(g: Gating) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The pairs that are a cluster on their own (one track, one detection), and the
+    indices of the pairs of each larger cluster."""
+    if not len(g.cluster):
+        return np.zeros(0, dtype=int), []
+    order = np.argsort(g.cluster, kind="stable")
+    labels, starts, sizes = np.unique(g.cluster[order], return_index=True,
+                                      return_counts=True)
+    single = order[starts[sizes == 1]]
+    groups = [order[s:s + k] for s, k in zip(starts[sizes > 1], sizes[sizes > 1],
+                                             strict=True)]
+    return single, groups

@@ -1,0 +1,82 @@
+"""Track life of unlabelled tracks: M-of-N confirmation and the misses that end tracks.
+
+Each scan that could have seen a track counts it as detected or missed
+(`associator.Hypotheses.detected` / `missed`) and adds its log-likelihood ratio to the
+track's score (a detection ln(Pd N(nu; 0, S) / lambda), a miss ln(1 - Pd): the
+sequential test of Blackman & Popoli 1999, sec. 6.2). A track keeps its last N outcomes
+as bits; it is confirmed once M of them are detections and its score has reached the
+confirmation threshold (and stays confirmed): M of N alone lets clutter that happens to
+line up confirm; the score weighs how well it lined up. `MofNDeleter` ends
+tentative tracks that missed N - M + 1 scans in a row (they cannot reach M of the last
+N at the next scan), confirmed tracks after K consecutive misses, and any of them whose
+position sigma exceeds a limit (Blackman & Popoli 1999, sec. 6.3; Stone Soup's
+UpdateTimeStepsDeleter and CovarianceBasedDeleter play the same roles).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from .store import TrackStore
+
+
+def update_life(store: TrackStore, detected: Sequence[str], missed: Sequence[str],
+                score: dict[str, float], m: int, n: int, threshold: float) -> None:
+    """Record one scan's detections and misses of unlabelled tracks, and add the scan's
+    log-likelihood ratio to each track's score; confirm those detected M of the last N
+    scans whose score reached `threshold`."""
+    mask = (1 << n) - 1
+    for ids, hit in ((detected, 1), (missed, 0)):
+        for arrays, rows in _rows(store, ids):
+            arrays.hits[rows] = ((arrays.hits[rows] << 1) | hit) & mask
+            arrays.scans[rows] += 1
+            arrays.misses[rows] = 0 if hit else arrays.misses[rows] + 1
+            arrays.score[rows] += [score.get(arrays.ids[r], 0.0) for r in rows.tolist()]
+            arrays.confirmed[rows] |= ((np.bitwise_count(arrays.hits[rows]) >= m)
+                                       & (arrays.score[rows] >= threshold))
+
+
+def _rows(store: TrackStore, ids: Sequence[str]) -> list[tuple]:
+    by_layout: dict[int, tuple] = {}
+    for track_id in ids:
+        arrays, row = store.where[track_id]
+        by_layout.setdefault(id(arrays), (arrays, []))[1].append(row)
+    return [(a, np.array(r, dtype=int)) for a, r in by_layout.values()]
+
+
+class MofNDeleter:
+    """Deletes unlabelled tracks that cannot be confirmed any more, that missed
+    `misses` scans in a row once confirmed, or whose position sigma exceeds `sigma`."""
+
+    def __init__(self, m: int, n: int, misses: int, sigma: float) -> None:
+        self.m, self.n, self.misses, self.sigma = m, n, misses, sigma
+
+    def delete_tracks(self, store: TrackStore, now: float) -> list[str]:
+        out: list[str] = []
+        for arrays in store.layouts.values():
+            rows, ids = arrays.live()
+            plot = arrays.plot[rows]
+            if not plot.any():
+                continue
+            misses, confirmed = arrays.misses[rows], arrays.confirmed[rows]
+            d = arrays.dim
+            var = np.trace(arrays.p[rows, :d, :d], axis1=1, axis2=2)
+            gone = np.where(confirmed, misses >= self.misses, misses > self.n - self.m)
+            gone |= var > self.sigma**2
+            out += [ids[i] for i in np.flatnonzero(plot & gone).tolist()]
+        return out
+
+
+class CompositeDeleter:
+    """Deletes what any of its deleters deletes."""
+
+    def __init__(self, *deleters: object) -> None:
+        self.deleters = deleters
+
+    def delete_tracks(self, store: TrackStore, now: float) -> list[str]:
+        out: dict[str, None] = {}
+        for deleter in self.deleters:
+            out.update(dict.fromkeys(deleter.delete_tracks(store, now)))  # type: ignore[attr-defined]
+        return list(out)

@@ -1,0 +1,254 @@
+"""Unlabelled scans through the tracker (no Zenoh): gating against a dense reference,
+clusters, GNN and JPDA against brute force and the textbook PDA update, M-of-N track
+life and track ids."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from service.estimation import models
+from service.estimation.measurements import MeasurementBatch
+from service.tracking import association, gating
+from service.tracking.association import GNNAssociator, JPDAAssociator, SensorModels
+from service.tracking.tracker import Outcome, Tracker, TrackerConfig
+from service.wire import Measurement
+
+SIGMA = 25.0
+
+
+def det(t: float, pos, sensor: str = "r1", sigma: float = SIGMA) -> Measurement:
+    pos = tuple(float(v) for v in pos)
+    return Measurement(sensor, "", float(t), len(pos), False, pos, (sigma,) * len(pos),
+                       (0.0, 0.0, 0.0), None)
+
+
+def scan(tracker: Tracker, t: float, positions, sensor: str = "r1") -> list[Outcome]:
+    outcomes = [Outcome(det(t, p, sensor)) for p in positions]
+    tracker.step(outcomes, t, tracker.scan_associator)
+    return outcomes
+
+
+def make(associator: str = "gnn", **kw) -> Tracker:
+    sensors = SensorModels(pd=kw.pop("pd", 0.9), clutter_density=kw.pop("density", 1e-8))
+    return Tracker(TrackerConfig(order=2, q=1.0, associator=associator, sensors=sensors,
+                                 **kw))
+
+
+def ids_at(tracker: Tracker, status: str | None = None, t: float = 0.0) -> list[str]:
+    snap = tracker.snapshot(t)
+    return [i for i, s in zip(snap.ids, snap.status, strict=True) if status in (None, s)]
+
+
+# ---------------------------------------------------------------- gating
+def test_gate_equals_the_dense_reference():
+    """The KD-tree prefilter finds exactly the pairs of the full tracks x detections
+    Mahalanobis matrix."""
+    rng = np.random.default_rng(1)
+    tracker = make()
+    truth = rng.uniform(0, 20_000, (300, 2))
+    for k in range(2):  # two scans: tracks with velocity and a spread of covariances
+        scan(tracker, float(k), truth + [10.0 * k, 0.0] + rng.normal(0, SIGMA, truth.shape))
+    arrays = tracker.store.layout(2)
+    rows = arrays.rows()
+    dets = np.vstack([truth + [25.0, 0] + rng.normal(0, 60, truth.shape),
+                      rng.uniform(0, 20_000, (300, 2))])
+    batch = MeasurementBatch.of([det(2.0, p) for p in dets], 2)
+    gamma = gating.gate_threshold(0.999, 2)
+    g = gating.gate(arrays, rows, batch, 2.0, 1.0, gamma)
+    xp, pp = models.predict(arrays.x[rows], arrays.p[rows], 2.0 - arrays.t[rows], 2, 2, 1.0)
+    nu = dets[None, :, :] - xp[:, None, :2]  # (T, D, 2): the dense reference
+    s = pp[:, None, :2, :2] + SIGMA**2 * np.eye(2)
+    d2 = np.einsum("tdi,tdi->td", nu, np.linalg.solve(s, nu[..., None])[..., 0])
+    ref = set(zip(*np.nonzero(d2 <= gamma), strict=True))
+    got = set(zip(g.ti.tolist(), g.dj.tolist(), strict=True))
+    assert got == {(int(a), int(b)) for a, b in ref}
+    assert len(ref) > 250  # the gates hold most true detections: the test is not empty
+    np.testing.assert_allclose(g.d2, d2[g.ti, g.dj], rtol=1e-9)
+
+
+def test_clusters_are_connected_components():
+    # tracks 0-1 share detection 1; track 2 alone with 3; track 3 with 4 and 5
+    ti = np.array([0, 0, 1, 2, 3, 3])
+    dj = np.array([0, 1, 1, 3, 4, 5])
+    labels = gating.clusters(ti, dj, 4, 6)
+    assert labels[0] == labels[1] == labels[2]
+    assert len({labels[0], labels[3], labels[4]}) == 3 and labels[4] == labels[5]
+
+
+# ---------------------------------------------------------------- GNN
+def crossing(tracker: Tracker, scans: int, miss: set[tuple[int, int]] = frozenset(),
+             clutter: int = 0, seed: int = 0) -> np.ndarray:
+    """Two targets crossing at (0, 0) at scan scans // 2, 100 m/s, 25 m noise."""
+    rng = np.random.default_rng(seed)
+    half = scans // 2
+    for k in range(scans):
+        truth = np.array([[-100.0 * (half - k), 0.0], [0.0, -100.0 * (half - k)]])
+        pts = [p + rng.normal(0, SIGMA, 2) for i, p in enumerate(truth) if (k, i) not in miss]
+        pts += list(rng.uniform(-3000, 3000, (clutter, 2)))
+        scan(tracker, float(k), pts)
+    return truth
+
+
+@pytest.mark.parametrize("associator", ["gnn", "jpda"])
+def test_two_crossing_targets_keep_their_tracks(associator):
+    tracker = make(associator)
+    truth = crossing(tracker, 20)
+    confirmed = ids_at(tracker, "confirmed", 19.0)
+    assert sorted(confirmed) == ["r1-1", "r1-2"]  # no break, no extra track
+    for tid, target in (("r1-1", 0), ("r1-2", 1)):  # no identity switch at the crossing
+        np.testing.assert_allclose(tracker.state(tid)["pos"][:2], truth[target], atol=60)
+
+
+def test_gnn_single_pairs_and_clusters_match_brute_force():
+    """On random scenes, GNN's assignment has the best total score among all joint
+    assignments of each cluster (brute force over the small clusters)."""
+    rng = np.random.default_rng(3)
+    for trial in range(20):
+        tracker = make()
+        pts = rng.uniform(0, 1000, (6, 2))
+        scan(tracker, 0.0, pts)
+        scan(tracker, 1.0, pts + rng.normal(0, SIGMA, pts.shape))
+        store = tracker.store
+        meas = [det(2.0, p) for p in pts + rng.normal(0, 40, pts.shape)] + \
+            [det(2.0, p) for p in rng.uniform(0, 1000, (3, 2))]
+        assoc = tracker.scan_associator
+        hyp = assoc.associate(store, meas)
+        g, pd, lam = assoc._gate(store, meas)
+        score = {(int(a), int(b)): v for a, b, v in
+                 zip(g.ti, g.dj, np.log(pd) + g.loglik - np.log(lam), strict=True)}
+        miss = np.log1p(-pd)
+        row_of = {tid: i for i, tid in enumerate(g.arrays.ids[r] for r in g.rows)}
+        chosen = {(row_of[hyp.track[j]], j) for j in hyp.track}
+
+        n_rows = len(g.rows)
+
+        def total(pairs, score=score, miss=miss, n=n_rows):
+            return sum(score[p] for p in pairs) + miss * (n - len({t for t, _ in pairs}))
+
+        best = max((sum(([(t, d)] for t, d in zip(range(len(g.rows)), perm, strict=True)
+                         if d is not None and (t, d) in score), []) for perm in
+                    itertools.product(*[[None, *[d for (t2, d) in score if t2 == t]]
+                                        for t in range(len(g.rows))])
+                    if len([d for d in perm if d is not None]) ==
+                    len({d for d in perm if d is not None})), key=total)
+        assert total(sorted(chosen)) == pytest.approx(total(best), abs=1e-9), trial
+
+
+# ---------------------------------------------------------------- JPDA
+def test_jpda_exact_marginals_by_hand():
+    """Two tracks, two detections, all four pairs gated: the marginals of the seven joint
+    events, written out."""
+    jp = JPDAAssociator(1.0)
+    g = np.array([2.0, 0.5, 1.0, 3.0])  # G of (t0,d0), (t0,d1), (t1,d0), (t1,d1)
+    b = 0.1
+    events = {  # (track 0's detection, track 1's): weight
+        (None, None): b * b, (0, None): 2.0 * b, (1, None): 0.5 * b, (None, 0): b * 1.0,
+        (None, 1): b * 3.0, (0, 1): 2.0 * 3.0, (1, 0): 0.5 * 1.0}
+    total = sum(events.values())
+    expect = [sum(w for e, w in events.items() if e[0] == 0) / total,
+              sum(w for e, w in events.items() if e[0] == 1) / total,
+              sum(w for e, w in events.items() if e[1] == 0) / total,
+              sum(w for e, w in events.items() if e[1] == 1) / total]
+    got = jp._marginals(np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]), g, b)
+    np.testing.assert_allclose(got, expect, rtol=1e-12)
+    jp.max_events = 4  # 3 x 3 events > 4: the cheap approximation, still probabilities
+    cheap = jp._marginals(np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]), g, b)
+    assert (cheap > 0).all() and np.bincount([0, 0, 1, 1], cheap).max() < 1
+    assert not np.allclose(cheap, expect, rtol=1e-3)  # a different computation
+
+
+def test_pda_update_equals_the_textbook_pdaf():
+    """One CV track, three gated detections: the equivalent-measurement update plus the
+    spread equals x = x^ + K sum beta_j nu_j, P = beta0 P^ + (1 - beta0) Pc + P~."""
+    tracker = make("jpda", density=1e-6)
+    scan(tracker, 0.0, [(0.0, 0.0)])
+    scan(tracker, 1.0, [(100.0, 0.0)])
+    arrays, row = tracker.store.where["r1-1"]
+    x0, p0 = arrays.x[row].copy(), arrays.p[row].copy()
+    dets = np.array([[200.0, 10.0], [230.0, -20.0], [180.0, 30.0]])
+    meas = [det(2.0, p) for p in dets]
+    g, pd, lam = tracker.scan_associator._gate(tracker.store, meas)
+    assert len(g.ti) == 3
+    ratio = np.exp(np.log(pd) + g.loglik - np.log(lam))
+    beta = ratio / (ratio.sum() + 1 - pd)  # one track: the joint events are single pairs
+    scan(tracker, 2.0, dets)
+    xp, pp = models.predict(x0[None], p0[None], np.array([1.0]), 2, 2, 1.0)
+    h = np.hstack([np.eye(2), np.zeros((2, 2))])
+    s = h @ pp[0] @ h.T + SIGMA**2 * np.eye(2)
+    k = pp[0] @ h.T @ np.linalg.inv(s)
+    nus = dets[g.dj] - xp[0, :2]
+    nu = (beta[:, None] * nus).sum(0)
+    x_ref = xp[0] + k @ nu
+    pc = pp[0] - k @ s @ k.T
+    spread = k @ ((beta[:, None, None] * nus[:, :, None] * nus[:, None, :]).sum(0)
+                  - np.outer(nu, nu)) @ k.T
+    p_ref = (1 - beta.sum()) * pp[0] + beta.sum() * pc + spread
+    np.testing.assert_allclose(arrays.x[row], x_ref, rtol=1e-9)
+    np.testing.assert_allclose(arrays.p[row], p_ref, rtol=1e-6)
+
+
+# ---------------------------------------------------------------- track life
+def test_m_of_n_confirmation_and_deletion():
+    tracker = make(confirm_m=3, confirm_n=4, delete_misses=3)
+    p = np.array([0.0, 0.0])
+    v = np.array([50.0, 0.0])
+    hit = [True, False, True, True, True, False, False, False]
+    status = []
+    for k, h in enumerate(hit):
+        scan(tracker, float(k), [p + v * k] if h else [])
+        snap = tracker.snapshot(float(k))
+        status.append(snap.status[0] if snap.ids else None)
+    # 1 of 1, 1 of 2, 2 of 3, 3 of 4 (confirmed), then three misses delete it
+    assert status == ["tentative", "tentative", "tentative", "confirmed", "confirmed",
+                      "coasting", "coasting", None]
+
+
+def test_tentative_track_from_clutter_is_dropped_and_ids_are_not_reused():
+    tracker = make(confirm_m=3, confirm_n=4)
+    scan(tracker, 0.0, [(0.0, 0.0)])
+    scan(tracker, 1.0, [])
+    scan(tracker, 2.0, [])  # 2 misses in a row: 3 of 4 is out of reach
+    assert len(tracker) == 0
+    scan(tracker, 3.0, [(0.0, 0.0)])
+    assert ids_at(tracker, t=3.0) == ["r1-2"]
+
+
+def test_crossing_with_clutter_confirms_every_target():
+    """Ten targets crossing near one point, Pd 0.9, 20 clutter detections per scan over
+    10 km x 10 km: every target confirmed within 6 scans and no false confirmed track
+    at the end."""
+    rng = np.random.default_rng(7)
+    tracker = make(pd=0.9, density=None)
+    angles = np.linspace(0, np.pi, 10, endpoint=False)
+    vel = 150.0 * np.stack([np.cos(angles), np.sin(angles)], 1)
+    start = -vel * 15
+    for k in range(30):
+        truth = start + vel * k
+        seen = rng.random(10) < 0.9
+        pts = list(truth[seen] + rng.normal(0, SIGMA, (seen.sum(), 2)))
+        pts += list(rng.uniform(-5000, 5000, (20, 2)))
+        scan(tracker, float(k), pts)
+        if k == 5:
+            assert len(ids_at(tracker, "confirmed", 5.0)) + \
+                len(ids_at(tracker, "coasting", 5.0)) >= 10
+    snap = tracker.snapshot(29.0)
+    est = np.array([snap.pos[i, :2] for i, s in enumerate(snap.status) if s != "tentative"])
+    dist = np.linalg.norm(est[:, None] - truth[None], axis=2)
+    assert (dist.min(0) < 100).all()  # every target has a track
+    assert (dist.min(1) < 100).all()  # every established track is on a target
+
+
+def test_sensor_models_from_file(tmp_path):
+    path = tmp_path / "sensors.json"
+    path.write_text('{"r1": {"pd": 0.7, "clutter_density": 1e-7}, "r2": {"pd": 0.95}}')
+    models_ = SensorModels.from_file(path)
+    assert models_.model("r1").pd == 0.7 and models_.model("r1").clutter_density == 1e-7
+    assert models_.model("r2").clutter_density is None
+    assert models_.model("r3").pd == association.defaults.PD
+
+
+def test_gnn_associator_is_the_default():
+    assert isinstance(make().scan_associator, GNNAssociator)
