@@ -53,7 +53,6 @@ keys, targets=[...] | like="maneuver-", truth=True)`, publish the scenario, then
 from __future__ import annotations
 
 import argparse
-import bisect
 import json
 import math
 import signal
@@ -61,232 +60,28 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from service.wire import CHUNK, Keys, add_zenoh_args, open_session, pack, unpack
 
-from .scenarios import interpolate
-
-GUIDANCE = ("pure", "pn", "intercept")
-PN_FORMS = ("true", "pure")
-DEFAULT_START = (7000.0, 6000.0)
-DEFAULT_SPEED = 20.0
-DEFAULT_CAPTURE = 2.55  # m: the interceptor-target distance of seeds/002
-EPS_T = 1e-6
-
-
-# ---------------------------------------------------------------- guidance geometry
-def intercept_time(r: tuple[float, float], v: tuple[float, float], s: float) -> float | None:
-    """Least positive tau with |r + v tau| = s tau (r = target - interceptor, v = target
-    velocity, s = interceptor speed), or None when the target cannot be met at speed s."""
-    a = v[0] * v[0] + v[1] * v[1] - s * s
-    b = 2.0 * (r[0] * v[0] + r[1] * v[1])
-    c = r[0] * r[0] + r[1] * r[1]
-    if c == 0.0:
-        return 0.0
-    if abs(a) < 1e-12 * max(s * s, 1.0):  # equal speeds: the equation is linear
-        return -c / b if b < 0.0 else None
-    disc = b * b - 4.0 * a * c
-    if disc < 0.0:
-        return None
-    sq = math.sqrt(disc)
-    roots = sorted(((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)))
-    return next((tau for tau in roots if tau > 0.0), None)
-
-
-def earliest_reach(pos_at: Callable[[np.ndarray], np.ndarray], start: Iterable[float],
-                   speed: float, t0: float, t1: float, step: float = 1e-3) -> float | None:
-    """Earliest t in [t0, t1] with |pos_at(t) - start| <= speed * (t - t0) in the
-    horizontal plane (the physical limit for any guidance), to `step` s; None if never."""
-    ts = np.arange(t0, t1 + step / 2, step)
-    p = np.asarray(pos_at(ts), dtype=float)[:, :2]
-    ok = np.hypot(*(p - np.asarray(list(start)[:2], dtype=float)).T) <= speed * (ts - t0)
-    return float(ts[np.argmax(ok)]) if ok.any() else None
-
-
-# ---------------------------------------------------------------- one interceptor
-@dataclass
-class Law:
-    """Guidance parameters shared by every interceptor of one run."""
-
-    guidance: str = "intercept"
-    speed: float = DEFAULT_SPEED
-    start: tuple[float, float] = DEFAULT_START
-    capture: float = DEFAULT_CAPTURE
-    nav: float = 4.0  # PN navigation constant N (3-5 is usual)
-    max_turn: float = math.radians(30.0)  # rad/s, PN only
-    pn_form: str = "true"  # true: a = N Vc dlambda/dt; pure: a = N V dlambda/dt
-    hold: bool = True
-
-    def __post_init__(self) -> None:
-        if self.guidance not in GUIDANCE:
-            raise ValueError(f"guidance must be one of {GUIDANCE}, not {self.guidance!r}")
-        if not self.speed > 0:
-            raise ValueError("speed must be positive")
-        if self.pn_form not in PN_FORMS:
-            raise ValueError(f"pn_form must be one of {PN_FORMS}, not {self.pn_form!r}")
-
-
-class Interceptor:
-    """One interceptor chasing one displayed target, advanced by `frame()`.
-
-    Pure Python floats (a per-frame step on 2-vectors is cheaper without NumPy)."""
-
-    def __init__(self, target: str, law: Law) -> None:
-        self.target, self.law = target, law
-        self.x, self.y, self.z = float(law.start[0]), float(law.start[1]), 0.0
-        self.hx, self.hy = 0.0, 0.0  # unit heading commanded for the next interval
-        self.flying = True
-        self.t: float | None = None
-        self.t_launch: float | None = None
-        self.dt = 0.0
-        self.frames = 0
-        self.capture_t: float | None = None
-        self.capture_pos: tuple[float, float, float] | None = None
-        self.capture_dist: float | None = None
-        self.closest_t: float | None = None
-        self.closest_dist = math.inf
-        self.closest_pos: tuple[float, float, float] | None = None
-
-    # -------------------------------------------------------- guidance laws
-    def _aim(self, px: float, py: float) -> None:
-        dx, dy = px - self.x, py - self.y
-        d = math.hypot(dx, dy)
-        if d > 0.0:
-            self.hx, self.hy = dx / d, dy / d
-
-    def _steer(self, p: list[float], v: list[float], dt: float) -> None:
-        law = self.law
-        rx, ry = p[0] - self.x, p[1] - self.y
-        if law.guidance == "pure" or (self.hx == 0.0 and self.hy == 0.0):
-            self._aim(p[0], p[1])  # PN and intercept also launch along the line of sight
-            if law.guidance != "intercept":
-                return
-        if law.guidance == "intercept":
-            tau = intercept_time((rx, ry), (v[0], v[1]), law.speed)
-            if tau is None:
-                self._aim(p[0], p[1])
-            else:
-                self._aim(p[0] + v[0] * tau, p[1] + v[1] * tau)
-            return
-        # proportional navigation on the heading angle
-        s = law.speed
-        vrx, vry = v[0] - s * self.hx, v[1] - s * self.hy
-        r2 = rx * rx + ry * ry
-        if r2 == 0.0:
-            return
-        r = math.sqrt(r2)
-        closing = -(rx * vrx + ry * vry) / r
-        los_rate = (rx * vry - ry * vrx) / r2
-        if law.pn_form == "pure":
-            rate = law.nav * los_rate
-        elif closing > 0.0:
-            rate = law.nav * los_rate * closing / s
-        else:  # range opening: PN's command has the wrong sign; turn toward the LOS
-            err = math.atan2(self.hx * ry - self.hy * rx, self.hx * rx + self.hy * ry)
-            rate = math.copysign(law.max_turn, err) if dt > 0 else 0.0
-            if dt > 0 and abs(err) < law.max_turn * dt:
-                rate = err / dt
-        rate = max(-law.max_turn, min(law.max_turn, rate))
-        psi = math.atan2(self.hy, self.hx) + rate * dt
-        self.hx, self.hy = math.cos(psi), math.sin(psi)
-
-    # -------------------------------------------------------- one display frame
-    def frame(self, t: float, p: list[float], v: list[float]) -> bool:
-        """Advance to the display instant t of the target shown at p with velocity v.
-        Returns False (and changes nothing) for a frame not after the previous one."""
-        if self.t is None:
-            self.t_launch, dt = t, 0.0
-        else:
-            dt = t - self.t
-            if dt <= EPS_T:
-                return False
-            if self.flying:
-                self.x += self.law.speed * self.hx * dt
-                self.y += self.law.speed * self.hy * dt
-        self.t, self.dt = t, dt
-        self.frames += 1
-        self.z = float(p[2]) if len(p) > 2 else 0.0
-        d = math.hypot(p[0] - self.x, p[1] - self.y)
-        if self.flying:
-            if d < self.closest_dist:
-                self.closest_t, self.closest_dist = t, d
-                self.closest_pos = (self.x, self.y, self.z)
-            if self.capture_t is None and d < self.law.capture:
-                self.capture_t, self.capture_dist = t, d
-                self.capture_pos = (self.x, self.y, self.z)
-                if self.law.hold:
-                    self.flying = False
-                    self.hx = self.hy = 0.0
-        if self.flying:
-            self._steer(p, v, dt)
-        return True
-
-    def display(self, name: str) -> dict[str, Any]:
-        s = self.law.speed if self.flying else 0.0
-        return {"t": self.t, "id": f"{name}-{self.target}", "pos": [self.x, self.y, self.z],
-                "vel": [s * self.hx, s * self.hy, 0.0], "sigma": 0.0, "status": "confirmed",
-                "age": 0.0, "target": self.target, "captured": self.capture_t is not None}
-
-
-# ---------------------------------------------------------------- truth
-class Truth:
-    """True states of one target at scan instants, interpolated with constant acceleration
-    (the sample's `acc`, else the velocity difference to the next sample, else 0) by
-    clients.scenarios.interpolate."""
-
-    def __init__(self) -> None:
-        self.t: list[float] = []
-        self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
-
-    @staticmethod
-    def _vec(x: Any) -> np.ndarray:
-        out = np.zeros(3)
-        vals = [float(a) for a in x][:3]
-        out[:len(vals)] = vals
-        return out
-
-    def add(self, msg: dict[str, Any]) -> None:
-        t = float(msg["t"])
-        row = (self._vec(msg["pos"]), self._vec(msg.get("vel", [0.0])),
-               self._vec(msg["acc"]) if msg.get("acc") is not None else None)
-        k = bisect.bisect_left(self.t, t)
-        if k < len(self.t) and abs(self.t[k] - t) < EPS_T:
-            self.rows[k] = row
-        else:
-            self.t.insert(k, t)
-            self.rows.insert(k, row)
-
-    def __bool__(self) -> bool:
-        return bool(self.t)
-
-    def acc(self, k: int) -> np.ndarray:
-        p, v, a = self.rows[k]
-        if a is not None:
-            return a
-        if k + 1 < len(self.t):
-            return (self.rows[k + 1][1] - v) / (self.t[k + 1] - self.t[k])
-        return np.zeros(3)
-
-    def pos(self, t: float | np.ndarray) -> np.ndarray:
-        """True position(s) at t: (3,) for a float, (n, 3) for an array."""
-        P = np.stack([r[0] for r in self.rows])
-        V = np.stack([r[1] for r in self.rows])
-        A = np.stack([self.acc(i) for i in range(len(self.t))])
-        out = interpolate(np.asarray(self.t), P, V, A, t, eps=EPS_T)[0]
-        return out if np.ndim(t) else out[0]
+from .guidance import (
+    DEFAULT_CAPTURE,
+    DEFAULT_SPEED,
+    DEFAULT_START,
+    EPS_T,
+    GUIDANCE,
+    PN_FORMS,
+    Interceptor,
+    Law,
+)
+from .intercept_report import Truth, line, result_row, summarize, summary_line
 
 
 # ---------------------------------------------------------------- many interceptors
-def percentile(values: list[float], q: float) -> float | None:
-    return float(np.percentile(values, q)) if values else None
-
-
 @dataclass
 class _State:
     planes: dict[str, Interceptor] = field(default_factory=dict)
@@ -518,97 +313,15 @@ class Interceptors:
     # -------------------------------------------------------- results
     def results(self) -> list[dict[str, Any]]:
         """One dict per target, sorted by id (times s, distances m; None where unknown)."""
-        law = self.law
-        out = []
         with self.cond:
             items = sorted(self.state.planes.items())
             truths = {k: v for k, v in self.state.truth.items() if v}
-            for tid, pl in items:
-                row: dict[str, Any] = {
-                    "target": tid, "id": f"{self.name}-{tid}", "guidance": law.guidance,
-                    "launch_t": pl.t_launch, "last_t": pl.t, "frames": pl.frames,
-                    "captured": pl.capture_t is not None, "capture_t": pl.capture_t,
-                    "capture_dist": pl.capture_dist, "closest_t": pl.closest_t,
-                    "closest_dist": pl.closest_dist if pl.closest_t is not None else None,
-                    "pos": [pl.x, pl.y, pl.z], "capture_true_dist": None,
-                    "closest_true_dist": None, "earliest_reach_t": None}
-                tr = truths.get(tid)
-                if tr is not None:
-                    if pl.capture_t is not None and pl.capture_pos is not None:
-                        row["capture_true_dist"] = float(np.linalg.norm(
-                            tr.pos(pl.capture_t) - np.array(pl.capture_pos)))
-                    if pl.closest_t is not None and pl.closest_pos is not None:
-                        row["closest_true_dist"] = float(np.linalg.norm(
-                            tr.pos(pl.closest_t) - np.array(pl.closest_pos)))
-                    if pl.t_launch is not None:
-                        row["earliest_reach_t"] = earliest_reach(
-                            tr.pos, law.start, law.speed, pl.t_launch,
-                            max(tr.t[-1], pl.t or tr.t[-1]), step=1e-2)
-                out.append(row)
-        return out
+            return [result_row(tid, self.name, self.law, pl, truths.get(tid))
+                    for tid, pl in items]
 
     def summary(self, rows: list[dict[str, Any]] | None = None) -> dict[str, Any]:
-        rows = self.results() if rows is None else rows
-        cap = [r for r in rows if r["captured"]]
-        times = [r["capture_t"] for r in cap]
-        true_cap = [r["capture_true_dist"] for r in cap if r["capture_true_dist"] is not None]
-        true_ca = [r["closest_true_dist"] for r in rows if r["closest_true_dist"] is not None]
-        early = [r["earliest_reach_t"] for r in rows if r["earliest_reach_t"] is not None]
-        law = self.law
-        return {
-            "guidance": law.guidance, "speed": law.speed, "start": list(law.start),
-            "capture_radius": law.capture, "hold": law.hold,
-            "nav": law.nav, "max_turn_deg_s": math.degrees(law.max_turn),
-            "pn_form": law.pn_form,
-            "targets": len(rows), "captured": len(cap),
-            "capture_fraction": len(cap) / len(rows) if rows else None,
-            "mean_capture_t": float(np.mean(times)) if times else None,
-            "median_capture_t": percentile(times, 50),
-            "mean_earliest_reach_t": float(np.mean(early)) if early else None,
-            "true_dist_at_capture_median": percentile(true_cap, 50),
-            "true_dist_at_capture_p90": percentile(true_cap, 90),
-            "true_dist_at_closest_median": percentile(true_ca, 50),
-            "true_dist_at_closest_p90": percentile(true_ca, 90),
-            "median_closest_dist": percentile(
-                [r["closest_dist"] for r in rows if r["closest_dist"] is not None], 50),
-        }
-
-
-# ---------------------------------------------------------------- text output
-def _f(x: float | None, fmt: str = ".2f", unit: str = "") -> str:
-    return "-" if x is None else f"{x:{fmt}}{unit}"
-
-
-def line(r: dict[str, Any]) -> str:
-    head = f"{r['target']:<16} {r['guidance']:<9}"
-    if r["captured"]:
-        s = (f"{head} captured at t={_f(r['capture_t'])} s, {_f(r['capture_dist'], '.3f')} m "
-             f"from the track, {_f(r['capture_true_dist'])} m from the true target")
-    else:
-        s = (f"{head} not captured: closest {_f(r['closest_dist'])} m at "
-             f"t={_f(r['closest_t'])} s, {_f(r['closest_true_dist'])} m from the true target")
-    if r["earliest_reach_t"] is not None:
-        s += f"; earliest feasible t={r['earliest_reach_t']:.2f} s"
-    return s
-
-
-def summary_line(s: dict[str, Any]) -> str:
-    if not s["targets"]:
-        return f"track-intercept: {s['guidance']}: no target seen"
-    out = (f"track-intercept: {s['guidance']}: {s['captured']}/{s['targets']} captured "
-           f"({100 * s['capture_fraction']:.0f} %) within {s['capture_radius']} m of the track, "
-           f"mean capture t={_f(s['mean_capture_t'])} s")
-    if s["mean_earliest_reach_t"] is not None:
-        out += f" (earliest feasible {s['mean_earliest_reach_t']:.2f} s)"
-    if s["true_dist_at_capture_median"] is not None:
-        out += (f"; true-target distance at capture: median "
-                f"{s['true_dist_at_capture_median']:.2f} m, p90 "
-                f"{s['true_dist_at_capture_p90']:.2f} m")
-    elif s["true_dist_at_closest_median"] is not None:
-        out += (f"; true-target distance at closest approach: median "
-                f"{s['true_dist_at_closest_median']:.2f} m, p90 "
-                f"{s['true_dist_at_closest_p90']:.2f} m")
-    return out
+        """The run's summary over `rows` (default: results())."""
+        return summarize(self.law, self.results() if rows is None else rows)
 
 
 # ---------------------------------------------------------------- CLI

@@ -15,6 +15,7 @@ from . import __version__, defaults
 from .estimation.imm import IMM, standard_modes
 from .estimation.vdf import VDF
 from .node import TrackService
+from .tracking.association import SensorModels
 from .tracking.display import DisplayConfig
 from .tracking.tracker import Tracker, TrackerConfig
 from .wire import Keys, add_zenoh_args, patient, zenoh_config
@@ -51,11 +52,29 @@ def tracker_config(args: argparse.Namespace) -> TrackerConfig:
         q = args.q if args.q is not None else defaults.Q_CA
     elif args.filter == "ekf":
         conversion = "ekf"
+    m, n = confirm_rule(args.confirm)
+    sensors = SensorModels.from_file(args.sensors, args.pd, args.clutter_density) \
+        if args.sensors else SensorModels(args.pd, args.clutter_density)
     return TrackerConfig(order=order, conversion=conversion, filter=filt, q=q,
                          init_speed=args.init_speed, init_accel=args.init_accel,
                          delete_after=args.delete_after,
                          display=DisplayConfig(rate=args.rate, blend=args.blend,
-                                               blend_speed=args.blend_speed, lag=args.lag))
+                                               blend_speed=args.blend_speed, lag=args.lag),
+                         associator=args.associator, sensors=sensors,
+                         gate_probability=args.gate, max_speed=args.max_speed,
+                         confirm_m=m, confirm_n=n, confirm_score=args.confirm_score,
+                         delete_misses=args.delete_misses, delete_sigma=args.delete_sigma)
+
+
+def confirm_rule(text: str) -> tuple[int, int]:
+    """`M/N` -> (M, N), 1 <= M <= N <= 16."""
+    try:
+        m, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise SystemExit(f"track-service: --confirm takes M/N, e.g. 3/4, not {text!r}") from None
+    if not 1 <= m <= n <= 16:
+        raise SystemExit(f"track-service: --confirm {text}: need 1 <= M <= N <= 16")
+    return m, n
 
 
 def parser() -> argparse.ArgumentParser:
@@ -114,6 +133,40 @@ def parser() -> argparse.ArgumentParser:
                    help="measurement key expression(s) this instance tracks (repeatable; "
                         "default <ns>/meas/**): a shard takes its part of the key space, "
                         "e.g. 'track/meas/radar-a/**' or 'track/meas/*/swarm-0$*'")
+    g = p.add_argument_group("unlabelled scans (<ns>/plots/<sensor>)")
+    g.add_argument("--plots", action="append", default=[], metavar="KEYEXPR",
+                   help="scan key expression(s) this instance tracks (repeatable; default "
+                        "<ns>/plots/*): shards partition scans by sensor")
+    g.add_argument("--associator", choices=("gnn", "jpda"), default=defaults.ASSOCIATOR,
+                   help="gnn: global nearest neighbour (default); jpda: joint probabilistic "
+                        "data association")
+    g.add_argument("--pd", type=float, default=defaults.PD,
+                   help="detection probability of every sensor (default %(default)s)")
+    g.add_argument("--clutter-density", type=float, default=defaults.CLUTTER_DENSITY,
+                   metavar="PER_M2", help="false detections per m^2 (2-D) or m^3 (3-D) "
+                                          "(default: estimated from the scans)")
+    g.add_argument("--sensors", metavar="FILE.json",
+                   help='per-sensor settings: {"radar1": {"pd": 0.9, "clutter_density": '
+                        '2e-7}, ...}; the flags give the rest')
+    g.add_argument("--gate", type=float, default=defaults.GATE_PROBABILITY,
+                   metavar="PROBABILITY", help="chi-square gate probability "
+                                               "(default %(default)s)")
+    g.add_argument("--max-speed", type=float, default=defaults.MAX_SPEED,
+                   help="m/s: fastest target; a new track's velocity prior has std a third "
+                        "of it per axis (default %(default)s)")
+    g.add_argument("--confirm", default=f"{defaults.CONFIRM_M}/{defaults.CONFIRM_N}",
+                   metavar="M/N", help="confirm a track detected in M of its last N scans "
+                                       "(default %(default)s) ...")
+    g.add_argument("--confirm-score", type=float, default=defaults.CONFIRM_SCORE,
+                   help="... whose track score (log-likelihood ratio) reached this "
+                        "(default %(default)s = ln 100)")
+    g.add_argument("--delete-misses", type=int, default=defaults.DELETE_MISSES,
+                   help="delete a confirmed track after this many missed scans in a row")
+    g.add_argument("--delete-sigma", type=float, default=defaults.DELETE_SIGMA,
+                   help="m: delete a track whose position sigma exceeds this")
+    g.add_argument("--reorder", type=float, default=defaults.REORDER, metavar="SECONDS",
+                   help="how long a scan waits for older scans of other sensors, s of "
+                        "simulation time (default %(default)s)")
     p.add_argument("--instance", default=None, help="liveliness instance name")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -133,7 +186,8 @@ def main(argv: list[str] | None = None) -> None:
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),
                        per_target_display=not args.no_display_keys,
-                       meas_keys=args.meas or None).start()
+                       meas_keys=args.meas or None, plot_keys=args.plots or None,
+                       reorder=args.reorder).start()
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

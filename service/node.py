@@ -16,27 +16,26 @@ import math
 import queue
 import threading
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import zenoh
 
 from . import __version__, defaults
-from .encode import pack_displays, pack_frame, pack_tracks
+from .outputs import Publisher
 from .tracking.clock import Lockstep, Realtime
-from .tracking.display import Snapshot
-from .tracking.store import States
+from .tracking.reorder import ReorderBuffer
 from .tracking.tracker import Tracker
 from .wire import (
-    CHUNK,
     PROTOCOL_VERSION,
     Keys,
     Measurement,
+    PlotScan,
     Rejected,
     pack,
     parse_clock,
     parse_measurement,
+    parse_plots,
     unpack,
 )
 
@@ -55,45 +54,27 @@ def _meas_time(item: tuple) -> float:
         return -math.inf
 
 
-@dataclass
-class Counters:
-    meas_accepted: int = 0
-    meas_rejected: int = 0
-    meas_lost: int = 0
-    frames_published: int = 0
-    frames_missed: int = 0
-    tracks_deleted: int = 0
-    states_withheld: int = 0
-    reasons: dict[str, int] = field(default_factory=dict)
-
-
 class TrackService:
     """One tracker instance on one Zenoh session."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, tracker: Tracker, *,
                  clock: str = defaults.CLOCK, instance: str = "0",
                  noise: tuple[float, float, float, float] = defaults.NOISE,
-                 per_target_display: bool = True, meas_keys: list[str] | None = None) -> None:
+                 per_target_display: bool = True, meas_keys: list[str] | None = None,
+                 plot_keys: list[str] | None = None, reorder: float = defaults.REORDER
+                 ) -> None:
         self.session, self.keys, self.tracker = session, keys, tracker
         rate = tracker.config.display.rate
         self.realtime = clock == "realtime"
         self.clock = Realtime(rate) if self.realtime else Lockstep(rate)
         self.rate, self.instance, self.noise = rate, instance, noise
         self.per_target_display = per_target_display
-        self.count = Counters()
+        self.out = Publisher(session, keys, self.realtime, per_target_display)
+        self.count = self.out.count
         self.started = time.monotonic()
         self.inbox: queue.SimpleQueue[tuple] = queue.SimpleQueue()
         self.last_seq: dict[str, int] = {}
         self.stop = threading.Event()
-        cc = zenoh.CongestionControl
-        self.display_cc = cc.DROP if self.realtime else cc.BLOCK
-        self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc)
-        # key expressions of each track's display/ and tracks/ keys, made once per track;
-        # plain session.put on them: zenoh declares cost O(declared) each, so a
-        # publisher per target would make starting N tracks O(N^2) (bench/README.md)
-        self.track_keys: dict[str, tuple[zenoh.KeyExpr, zenoh.KeyExpr]] = {}
-        self.frame_ids: tuple[list[str] | None, bytes] = (None, b"")  # ids, packed
-        self.block = zenoh.CongestionControl.BLOCK
         put = self.inbox.put
 
         def direct(fn: Any) -> zenoh.handlers.Callback:
@@ -111,10 +92,16 @@ class TrackService:
             control(("clock", str(s.key_expr), s.payload.to_bytes(), time.time()))
 
         self.ingest_lock = threading.Lock()
-        self.meas_subs = [session.declare_subscriber(k, zenoh.handlers.FifoChannel(CHANNEL))
-                          for k in (meas_keys or [keys.space("meas")])]
+        # measurements and unlabelled scans wait in Zenoh's FIFO channels: (kind, sub)
+        self.reorder: ReorderBuffer[tuple[str, PlotScan]] = ReorderBuffer(reorder)
+        fifo = zenoh.handlers.FifoChannel
+        self.meas_subs = [
+            *(("meas", session.declare_subscriber(k, fifo(CHANNEL)))
+              for k in (meas_keys or [keys.space("meas")])),
+            *(("plots", session.declare_subscriber(k, fifo(CHANNEL)))
+              for k in (plot_keys or [keys.plots("*")]))]
         self.subs = [
-            *self.meas_subs,
+            *(sub for _, sub in self.meas_subs),
             session.declare_subscriber(keys.clock, direct(clock)),
             session.declare_queryable(keys.space("tracks"),
                                       direct(lambda q: control(("tracks", q)))),
@@ -146,19 +133,19 @@ class TrackService:
             subs = self.meas_subs
             if len(subs) > 1:
                 limit = None
-            lists = [self._drain(sub, limit, now) for sub in subs]
+            lists = [self._drain(kind, sub, limit, now) for kind, sub in subs]
             items = lists[0] if len(lists) == 1 else heapq.merge(*lists, key=_meas_time)
             for item in items:
                 self.inbox.put(item)
 
     @staticmethod
-    def _drain(sub: Any, limit: int | None, now: float) -> list[tuple]:
+    def _drain(kind: str, sub: Any, limit: int | None, now: float) -> list[tuple]:
         out: list[tuple] = []
         while limit is None or len(out) < limit:
             s = sub.try_recv()
             if s is None:
                 break
-            out.append(("meas", str(s.key_expr), s.payload.to_bytes(), now))
+            out.append((kind, str(s.key_expr), s.payload.to_bytes(), now))
         return out
 
     def _run(self) -> None:
@@ -204,12 +191,18 @@ class TrackService:
                 try:
                     t = parse_clock(item[2])
                 except Rejected as exc:
-                    self._reject(item[1], "clock", str(exc))
+                    self.out.reject(item[1], "clock", str(exc))
                     continue
+                self._flush(pending)
+                for _, (key, scan) in self.reorder.advance(t, flush=True):
+                    self._apply_scan(key, scan)  # nothing older will come
                 if self.realtime:
                     self.clock.observe(t, item[3])
                 else:
                     self._frames_before(t, pending)
+            elif kind == "plots":
+                self._flush(pending)  # the labelled ones received before it go first
+                self._take_scan(item[1], item[2], item[3])
             elif kind in ("tracks", "status"):
                 self._flush(pending)
                 self._answer(kind, item[1])
@@ -223,7 +216,7 @@ class TrackService:
                 raise Rejected("measurement key must be <ns>/meas/<sensor>/<target>")
             m = parse_measurement(chunks[0], chunks[1], payload, self.noise)
         except Rejected as exc:
-            self._reject(key, sensor, str(exc))
+            self.out.reject(key, sensor, str(exc))
             return None
         if m.seq is not None:
             last = self.last_seq.get(m.sensor)
@@ -232,97 +225,67 @@ class TrackService:
             self.last_seq[m.sensor] = m.seq if last is None else max(last, m.seq)
         return m
 
-    def _reject(self, key: str, sensor: str, reason: str) -> None:
-        c = self.count
-        c.meas_rejected += 1
-        head = reason.split(":")[0]
-        c.reasons[head] = c.reasons.get(head, 0) + 1
-        log.warning("rejected %s: %s", key, reason)
-        self.session.put(self.keys.errors(sensor if CHUNK.fullmatch(sensor) else "unknown"),
-                         pack({"key": key, "reason": reason, "t_wall": time.time()}),
-                         congestion_control=zenoh.CongestionControl.BLOCK)
+    def _take_scan(self, key: str, payload: bytes, wall: float) -> None:
+        """Check an unlabelled scan, report its bad detections, and let it wait in the
+        reorder buffer; apply the scans it releases."""
+        chunks = self.keys.chunks_after(key, "plots")
+        sensor = chunks[0] if chunks and chunks[0] else "unknown"
+        try:
+            if len(chunks) != 1:
+                raise Rejected("scan key must be <ns>/plots/<sensor>")
+            scan = parse_plots(chunks[0], payload, self.noise)
+            late = self.reorder.late(scan.t)
+            if late:
+                raise Rejected(late)
+        except Rejected as exc:
+            self.out.reject(key, sensor, str(exc))
+            return
+        for _, reason in scan.rejected:
+            self.out.reject(key, sensor, reason)
+        if self.realtime:
+            self.clock.observe(scan.t, wall)
+        for _, (k, s) in self.reorder.push(sensor, scan.t, (key, scan)):
+            self._apply_scan(k, s)
+
+    def _apply_scan(self, key: str, scan: PlotScan) -> None:
+        if not self.realtime:
+            self._frames_before(scan.t, [])
+        outcomes, deleted = self.tracker.track_scan(scan)
+        self.out.deleted(deleted)
+        self.count.scans_applied += 1
+        self.out.states(outcomes, key)
 
     def _flush(self, pending: list[Measurement]) -> None:
         if not pending:
             return
-        blocks: dict[int, States] = {}  # the updated tracks, in order, once each block
         outcomes, deleted = self.tracker.track(pending)
-        self._deleted(deleted)
-        for out in outcomes:
-            m = out.meas
-            if out.reason is not None:
-                self._reject(self.keys.meas(m.sensor, m.target), m.sensor, out.reason)
-                continue
-            self.count.meas_accepted += 1
-            blocks.setdefault(id(out.states), out.states)  # type: ignore[arg-type]
-        put, keys, block = self.session.put, self._keys, self.block
-        for st in blocks.values():
-            bodies = pack_tracks(st.t, st.ids, st.pos, st.vel, st.x, st.p, st.models, st.nis,
-                                 st.updates)
-            for track_id, body in zip(st.ids, bodies, strict=True):
-                put(keys(track_id)[1], body, congestion_control=block)
+        self.out.deleted(deleted)
+        self.out.states(outcomes)
         pending.clear()
 
     # ------------------------------------------------------------ outputs
-    def _keys(self, track_id: str) -> tuple[zenoh.KeyExpr, zenoh.KeyExpr]:
-        """The display/ and tracks/ key expressions of a track."""
-        ke = self.track_keys.get(track_id)
-        if ke is None:
-            ke = self.track_keys[track_id] = (zenoh.KeyExpr(self.keys.display(track_id)),
-                                              zenoh.KeyExpr(self.keys.tracks(track_id)))
-        return ke
-
     def _frames_before(self, t: float, pending: list[Measurement]) -> None:
+        held = self.reorder.oldest()  # frames wait for the scans the reorder buffer holds
+        if held is not None:
+            t = min(t, held)
         due = self.clock.due_before(t - self.tracker.config.display.lag)
         if due:
             self._flush(pending)
             for instant in due:
                 self._publish_frame(instant)
 
+    def _publish_frame(self, t: float) -> None:
+        self.out.deleted(self.tracker.step([], now=t))  # an empty scan: coast and delete
+        self.out.frame(t, self.tracker.snapshot(t, detail=self.per_target_display))
+
     def _tick(self) -> None:
+        if len(self.reorder) and self.clock.offset is not None:
+            for _, (key, scan) in self.reorder.advance(time.time() + self.clock.offset):
+                self._apply_scan(key, scan)
         instant = self.clock.due(time.time() - self.tracker.config.display.lag)
         if instant is not None:
             self.count.frames_missed = self.clock.missed
             self._publish_frame(instant)
-
-    def _publish_frame(self, t: float) -> None:
-        self._deleted(self.tracker.step([], now=t))  # an empty scan: coast and delete
-        snap = self.tracker.snapshot(t, detail=self.per_target_display)
-        snap = self._finite(snap)
-        if snap.ids is not self.frame_ids[0]:
-            self.frame_ids = (snap.ids, pack(snap.ids))
-        self.pub_frame.put(pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma))
-        if self.per_target_display:
-            put, cc, keys = self.session.put, self.display_cc, self._keys
-            bodies = pack_displays(t, snap.ids, snap.pos, snap.vel, snap.sigma, snap.age,
-                                   snap.status, snap.shown)
-            for track_id, body in zip(snap.ids, bodies, strict=True):
-                put(keys(track_id)[0], body, congestion_control=cc)
-        self.count.frames_published += 1
-
-    def _finite(self, snap: Snapshot) -> Snapshot:
-        """Withhold (and count) any track whose displayed state is not finite."""
-        if (np.isfinite(snap.pos).all() and np.isfinite(snap.vel).all()
-                and np.isfinite(snap.sigma).all()):
-            return snap  # the usual case, checked without per-row reductions
-        ok = (np.isfinite(snap.pos).all(1) & np.isfinite(snap.vel).all(1)
-              & np.isfinite(snap.sigma))
-        self.count.states_withheld += int((~ok).sum())
-        keep = np.flatnonzero(ok)
-        pick = keep.tolist()
-        return Snapshot(snap.t, [snap.ids[i] for i in pick], snap.pos[keep], snap.vel[keep],
-                        snap.sigma[keep], snap.age[keep],
-                        [snap.status[i] for i in pick] if snap.status else [],
-                        [snap.shown[i] for i in pick] if snap.shown else [])
-
-    def _deleted(self, ids: list[str]) -> None:
-        """Announce deleted tracks: a Zenoh delete on each of their keys."""
-        if not ids:
-            return
-        for track_id in ids:
-            for key in self.track_keys.pop(track_id, None) or ():
-                self.session.delete(key, congestion_control=self.block)  # never dropped
-        self.count.tracks_deleted += len(ids)
 
     # ------------------------------------------------------------ queries
     def status(self) -> dict[str, Any]:
@@ -337,6 +300,7 @@ class TrackService:
             "tracks_deleted": c.tracks_deleted,
             "frames_skipped": getattr(self.clock, "skipped", 0),
             "states_withheld": c.states_withheld,
+            "scans_applied": c.scans_applied, "scans_held": len(self.reorder),
             "reject_reasons": dict(c.reasons),
             "queue": self.inbox.qsize(),
         }

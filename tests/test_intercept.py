@@ -16,14 +16,9 @@ import pytest
 import zenoh
 
 from clients import evaluate as track_eval
-from clients.intercept import (
-    Interceptor,
-    Interceptors,
-    Law,
-    Truth,
-    earliest_reach,
-    intercept_time,
-)
+from clients.guidance import Interceptor, Law, earliest_reach, intercept_time
+from clients.intercept import Interceptors
+from clients.intercept_report import Truth
 from clients.procs import stop
 from clients.scenarios import ManeuverC
 

@@ -9,6 +9,7 @@ a feed can be written against it without the estimation code (tests/test_layers.
 from .codec import Rejected, decode_frame, decode_map, f64_bin, f64_list, pack, unpack
 from .keys import CHUNK, DEFAULT_NS, PROTOCOL_VERSION, SHOWN, STATUSES, Keys
 from .messages import Measurement, parse_clock, parse_full, parse_measurement
+from .plots import MAX_DETECTIONS, PlotScan, parse_plots
 from .session import (
     BLOCK_WAIT_US,
     DEFAULT_ENDPOINT,
@@ -22,9 +23,9 @@ from .session import (
 )
 
 __all__ = [
-    "BLOCK_WAIT_US", "CHUNK", "DEFAULT_ENDPOINT", "DEFAULT_NS", "PROTOCOL_VERSION", "SHOWN",
-    "STATUSES", "Keys", "Measurement", "Rejected", "add_zenoh_args", "decode_frame",
-    "decode_map", "f64_bin", "f64_list", "free_port", "open_session", "pack", "parse_clock",
-    "parse_full", "parse_measurement", "patient", "peer_config", "unpack", "wait_for_tracker",
-    "zenoh_config",
+    "BLOCK_WAIT_US", "CHUNK", "DEFAULT_ENDPOINT", "DEFAULT_NS", "MAX_DETECTIONS",
+    "PROTOCOL_VERSION", "SHOWN", "STATUSES", "Keys", "Measurement", "PlotScan", "Rejected",
+    "add_zenoh_args", "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port",
+    "open_session", "pack", "parse_clock", "parse_full", "parse_measurement", "parse_plots",
+    "patient", "peer_config", "unpack", "wait_for_tracker", "zenoh_config",
 ]

@@ -1,0 +1,131 @@
+"""The service's outputs on Zenoh: `tracks/` states, 30 Hz `display/` and `frame`,
+deletions and `errors/`, each encoded in bulk from the tracker's columns (`encode`),
+with the counters that `status` reports."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import zenoh
+
+from .encode import pack_displays, pack_frame, pack_tracks
+from .tracking.display import Snapshot
+from .tracking.store import States
+from .tracking.tracker import Outcome
+from .wire import CHUNK, Keys, pack
+
+log = logging.getLogger("track-service")
+
+
+@dataclass
+class Counters:
+    meas_accepted: int = 0
+    meas_rejected: int = 0
+    meas_lost: int = 0
+    frames_published: int = 0
+    frames_missed: int = 0
+    tracks_deleted: int = 0
+    states_withheld: int = 0
+    scans_applied: int = 0
+    reasons: dict[str, int] = field(default_factory=dict)
+
+
+
+class Publisher:
+    """Everything the service puts. `realtime`: display keys may drop under congestion
+    (a stale frame is worthless); `tracks/`, deletions and errors never do."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, realtime: bool,
+                 per_target_display: bool) -> None:
+        self.session, self.keys = session, keys
+        self.per_target_display = per_target_display
+        self.count = Counters()
+        cc = zenoh.CongestionControl
+        self.display_cc = cc.DROP if realtime else cc.BLOCK
+        self.block = cc.BLOCK
+        self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc)
+        # key expressions of each track's display/ and tracks/ keys, made once per track;
+        # plain session.put on them: zenoh declares cost O(declared) each, so a
+        # publisher per target would make starting N tracks O(N^2) (bench/README.md)
+        self.track_keys: dict[str, tuple[zenoh.KeyExpr, zenoh.KeyExpr]] = {}
+        self.frame_ids: tuple[list[str] | None, bytes] = (None, b"")  # ids, packed
+
+    def reject(self, key: str, sensor: str, reason: str) -> None:
+        c = self.count
+        c.meas_rejected += 1
+        # counted by the kind of problem (a scan's "detection <i>: " prefix dropped)
+        head = reason.split(": ", 1)[-1] if reason.startswith("detection ") else reason
+        head = head.split(":")[0]
+        c.reasons[head] = c.reasons.get(head, 0) + 1
+        log.warning("rejected %s: %s", key, reason)
+        self.session.put(self.keys.errors(sensor if CHUNK.fullmatch(sensor) else "unknown"),
+                         pack({"key": key, "reason": reason, "t_wall": time.time()}),
+                         congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def states(self, outcomes: list[Outcome], key: str | None = None) -> None:
+        """Count and report each measurement's outcome; put the `tracks/` bodies of the
+        tracks updated, once each (`key`: the scan key of unlabelled detections)."""
+        blocks: dict[int, States] = {}  # the updated tracks, in order, once each block
+        for out in outcomes:
+            m = out.meas
+            if out.reason is not None:
+                self.reject(key or self.keys.meas(m.sensor, m.target), m.sensor, out.reason)
+                continue
+            self.count.meas_accepted += 1
+            if out.states is not None:
+                blocks.setdefault(id(out.states), out.states)
+        put, keys, block = self.session.put, self._keys, self.block
+        for st in blocks.values():
+            bodies = pack_tracks(st.t, st.ids, st.pos, st.vel, st.x, st.p, st.models, st.nis,
+                                 st.updates)
+            for track_id, body in zip(st.ids, bodies, strict=True):
+                put(keys(track_id)[1], body, congestion_control=block)
+
+    def _keys(self, track_id: str) -> tuple[zenoh.KeyExpr, zenoh.KeyExpr]:
+        """The display/ and tracks/ key expressions of a track."""
+        ke = self.track_keys.get(track_id)
+        if ke is None:
+            ke = self.track_keys[track_id] = (zenoh.KeyExpr(self.keys.display(track_id)),
+                                              zenoh.KeyExpr(self.keys.tracks(track_id)))
+        return ke
+
+    def frame(self, t: float, snap: Snapshot) -> None:
+        """The display keys of instant t: `frame`, and `display/<id>` when asked for."""
+        snap = self._finite(snap)
+        if snap.ids is not self.frame_ids[0]:
+            self.frame_ids = (snap.ids, pack(snap.ids))
+        self.pub_frame.put(pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma))
+        if self.per_target_display:
+            put, cc, keys = self.session.put, self.display_cc, self._keys
+            bodies = pack_displays(t, snap.ids, snap.pos, snap.vel, snap.sigma, snap.age,
+                                   snap.status, snap.shown)
+            for track_id, body in zip(snap.ids, bodies, strict=True):
+                put(keys(track_id)[0], body, congestion_control=cc)
+        self.count.frames_published += 1
+
+    def _finite(self, snap: Snapshot) -> Snapshot:
+        """Withhold (and count) any track whose displayed state is not finite."""
+        if (np.isfinite(snap.pos).all() and np.isfinite(snap.vel).all()
+                and np.isfinite(snap.sigma).all()):
+            return snap  # the usual case, checked without per-row reductions
+        ok = (np.isfinite(snap.pos).all(1) & np.isfinite(snap.vel).all(1)
+              & np.isfinite(snap.sigma))
+        self.count.states_withheld += int((~ok).sum())
+        keep = np.flatnonzero(ok)
+        pick = keep.tolist()
+        return Snapshot(snap.t, [snap.ids[i] for i in pick], snap.pos[keep], snap.vel[keep],
+                        snap.sigma[keep], snap.age[keep],
+                        [snap.status[i] for i in pick] if snap.status else [],
+                        [snap.shown[i] for i in pick] if snap.shown else [])
+
+    def deleted(self, ids: list[str]) -> None:
+        """Announce deleted tracks: a Zenoh delete on each of their keys."""
+        if not ids:
+            return
+        for track_id in ids:
+            for key in self.track_keys.pop(track_id, None) or ():
+                self.session.delete(key, congestion_control=self.block)  # never dropped
+        self.count.tracks_deleted += len(ids)
