@@ -252,3 +252,30 @@ def test_sensor_models_from_file(tmp_path):
 
 def test_gnn_associator_is_the_default():
     assert isinstance(make().scan_associator, GNNAssociator)
+
+
+@pytest.mark.parametrize("associator", ["gnn", "jpda"])
+@pytest.mark.parametrize("kind", ["ca", "imm", "vdf"])
+def test_every_filter_tracks_unlabelled_targets(kind, associator):
+    """The associators work with every filter as the updater."""
+    from service.estimation.imm import IMM
+    from service.estimation.vdf import VDF
+
+    filt = {"ca": None, "imm": IMM(), "vdf": VDF()}[kind]
+    tracker = Tracker(TrackerConfig(order=3, q=0.5 if kind == "ca" else 1.0, filter=filt,
+                                    associator=associator,
+                                    sensors=SensorModels(pd=0.9, clutter_density=1e-7)))
+    rng = np.random.default_rng(11)
+    vel = np.array([[120.0, 0.0], [0.0, 150.0], [-90.0, 90.0]])
+    start = np.array([[-2000.0, 100.0], [150.0, -2500.0], [2000.0, -1800.0]])
+    for k in range(25):
+        truth = start + vel * k
+        seen = rng.random(3) < 0.9
+        pts = list(truth[seen] + rng.normal(0, SIGMA, (int(seen.sum()), 2)))
+        pts += list(rng.uniform(-4000, 4000, (10, 2)))
+        scan(tracker, float(k), pts)
+    snap = tracker.snapshot(24.0)
+    est = np.array([snap.pos[i, :2] for i, s in enumerate(snap.status) if s != "tentative"])
+    dist = np.linalg.norm(est[:, None] - truth[None], axis=2)
+    assert (dist.min(0) < 150).all() and (dist.min(1) < 150).all(), dist.min(0)
+    assert np.isfinite(snap.pos).all() and np.isfinite(snap.sigma).all()

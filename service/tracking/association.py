@@ -169,23 +169,24 @@ class GNNAssociator(_ScanAssociator):
             chosen.append(np.array([lookup[a, b] for a, b in zip(r[hit], c[hit], strict=True)
                                     if (a, b) in lookup], dtype=int))
         pairs = np.concatenate(chosen) if chosen else np.zeros(0, dtype=int)
-        ids = g.arrays.ids
-        assigned = set()
-        for pair in pairs.tolist():
-            i, j = int(g.ti[pair]), int(g.dj[pair])
-            hyp.updates.setdefault(g.arrays.dim, []).append(j)
-            hyp.track[j] = ids[int(g.rows[i])]  # type: ignore[assignment]
-            assigned.add(i)
+        ids, dim = g.arrays.ids, g.arrays.dim
+        ti, dj = g.ti[pairs], g.dj[pairs]
+        track_ids = [ids[r] for r in g.rows.tolist()]
+        if len(pairs):
+            hyp.updates[dim] = dj.tolist()
+            hyp.track = dict(zip(hyp.updates[dim], (track_ids[i] for i in ti.tolist()),
+                                 strict=True))  # type: ignore[arg-type]
         # gated but unassigned detections: clutter, or the start of a new track
-        used = set(hyp.track)
-        rest = sorted(set(g.dj.tolist()) - used)
-        if rest:
-            hyp.unassociated.setdefault(g.arrays.dim, []).extend(rest)
-            hyp.unassociated[g.arrays.dim].sort()
-        gain = dict(zip(g.ti[pairs].tolist(), score[pairs].tolist(), strict=True))
-        for i, r in enumerate(g.rows.tolist()):
-            (hyp.detected if i in assigned else hyp.missed).append(ids[r])  # type: ignore[arg-type]
-            hyp.score[ids[r]] = gain.get(i, miss)  # type: ignore[index]
+        rest = np.setdiff1d(g.dj, dj)
+        if len(rest):
+            hyp.unassociated[dim] = sorted(hyp.unassociated.get(dim, []) + rest.tolist())
+        hit = np.zeros(len(g.rows), dtype=bool)
+        hit[ti] = True
+        gain = np.full(len(g.rows), miss)
+        gain[ti] = score[pairs]
+        hyp.detected = [track_ids[i] for i in np.flatnonzero(hit).tolist()]  # type: ignore[misc]
+        hyp.missed = [track_ids[i] for i in np.flatnonzero(~hit).tolist()]  # type: ignore[misc]
+        hyp.score = dict(zip(track_ids, gain.tolist(), strict=True))  # type: ignore[arg-type]
         return hyp
 
 

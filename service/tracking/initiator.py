@@ -23,27 +23,27 @@ class SinglePointInitiator:
         self.init_speed, self.init_accel = init_speed, init_accel
 
     def initiate(self, store: TrackStore, dim: int, meas: Sequence[Measurement],
-                 speed: float | None = None) -> tuple[TrackArrays, np.ndarray, list[str | None]]:
-        """New tracks, one per measurement, named by its target label: the layout, the
-        rows created and, per measurement, None or the reason it started no track.
-        `speed`: the velocity prior's std instead of `init_speed`."""
+                 ids: Sequence[str] | None = None, speed: float | None = None
+                 ) -> tuple[TrackArrays, np.ndarray, list[str | None]]:
+        """New tracks, one per measurement, named by its target label (or by `ids`): the
+        layout, the rows created and, per measurement, None or the reason it started no
+        track. `speed`: the velocity prior's std instead of `init_speed`."""
         arrays = store.layout(dim)
-        z, r = cmkf_arrays(MeasurementBatch.of(meas, dim), None)
+        batch = MeasurementBatch.of(meas, dim)
+        z, r = cmkf_arrays(batch, None)
         finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
         speed = self.init_speed if speed is None else speed
         prior = [speed**2, self.init_accel**2][: arrays.order - 1]
-        rows = []
-        for m, zi, ri, ok in zip(meas, z, r, finite, strict=True):
-            if not ok:
-                continue
-            row = store.add(m.target, dim)[1]
-            rows.append(row)
-            arrays.x[row] = 0.0
-            arrays.x[row, :dim] = zi
-            arrays.p[row] = np.diag(np.repeat([0.0, *prior], dim))
-            arrays.p[row, :dim, :dim] = ri
-            arrays.t[row] = arrays.t_first[row] = m.t
-            arrays.updates[row] = 1
-            arrays.nis[row] = 0.0
-        reasons = [None if ok else "conversion gave a non-finite value" for ok in finite]
-        return arrays, np.array(rows, dtype=int), reasons
+        names = [m.target for m in meas] if ids is None else ids
+        ok = finite.tolist()
+        rows = np.array([store.add(k, dim)[1] for k, good in zip(names, ok, strict=True)
+                         if good], dtype=int)
+        arrays.x[rows] = 0.0
+        arrays.x[rows, :dim] = z[finite]
+        arrays.p[rows] = np.diag(np.repeat([0.0, *prior], dim))
+        arrays.p[rows, :dim, :dim] = r[finite]
+        arrays.t[rows] = arrays.t_first[rows] = batch.t[finite]
+        arrays.updates[rows] = 1
+        arrays.nis[rows] = 0.0
+        reasons = [None if good else "conversion gave a non-finite value" for good in ok]
+        return arrays, rows, reasons

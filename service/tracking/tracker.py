@@ -12,7 +12,7 @@ or JPDA associator (`association`), and their tracks live by M of N (`life`).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -202,10 +202,9 @@ class Tracker:
         reused in a run), tentative until confirmed M of N."""
         meas = [o.meas for o in scan]
         unlabelled = bool(meas) and not meas[0].target
-        if unlabelled:
-            meas = [replace(m, target=self._new_id(m.sensor)) for m in meas]
+        ids = [self._new_id(m.sensor) for m in meas] if unlabelled else None
         speed = self.config.max_speed / 3 if unlabelled else None
-        arrays, rows, reasons = self.initiator.initiate(self.store, dim, meas, speed)
+        arrays, rows, reasons = self.initiator.initiate(self.store, dim, meas, ids, speed)
         if unlabelled:
             arrays.plot[rows], arrays.hits[rows], arrays.scans[rows] = True, 1, 1
             arrays.confirmed[rows] = self.config.confirm_m <= 1 and \
