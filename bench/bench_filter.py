@@ -53,6 +53,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
 from service.estimation import filters, kalman, models  # noqa: E402
+from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.estimation.measurements import MeasurementBatch  # noqa: E402
 from service.estimation.ucm import cmkf_arrays  # noqa: E402
 from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
@@ -168,7 +169,7 @@ def ours_parts(x, p, batch):
 
 def bench_ours(n: int, reps: int, seed: int) -> dict:
     data = scans(n, PRIOR_SCANS + 1 + reps, seed)
-    table = Tracker(TrackerConfig(order=ORDER, q=Q))
+    table = Tracker(TrackerConfig(filter=FilterSpec({2: "cv", 3: "ca"}[ORDER], Q)))
     for scan in data[:PRIOR_SCANS]:
         assert all(o.reason is None for o in table.track(scan)[0])
     x0, p0 = prior(table, data[PRIOR_SCANS])

@@ -12,15 +12,12 @@ import uuid
 import zenoh
 
 from . import __version__, defaults
-from .estimation.imm import IMM, standard_modes
-from .estimation.vdf import VDF
+from .estimation.catalog import FILTERS, FilterSpec
 from .node import TrackService
 from .tracking.association import SensorModels
 from .tracking.display import DisplayConfig
 from .tracking.tracker import Tracker, TrackerConfig
 from .wire import Keys, add_zenoh_args, patient, zenoh_config
-
-FILTERS = ("cv", "ca", "ekf", "vdf", "imm")
 
 
 def steady_malloc() -> None:
@@ -38,25 +35,13 @@ def steady_malloc() -> None:
 
 
 def tracker_config(args: argparse.Namespace) -> TrackerConfig:
-    """The tracker's configuration from the options (the --filter choice and its noise)."""
-    order, conversion, filt = 2, "cmkf", None
-    q = args.q if args.q is not None else defaults.Q_CV
-    if args.filter == "imm":
-        order = 3
-        filt = IMM(standard_modes(q, args.imm_ct_q, args.imm_turn), args.imm_sojourn)
-    elif args.filter == "vdf":
-        order, q = 3, 0.0
-        filt = VDF(detect=args.vdf_detect, settle=args.vdf_settle)
-    elif args.filter == "ca":
-        order = 3
-        q = args.q if args.q is not None else defaults.Q_CA
-    elif args.filter == "ekf":
-        conversion = "ekf"
+    """The tracker's configuration from the options."""
+    spec = FilterSpec(args.filter, args.q, args.imm_ct_q, args.imm_turn, args.imm_sojourn,
+                      args.vdf_detect, args.vdf_settle)
     m, n = confirm_rule(args.confirm)
     sensors = SensorModels.from_file(args.sensors, args.pd, args.clutter_density) \
         if args.sensors else SensorModels(args.pd, args.clutter_density)
-    return TrackerConfig(order=order, conversion=conversion, filter=filt, q=q,
-                         init_speed=args.init_speed, init_accel=args.init_accel,
+    return TrackerConfig(filter=spec, init_speed=args.init_speed, init_accel=args.init_accel,
                          delete_after=args.delete_after,
                          display=DisplayConfig(rate=args.rate, blend=args.blend,
                                                blend_speed=args.blend_speed, lag=args.lag),

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from service.estimation import models
+from service.estimation.catalog import FilterSpec
 from service.estimation.measurements import MeasurementBatch
 from service.tracking import association, gating
 from service.tracking.association import GNNAssociator, JPDAAssociator, SensorModels
@@ -33,7 +34,8 @@ def scan(tracker: Tracker, t: float, positions, sensor: str = "r1") -> list[Outc
 
 def make(associator: str = "gnn", **kw) -> Tracker:
     sensors = SensorModels(pd=kw.pop("pd", 0.9), clutter_density=kw.pop("density", 1e-8))
-    return Tracker(TrackerConfig(order=2, q=1.0, associator=associator, sensors=sensors,
+    return Tracker(TrackerConfig(filter=FilterSpec("cv", 1.0), associator=associator,
+                                 sensors=sensors,
                                  **kw))
 
 
@@ -258,12 +260,7 @@ def test_gnn_associator_is_the_default():
 @pytest.mark.parametrize("kind", ["ca", "imm", "vdf"])
 def test_every_filter_tracks_unlabelled_targets(kind, associator):
     """The associators work with every filter as the updater."""
-    from service.estimation.imm import IMM
-    from service.estimation.vdf import VDF
-
-    filt = {"ca": None, "imm": IMM(), "vdf": VDF()}[kind]
-    tracker = Tracker(TrackerConfig(order=3, q=0.5 if kind == "ca" else 1.0, filter=filt,
-                                    associator=associator,
+    tracker = Tracker(TrackerConfig(filter=FilterSpec(kind), associator=associator,
                                     sensors=SensorModels(pd=0.9, clutter_density=1e-7)))
     rng = np.random.default_rng(11)
     vel = np.array([[120.0, 0.0], [0.0, 150.0], [-90.0, 90.0]])

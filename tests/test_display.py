@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from service.estimation.catalog import FilterSpec
 from service.tracking import display
 from service.tracking.display import DisplayConfig
 from service.tracking.tracker import Tracker, TrackerConfig
@@ -18,10 +19,12 @@ from service.wire import Measurement
 DISPLAY = {"blend", "blend_speed", "rate", "lag", "coast_after"}
 
 
-def make(**kw) -> Tracker:
-    """A tracker whose config takes the display's options too."""
+def make(order: int = 2, q: float | None = None, **kw) -> Tracker:
+    """A single-model tracker (order 2: CV, 3: CA) whose config takes the display's
+    options too."""
     disp = DisplayConfig(**{k: kw.pop(k) for k in list(kw) if k in DISPLAY})
-    return Tracker(TrackerConfig(**kw, display=disp))
+    spec = FilterSpec({2: "cv", 3: "ca"}[order], q)
+    return Tracker(TrackerConfig(filter=spec, **kw, display=disp))
 
 RATE = 30.0
 
@@ -69,7 +72,7 @@ def estimate(table: Tracker, name: str, t: np.ndarray) -> np.ndarray:
     arrays, row = table.store.where[name]
     rows = np.full(len(t), row)
     axis_cov = table.display.columns(arrays).axis_cov[rows]
-    xs, _ = display.predicted(arrays.x[rows], arrays.t[rows], axis_cov, t, table.config.q,
+    xs, _ = display.predicted(arrays.x[rows], arrays.t[rows], axis_cov, t, table.display.q,
                               arrays.order, arrays.dim)
     return xs[:, 0]
 

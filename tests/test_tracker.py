@@ -10,6 +10,7 @@ import pytest
 
 from service.estimation import models, ucm
 from service.estimation import polar as geometry
+from service.estimation.catalog import FilterSpec
 from service.tracking.display import DisplayConfig
 from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Measurement
@@ -17,10 +18,12 @@ from service.wire import Measurement
 DISPLAY = {"blend", "blend_speed", "rate", "lag", "coast_after"}
 
 
-def make(**kw) -> Tracker:
-    """A tracker whose config takes the display's options too."""
+def make(order: int = 2, q: float | None = None, **kw) -> Tracker:
+    """A single-model tracker (order 2: CV, 3: CA) whose config takes the display's
+    options too."""
     disp = DisplayConfig(**{k: kw.pop(k) for k in list(kw) if k in DISPLAY})
-    return Tracker(TrackerConfig(**kw, display=disp))
+    spec = FilterSpec({2: "cv", 3: "ca"}[order], q)
+    return Tracker(TrackerConfig(filter=spec, **kw, display=disp))
 
 
 def cart(target, t, pos, sigma=0.0, sensor="s1"):

@@ -18,8 +18,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .. import defaults
+from ..estimation.catalog import FilterSpec
 from ..estimation.ekf import EKFConversion
-from ..estimation.filters import SingleModelFilter
 from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import CMKFConversion
 from ..wire import Measurement
@@ -39,10 +39,7 @@ if TYPE_CHECKING:
 class TrackerConfig:
     """What a tracker is built from; every default from `service.defaults`."""
 
-    order: int = 2  # of the single-model filter: 2 nearly-constant velocity, 3 acceleration
-    conversion: str = "cmkf"  # polar measurements: "cmkf" (converted) or "ekf" (linearised)
-    filter: Any = None  # an estimation IMM or VDF; None: one model of `order`
-    q: float = defaults.Q_CV  # process noise std: m/s^2 (CV) or m/s^3 (CA), per axis
+    filter: FilterSpec = field(default_factory=FilterSpec)  # the updater, by name
     init_speed: float = defaults.INIT_SPEED  # m/s: prior std of velocity at initiation
     init_accel: float = defaults.INIT_ACCEL  # m/s^2: prior std of acceleration (order 3)
     delete_after: float = defaults.DELETE_AFTER  # s of simulation time without a measurement
@@ -88,16 +85,15 @@ class Tracker:
 
     def __init__(self, config: TrackerConfig | None = None) -> None:
         self.config = c = config or TrackerConfig()
-        kind = {2: "cv", 3: "ca"}.get(c.order, "cv")
-        self.updater = c.filter or SingleModelFilter(kind, c.q, c.order)
+        self.updater, q, self.conversion = c.filter.build()
         self.associator = LabelAssociator()
         scans = {"gnn": GNNAssociator, "jpda": JPDAAssociator}[c.associator]
-        self.scan_associator = scans(c.q, c.sensors, c.gate_probability)
+        self.scan_associator = scans(q, c.sensors, c.gate_probability)
         self.initiator = SinglePointInitiator(c.init_speed, c.init_accel)
         self.deleter = CompositeDeleter(
             UpdateTimeDeleter(c.delete_after),
             MofNDeleter(c.confirm_m, c.confirm_n, c.delete_misses, c.delete_sigma))
-        self.display = DisplayState(c.display, c.q)
+        self.display = DisplayState(c.display, q)
         self.store = TrackStore(self.updater.order, self.updater.fields)
         self.numbers: dict[str, int] = {}  # per sensor: the last track number given
 
@@ -150,7 +146,7 @@ class Tracker:
         rows = np.array([store.where[k][1] for k in tracks], dtype=int)
         t = np.array([m.t for m in meas])
         batch = MeasurementBatch.of(meas, dim)  # the records as columns, once
-        conversion = EKFConversion(batch) if self.config.conversion == "ekf" else \
+        conversion = EKFConversion(batch) if self.conversion == "ekf" else \
             CMKFConversion(batch)  # the filter core converts a CMKF batch in its kernel
         xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows], conversion)
         good = rows[ok]
