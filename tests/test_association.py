@@ -276,3 +276,19 @@ def test_every_filter_tracks_unlabelled_targets(kind, associator):
     dist = np.linalg.norm(est[:, None] - truth[None], axis=2)
     assert (dist.min(0) < 150).all() and (dist.min(1) < 150).all(), dist.min(0)
     assert np.isfinite(snap.pos).all() and np.isfinite(snap.sigma).all()
+
+
+@pytest.mark.slow
+def test_ten_thousand_detections_in_one_scan():
+    """10,000 detections per scan (the documented limit is 100,000 per message): two scans
+    of 5,000 targets and 5,000 clutter are processed, every detection accounted for."""
+    rng = np.random.default_rng(2)
+    tracker = make(density=None)
+    truth = rng.uniform(-200e3, 200e3, (5000, 2))
+    for k in range(2):
+        pts = np.vstack([truth + rng.normal(0, SIGMA, truth.shape),
+                         rng.uniform(-200e3, 200e3, (5000, 2))])
+        outcomes = scan(tracker, float(k), pts)
+        assert all(o.reason is None for o in outcomes)
+    assert 5000 <= len(tracker) <= 15000
+    assert np.isfinite(tracker.snapshot(1.0).pos).all()
