@@ -292,3 +292,16 @@ def test_ten_thousand_detections_in_one_scan():
         assert all(o.reason is None for o in outcomes)
     assert 5000 <= len(tracker) <= 15000
     assert np.isfinite(tracker.snapshot(1.0).pos).all()
+
+
+def test_cluster_propagation_equals_connected_components():
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        t, d = rng.integers(1, 40, 2)
+        k = rng.integers(0, 3 * max(t, d))
+        ti, dj = rng.integers(0, t, k), rng.integers(0, d, k)
+        a = gating.clusters(ti, dj, t, d)
+        b = gating.clusters_reference(ti, dj, t, d)
+        # the same partition of the pairs (labels may differ)
+        assert len(set(zip(a.tolist(), b.tolist(), strict=True))) == len(set(a.tolist())) \
+            == len(set(b.tolist()))

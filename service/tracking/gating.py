@@ -12,6 +12,7 @@ gate graph), which the associators resolve one at a time.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +49,7 @@ class Gating:
     cluster: np.ndarray  # (K,) cluster label of each pair
 
 
+@functools.lru_cache(maxsize=64)
 def gate_threshold(probability: float, dim: int) -> float:
     """The chi-square gate gamma with P(d2 <= gamma) = probability for a true pair."""
     return float(chi2.ppf(probability, dim))
@@ -85,13 +87,30 @@ def gate(arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch, t: floa
 
 def clusters(ti: np.ndarray, dj: np.ndarray, n_tracks: int, n_dets: int) -> np.ndarray:
     """Cluster label of each pair: connected components of the graph whose nodes are the
-    tracks and the detections and whose edges are the pairs."""
+    tracks and the detections and whose edges are the pairs, by label propagation (each
+    node takes the smallest track index it is connected to; a few vectorised sweeps, as
+    many as the widest cluster is long). `clusters_reference` is the textbook search."""
+    if not len(ti):
+        return np.zeros(0, dtype=int)
+    track = np.arange(n_tracks)
+    det = np.full(n_dets, n_tracks)
+    while True:
+        np.minimum.at(det, dj, track[ti])
+        new = track.copy()
+        np.minimum.at(new, ti, det[dj])
+        if np.array_equal(new, track):
+            return track[ti]
+        track = new
+
+
+def clusters_reference(ti: np.ndarray, dj: np.ndarray, n_tracks: int,
+                       n_dets: int) -> np.ndarray:
+    """`clusters` by SciPy's connected components of the sparse bipartite graph."""
     if not len(ti):
         return np.zeros(0, dtype=int)
     n = n_tracks + n_dets
     graph = coo_matrix((np.ones(len(ti)), (ti, n_tracks + dj)), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
-    return labels[ti]
+    return connected_components(graph, directed=False)[1][ti]
 
 
 def split(g: Gating) -> tuple[np.ndarray, list[np.ndarray]]:
