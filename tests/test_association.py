@@ -59,7 +59,7 @@ def test_gate_equals_the_dense_reference():
                       rng.uniform(0, 20_000, (300, 2))])
     batch = MeasurementBatch.of([det(2.0, p) for p in dets], 2)
     gamma = gating.gate_threshold(0.999, 2)
-    g = gating.gate(arrays, rows, batch, 2.0, 1.0, gamma)
+    g = gating.gate(arrays, rows, *gating.convert(batch), 2.0, 1.0, gamma)
     xp, pp = models.predict(arrays.x[rows], arrays.p[rows], 2.0 - arrays.t[rows], 2, 2, 1.0)
     nu = dets[None, :, :] - xp[:, None, :2]  # (T, D, 2): the dense reference
     s = pp[:, None, :2, :2] + SIGMA**2 * np.eye(2)
@@ -118,7 +118,10 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
             [det(2.0, p) for p in rng.uniform(0, 1000, (3, 2))]
         assoc = tracker.scan_associator
         hyp = assoc.associate(store, meas)
-        g, pd, lam = assoc._gate(store, meas)
+        arrays = store.layout(2)  # all tentative: the nearest-neighbour stage
+        z, r = gating.convert(MeasurementBatch.of(meas, 2))
+        g = gating.gate(arrays, arrays.rows(), z, r, 2.0, 1.0, gating.gate_threshold(0.999, 2))
+        pd, lam = 0.9, 1e-8
         score = {(int(a), int(b)): v for a, b, v in
                  zip(g.ti, g.dj, np.log(pd) + g.loglik - np.log(lam), strict=True)}
         miss = np.log1p(-pd)
@@ -165,14 +168,17 @@ def test_jpda_exact_marginals_by_hand():
 def test_pda_update_equals_the_textbook_pdaf():
     """One CV track, three gated detections: the equivalent-measurement update plus the
     spread equals x = x^ + K sum beta_j nu_j, P = beta0 P^ + (1 - beta0) Pc + P~."""
-    tracker = make("jpda", density=1e-6)
+    tracker = make("jpda", density=1e-6, confirm_m=1, confirm_score=-100.0)  # established
     scan(tracker, 0.0, [(0.0, 0.0)])
     scan(tracker, 1.0, [(100.0, 0.0)])
     arrays, row = tracker.store.where["r1-1"]
     x0, p0 = arrays.x[row].copy(), arrays.p[row].copy()
     dets = np.array([[200.0, 10.0], [230.0, -20.0], [180.0, 30.0]])
     meas = [det(2.0, p) for p in dets]
-    g, pd, lam = tracker.scan_associator._gate(tracker.store, meas)
+    arrays = tracker.store.layout(2)
+    z, r = gating.convert(MeasurementBatch.of(meas, 2))
+    g = gating.gate(arrays, arrays.rows(), z, r, 2.0, 1.0, gating.gate_threshold(0.999, 2))
+    pd, lam = 0.9, 1e-6
     assert len(g.ti) == 3
     ratio = np.exp(np.log(pd) + g.loglik - np.log(lam))
     beta = ratio / (ratio.sum() + 1 - pd)  # one track: the joint events are single pairs

@@ -39,7 +39,7 @@ from .. import defaults
 from ..estimation.measurements import MeasurementBatch
 from ..wire import Measurement
 from .associator import Hypotheses, WeightedUpdate
-from .gating import Gating, gate, gate_threshold, split
+from .gating import Gating, convert, gate, gate_threshold, split
 from .store import TrackStore
 
 UNLIKELY = 1e12  # cost of a pair outside the gate in an assignment matrix
@@ -96,8 +96,13 @@ class SensorModels:
 
 
 class _ScanAssociator:
-    """What GNN and JPDA share: gating one scan (all detections of one sensor and time)
-    against the unlabelled tracks of its layout."""
+    """What GNN and JPDA share: one scan (all detections of one sensor and time) against
+    the unlabelled tracks of its layout, in two stages. The established (confirmed) tracks
+    take their detections first, with this associator; the tentative tracks then share,
+    by nearest neighbour, the detections the established ones left (so a tentative track
+    born of clutter never pulls on an established one); what is left starts new tracks.
+    The clutter density is estimated (when not configured) from the detections outside
+    every established track's gate."""
 
     def __init__(self, q: float, sensors: SensorModels | None = None,
                  gate_probability: float = defaults.GATE_PROBABILITY) -> None:
@@ -107,18 +112,34 @@ class _ScanAssociator:
     def scans(self, meas: Sequence[Measurement]) -> list[list[int]]:
         return [list(range(len(meas)))] if meas else []
 
-    def _gate(self, store: TrackStore, scan: Sequence[Measurement]
-              ) -> tuple[Gating, float, float]:
+    def associate(self, store: TrackStore, scan: Sequence[Measurement],
+                  now: float | None = None) -> Hypotheses:
+        if not scan:
+            return self._nothing_seen(store, now)
         m0 = scan[0]
         arrays = store.layout(m0.dim)
         rows = arrays.rows()
         rows = rows[arrays.plot[rows] & (arrays.t[rows] <= m0.t + 1e-6)]
-        batch = MeasurementBatch.of(scan, m0.dim)
-        g = gate(arrays, rows, batch, m0.t, self.q, gate_threshold(self.gate_probability,
-                                                                    m0.dim))
+        z, r = convert(MeasurementBatch.of(scan, m0.dim))
+        gamma = gate_threshold(self.gate_probability, m0.dim)
+        hyp = Hypotheses()
+        g = gate(arrays, rows[arrays.confirmed[rows]], z, r, m0.t, self.q, gamma)
         ungated = len(scan) - len(np.unique(g.dj))
-        lam = self.sensors.density(m0.sensor, g.z, ungated)
-        return g, self.sensors.model(m0.sensor).pd, lam
+        lam = self.sensors.density(m0.sensor, z, ungated)
+        pd = self.sensors.model(m0.sensor).pd
+        free = self.resolve(g, np.arange(len(scan)), pd, lam, hyp)
+        tentative = rows[~arrays.confirmed[rows]]
+        g = gate(arrays, tentative, z[free], r[free], m0.t, self.q, gamma)
+        free = gnn(g, free, pd, lam, hyp)
+        if len(free):
+            hyp.unassociated[m0.dim] = free.tolist()
+        return hyp
+
+    def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
+                hyp: Hypotheses) -> np.ndarray:
+        """Associate the gated pairs of `g` (its detections are scan[index]) into `hyp`;
+        returns the indices of the detections left for tentative tracks."""
+        raise NotImplementedError
 
     def _nothing_seen(self, store: TrackStore, now: float | None) -> Hypotheses:
         """An empty scan: the sensor saw none of the unlabelled tracks (of any layout:
@@ -133,66 +154,60 @@ class _ScanAssociator:
         hyp.score = dict.fromkeys(hyp.missed, miss)
         return hyp
 
-    @staticmethod
-    def _base(g: Gating, n: int) -> Hypotheses:
-        hyp = Hypotheses()
-        gated = np.zeros(n, dtype=bool)
-        gated[g.dj] = True
-        if not gated.all():
-            hyp.unassociated[g.arrays.dim] = np.flatnonzero(~gated).tolist()
-        return hyp
+
+def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) -> np.ndarray:
+    """Global nearest neighbour on the gated pairs of `g` (detections scan[index]): the
+    best joint assignment of each cluster, recorded in `hyp`; returns the indices of the
+    detections no track took."""
+    score = np.log(pd) + g.loglik - np.log(lam)  # ln likelihood ratio of each pair
+    miss = np.log1p(-pd) if pd < 1 else -UNLIKELY
+    single, groups = split(g)
+    chosen = [single[score[single] > miss]]
+    for k in groups:  # one rectangular assignment per cluster
+        tracks, ti = np.unique(g.ti[k], return_inverse=True)
+        dets, dj = np.unique(g.dj[k], return_inverse=True)
+        nt, nd = len(tracks), len(dets)
+        cost = np.full((nt, nd + nt), UNLIKELY)
+        cost[ti, dj] = -score[k]
+        cost[np.arange(nt), nd + np.arange(nt)] = -miss
+        r, c = linear_sum_assignment(cost)
+        hit = c < nd
+        lookup = {(a, b): pair for a, b, pair in zip(ti, dj, k, strict=True)}
+        chosen.append(np.array([lookup[a, b] for a, b in zip(r[hit], c[hit], strict=True)
+                                if (a, b) in lookup], dtype=int))
+    pairs = np.concatenate(chosen) if chosen else np.zeros(0, dtype=int)
+    ti, dj = g.ti[pairs], index[g.dj[pairs]]
+    track_ids = [g.arrays.ids[r] for r in g.rows.tolist()]
+    if len(pairs):
+        mine = hyp.updates.setdefault(g.arrays.dim, [])
+        mine += dj.tolist()
+        hyp.track.update(zip(dj.tolist(), (track_ids[i] for i in ti.tolist()), strict=True))
+    hit = np.zeros(len(g.rows), dtype=bool)
+    hit[ti] = True
+    gain = np.full(len(g.rows), miss)
+    gain[ti] = score[pairs]
+    _life(hyp, track_ids, hit, gain)
+    return np.setdiff1d(index, dj)
+
+
+def _life(hyp: Hypotheses, track_ids: list, detected: np.ndarray, gain: np.ndarray) -> None:
+    """Record which tracks the scan detected or missed, and their score gains."""
+    hyp.detected += [track_ids[i] for i in np.flatnonzero(detected).tolist()]
+    hyp.missed += [track_ids[i] for i in np.flatnonzero(~detected).tolist()]
+    hyp.score.update(zip(track_ids, gain.tolist(), strict=True))
 
 
 class GNNAssociator(_ScanAssociator):
     """Global nearest neighbour: the best joint assignment of each cluster."""
 
-    def associate(self, store: TrackStore, scan: Sequence[Measurement],
-                  now: float | None = None) -> Hypotheses:
-        if not scan:
-            return self._nothing_seen(store, now)
-        g, pd, lam = self._gate(store, scan)
-        hyp = self._base(g, len(scan))
-        score = np.log(pd) + g.loglik - np.log(lam)  # ln likelihood ratio of each pair
-        miss = np.log1p(-pd) if pd < 1 else -UNLIKELY
-        single, groups = split(g)
-        chosen = [single[score[single] > miss]]
-        for k in groups:  # one rectangular assignment per cluster
-            tracks, ti = np.unique(g.ti[k], return_inverse=True)
-            dets, dj = np.unique(g.dj[k], return_inverse=True)
-            nt, nd = len(tracks), len(dets)
-            cost = np.full((nt, nd + nt), UNLIKELY)
-            cost[ti, dj] = -score[k]
-            cost[np.arange(nt), nd + np.arange(nt)] = -miss
-            r, c = linear_sum_assignment(cost)
-            hit = c < nd
-            lookup = {(a, b): pair for a, b, pair in zip(ti, dj, k, strict=True)}
-            chosen.append(np.array([lookup[a, b] for a, b in zip(r[hit], c[hit], strict=True)
-                                    if (a, b) in lookup], dtype=int))
-        pairs = np.concatenate(chosen) if chosen else np.zeros(0, dtype=int)
-        ids, dim = g.arrays.ids, g.arrays.dim
-        ti, dj = g.ti[pairs], g.dj[pairs]
-        track_ids = [ids[r] for r in g.rows.tolist()]
-        if len(pairs):
-            hyp.updates[dim] = dj.tolist()
-            hyp.track = dict(zip(hyp.updates[dim], (track_ids[i] for i in ti.tolist()),
-                                 strict=True))  # type: ignore[arg-type]
-        # gated but unassigned detections: clutter, or the start of a new track
-        rest = np.setdiff1d(g.dj, dj)
-        if len(rest):
-            hyp.unassociated[dim] = sorted(hyp.unassociated.get(dim, []) + rest.tolist())
-        hit = np.zeros(len(g.rows), dtype=bool)
-        hit[ti] = True
-        gain = np.full(len(g.rows), miss)
-        gain[ti] = score[pairs]
-        hyp.detected = [track_ids[i] for i in np.flatnonzero(hit).tolist()]  # type: ignore[misc]
-        hyp.missed = [track_ids[i] for i in np.flatnonzero(~hit).tolist()]  # type: ignore[misc]
-        hyp.score = dict(zip(track_ids, gain.tolist(), strict=True))  # type: ignore[arg-type]
-        return hyp
+    def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
+                hyp: Hypotheses) -> np.ndarray:
+        return gnn(g, index, pd, lam, hyp)
 
 
 class JPDAAssociator(_ScanAssociator):
-    """Joint probabilistic data association: each track updated with all its gated
-    detections, weighted by their marginal association probabilities."""
+    """Joint probabilistic data association: each established track updated with all its
+    gated detections, weighted by their marginal association probabilities."""
 
     def __init__(self, q: float, sensors: SensorModels | None = None,
                  gate_probability: float = defaults.GATE_PROBABILITY,
@@ -200,12 +215,8 @@ class JPDAAssociator(_ScanAssociator):
         super().__init__(q, sensors, gate_probability)
         self.max_events = max_events
 
-    def associate(self, store: TrackStore, scan: Sequence[Measurement],
-                  now: float | None = None) -> Hypotheses:
-        if not scan:
-            return self._nothing_seen(store, now)
-        g, pd, lam = self._gate(store, scan)
-        hyp = self._base(g, len(scan))
+    def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
+                hyp: Hypotheses) -> np.ndarray:
         ratio = np.exp(np.log(pd) + g.loglik - np.log(lam))  # G of each pair
         beta = np.zeros(len(ratio))
         single, groups = split(g)
@@ -215,21 +226,14 @@ class JPDAAssociator(_ScanAssociator):
         update, mass = pda(g, beta)
         if len(update.rows):
             hyp.weighted.append(update)
-        ids = g.arrays.ids
-        # the track score gains the log of the track's likelihood ratio, detected or not
+        track_ids = [g.arrays.ids[r] for r in g.rows.tolist()]
+        # M of N counts a track as seen when it was more likely detected than not; the
+        # score gains the log of the track's likelihood ratio, detected or not
         gain = np.log(np.bincount(g.ti, ratio, len(g.rows)) + (1 - pd))
-        for r, b, s in zip(g.rows.tolist(), mass.tolist(), gain.tolist(), strict=True):
-            # M-of-N counts a track as seen when it was more likely detected than not
-            (hyp.detected if b >= 0.5 else hyp.missed).append(ids[r])  # type: ignore[arg-type]
-            hyp.score[ids[r]] = s  # type: ignore[index]
-        # a gated detection mostly explained as clutter may start a track too
-        claimed = np.bincount(g.dj, beta, len(scan))
-        weak = sorted(set(g.dj[claimed[g.dj] < 0.5].tolist()))
-        if weak:
-            new = hyp.unassociated.setdefault(g.arrays.dim, [])
-            new.extend(weak)
-            new.sort()
-        return hyp
+        _life(hyp, track_ids, mass >= 0.5, gain)
+        # a detection mostly explained as clutter is left to tentative and new tracks
+        claimed = np.bincount(g.dj, beta, len(index))
+        return index[claimed < 0.5]
 
     def _marginals(self, ti: np.ndarray, dj: np.ndarray, g: np.ndarray,
                    miss: float) -> np.ndarray:

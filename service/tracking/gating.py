@@ -55,12 +55,17 @@ def gate_threshold(probability: float, dim: int) -> float:
     return float(chi2.ppf(probability, dim))
 
 
-def gate(arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch, t: float,
+def convert(batch: MeasurementBatch) -> tuple[np.ndarray, np.ndarray]:
+    """The detections' converted points z (D, d) and covariances R at those points."""
+    return cmkf_arrays(batch, None)
+
+
+def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t: float,
          q: float, gamma: float) -> Gating:
-    """Predict the tracks `rows` to `t` and find the pairs within the gate `gamma`."""
+    """Predict the tracks `rows` to `t` and find their pairs with the converted detections
+    z, R (`convert`) within the gate `gamma`."""
     d, o = arrays.dim, arrays.order
     xp, pp = models.predict(arrays.x[rows], arrays.p[rows], t - arrays.t[rows], o, d, q)
-    z, r = cmkf_arrays(batch, None)
     mean, cov = xp[:, :d], pp[:, :d, :d]
     empty = np.zeros(0, dtype=int)
     if not len(rows) or not len(z):
