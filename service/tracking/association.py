@@ -39,7 +39,7 @@ from .. import defaults
 from ..estimation.measurements import MeasurementBatch
 from ..wire import Measurement
 from .associator import Hypotheses, WeightedUpdate
-from .gating import Gating, convert, gate, gate_threshold, split
+from .gating import Gating, convert, gate, gate_threshold, restrict, split
 from .store import TrackStore
 
 UNLIKELY = 1e12  # cost of a pair outside the gate in an assignment matrix
@@ -123,14 +123,14 @@ class _ScanAssociator:
         z, r = convert(MeasurementBatch.of(scan, m0.dim))
         gamma = gate_threshold(self.gate_probability, m0.dim)
         hyp = Hypotheses()
-        g = gate(arrays, rows[arrays.confirmed[rows]], z, r, m0.t, self.q, gamma)
+        every = gate(arrays, rows, z, r, m0.t, self.q, gamma)
+        confirmed = arrays.confirmed[rows]
+        g = restrict(every, confirmed, np.arange(len(scan)))
         ungated = len(scan) - len(np.unique(g.dj))
         lam = self.sensors.density(m0.sensor, z, ungated)
         pd = self.sensors.model(m0.sensor).pd
         free = self.resolve(g, np.arange(len(scan)), pd, lam, hyp)
-        tentative = rows[~arrays.confirmed[rows]]
-        g = gate(arrays, tentative, z[free], r[free], m0.t, self.q, gamma)
-        free = gnn(g, free, pd, lam, hyp)
+        free = gnn(restrict(every, ~confirmed, free), free, pd, lam, hyp)
         if len(free):
             hyp.unassociated[m0.dim] = free.tolist()
         return hyp

@@ -118,6 +118,20 @@ def clusters_reference(ti: np.ndarray, dj: np.ndarray, n_tracks: int,
     return connected_components(graph, directed=False)[1][ti]
 
 
+def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray) -> Gating:
+    """The gating of a subset of the tracks (boolean mask over g.rows) and of the
+    detections (indices into g.z) of `g`, its pairs renumbered and re-clustered."""
+    t_new = np.full(len(g.rows), -1)
+    t_new[tracks] = np.arange(int(tracks.sum()))
+    d_new = np.full(len(g.z), -1)
+    d_new[dets] = np.arange(len(dets))
+    keep = (t_new[g.ti] >= 0) & (d_new[g.dj] >= 0)
+    ti, dj = t_new[g.ti[keep]], d_new[g.dj[keep]]
+    return Gating(g.arrays, g.rows[tracks], g.xp[tracks], g.pp[tracks], g.z[dets],
+                  g.r[dets], ti, dj, g.d2[keep], g.loglik[keep], g.nu[keep],
+                  clusters(ti, dj, int(tracks.sum()), len(dets)))
+
+
 def split(g: Gating) -> tuple[np.ndarray, list[np.ndarray]]:
     """The pairs that are a cluster on their own (one track, one detection), and the
     indices of the pairs of each larger cluster."""
