@@ -1,5 +1,6 @@
 """Run a reference scenario through a lockstep track service over Zenoh and collect what it
-publishes (`tracks/*`, `frame`, and optionally interception summaries) for track-eval.
+publishes (`tracks/*`, `frame`, and optionally interception summaries) for track-eval;
+or an unlabelled-scan scenario, collecting the tracks shown at its scan instants.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import zenoh
 
 from service.wire import Keys, decode_frame, free_port, peer_config, unpack, wait_for_tracker
 
-from . import feed, scenarios
+from . import feed, feed_plots, scenarios
 from .guidance import Law
 from .intercept import Interceptors
 from .procs import stop
@@ -31,6 +32,21 @@ class Collected:
     interception: dict[str, dict] = field(default_factory=dict)  # guidance -> summary
 
 
+def lockstep_service(ns: str, service_args: list[str]) -> tuple[str, subprocess.Popen]:
+    """A lockstep service on a free loopback port: its endpoint and process."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-m", "service", "--clock", "lockstep",
+                             "-l", endpoint, "--ns", ns, *service_args],
+                            stdout=subprocess.DEVNULL)  # keep --json output clean
+    return endpoint, proc
+
+
+def option(service_args: list[str], name: str, default: float) -> float:
+    """The value of a numeric service option in `service_args` (the last one given)."""
+    at = [i for i, a in enumerate(service_args[:-1]) if a == name]
+    return float(service_args[at[-1] + 1]) if at else default
+
+
 def run_through_service(scenario: str, runs: int, seed: int, service_args: list[str],
                         endpoint: str | None = None, ns: str | None = None,
                         intercept: list[str] | None = None) -> Collected:
@@ -40,19 +56,13 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
     ns = ns or f"eval{uuid.uuid4().hex[:8]}"
     proc = None
     if endpoint is None:
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        proc = subprocess.Popen([sys.executable, "-m", "service", "--clock", "lockstep",
-                                 "-l", endpoint, "--ns", ns, *service_args],
-                                stdout=subprocess.DEVNULL)  # keep --json output clean
+        endpoint, proc = lockstep_service(ns, service_args)
     keys = Keys(ns)
     out = Collected()
     done = threading.Event()
     arrived = threading.Condition()  # notified by every tracks/ message
     scans = list(scenarios.SCENARIOS[scenario](runs=runs, seed=seed))
-    rate = float(service_args[service_args.index("--rate") + 1]) \
-        if "--rate" in service_args else 30.0
-    lag = float(service_args[service_args.index("--lag") + 1]) \
-        if "--lag" in service_args else 0.0
+    rate, lag = option(service_args, "--rate", 30.0), option(service_args, "--lag", 0.0)
     t_end = scans[-1][0] + scenarios.PERIODS[scenario] - 1.5 / rate - lag
 
     def on_track(s: Any) -> None:
@@ -101,3 +111,70 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
         session.close()
         stop(proc)
     return out
+
+
+# status and 2-D position of each track shown at one display instant
+Shown = dict[str, tuple[list[float], str]]
+
+
+def run_plots_through_service(feed_argv: list[str], service_args: list[str],
+                              timeout: float = 600.0) -> dict[float, Shown]:
+    """Start a lockstep service, publish the unlabelled scenario `feed_argv` (track-feed's
+    arguments) to it, and collect the `display/` messages (position and status) at the
+    scenario's scan instants, keyed by round(t, 6). `service_args` must set a `--rate`
+    whose display instants include every scan instant; an instant's `frame` (published
+    just before its `display/` messages) says how many tracks to expect."""
+    ns = f"eval{uuid.uuid4().hex[:8]}"
+    args = feed.parser().parse_args([*feed_argv, "--ns", ns])
+    sc = feed_plots.scenario(args)
+    times = [s.t for s in sc]
+    needed = {round(t, 6) for t in times}
+    rate = option(service_args, "--rate", 30.0)
+    if any(abs(t * rate - round(t * rate)) > 1e-6 for t in times):
+        raise SystemExit(f"track-eval: --rate {rate:g} has no display instant at some scan")
+    keys = Keys(ns)
+    shown: dict[float, Shown] = {t: {} for t in needed}
+    expect: dict[float, int] = {}
+    arrived = threading.Condition()
+
+    def on_frame(s: Any) -> None:
+        m = unpack(s.payload.to_bytes())
+        t = round(m["t"], 6)
+        if t in needed:
+            with arrived:
+                expect[t] = len(m["ids"])
+                arrived.notify_all()
+
+    def on_display(s: Any) -> None:
+        if s.kind == zenoh.SampleKind.PUT:
+            m = unpack(s.payload.to_bytes())
+            t = round(m["t"], 6)
+            if t in needed:
+                with arrived:
+                    shown[t][m["id"]] = (m["pos"][:2], m["status"])
+                    if len(shown[t]) == expect.get(t):
+                        arrived.notify_all()
+
+    def complete() -> bool:
+        return len(expect) == len(needed) and all(len(shown[t]) >= n
+                                                  for t, n in expect.items())
+
+    endpoint, proc = lockstep_service(ns, service_args)
+    session = zenoh.open(peer_config(endpoint))
+    try:
+        direct = [zenoh.handlers.Callback(f, indirect=False) for f in (on_frame, on_display)]
+        subs = [session.declare_subscriber(keys.frame, direct[0]),
+                session.declare_subscriber(keys.display("*"), direct[1])]
+        if not wait_for_tracker(session, keys, 1, timeout=30):
+            raise SystemExit(f"track-eval: no tracker on {endpoint} ns={ns}")
+        feed.publish(session, args)
+        with arrived:
+            if not arrived.wait_for(complete, timeout):
+                raise SystemExit(f"track-eval: {len(needed) - len(expect)} scan instants "
+                                 "not displayed")
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        session.close()
+        stop(proc)
+    return shown

@@ -5,7 +5,8 @@ Monte Carlo run is a separate target, so all runs go through at once), collects
 `tracks/*` and `frame` against the scenario's truth, and prints position and velocity
 RMSE per window or phase, the posterior Cramér-Rao bound and the ratio to it, average
 NEES and NIS with their 95 % chi-square intervals, and for display frames the RMS and
-maximum error and the largest visual jump.
+maximum error and the largest visual jump. The unlabelled-scan scenarios `crossing` and
+`multisensor` are evaluated with GOSPA by clients/evaluate_plots.py.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from . import metrics, scenarios
+from . import evaluate_plots, metrics, scenarios
 from .collect import Collected, run_through_service
 from .intercept_report import summary_line
 
@@ -289,12 +290,15 @@ def plot_display(collected: dict[str, Collected], outdir: str,
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
-    p.add_argument("scenario", choices=sorted(scenarios.SCENARIOS))
-    p.add_argument("--runs", type=int, default=100)
+    p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *evaluate_plots.SCENARIOS],
+                   help="crossing, multisensor: unlabelled scans and GOSPA "
+                        "(clients/evaluate_plots.py)")
+    p.add_argument("--runs", type=int, default=None,
+                   help="Monte Carlo runs (default 100; crossing, multisensor: 10)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--filter", action="append", default=[],
-                   help="service filter(s) to compare (repeatable; default cv, or ca for "
-                        "display)")
+                   help="service filter(s) to compare (repeatable; default cv, ca for display, "
+                        "the service's for crossing and multisensor)")
     p.add_argument("--service-arg", action="append", default=[],
                    help="extra argument passed to every service (repeatable)")
     p.add_argument("-e", "--connect", default=None,
@@ -309,7 +313,11 @@ def main(argv: list[str] | None = None) -> None:
                         "around corrections")
     p.add_argument("--json", action="store_true", help="print the reports as JSON")
     p.add_argument("--plot", metavar="DIR", help="write PNG figures here")
+    evaluate_plots.add_args(p)
     args = p.parse_args(argv)
+    if args.scenario in evaluate_plots.SCENARIOS:
+        return evaluate_plots.run(args)
+    args.runs = 100 if args.runs is None else args.runs
     filters = args.filter or (["ca"] if args.scenario == "display" else ["cv"])
     reports, collected = {}, {}
     if args.display_variants:

@@ -1,11 +1,14 @@
-"""`track-feed SCENARIO`: publish a reference scenario's labelled measurements.
+"""`track-feed SCENARIO`: publish a reference scenario's labelled measurements, or the
+unlabelled scans of a data-association scenario.
 
-Measurements go to `<ns>/meas/<sensor>/<target>` with congestion control BLOCK (nothing
-is lost), as fast as possible or at the pace of simulation time (`--realtime`); the feed
-ends with a `<ns>/clock` message one scan after the last, then waits for every tracker to
-confirm receipt (a status query behind the data) before it closes its session, which
-would drop whatever its links still queue. `--truth` also publishes the true states on
-`<ns>/truth/<target>` (an extension key) for evaluation.
+Measurements go to `<ns>/meas/<sensor>/<target>`, and the scans of `crossing`,
+`multisensor` and `swarm --plots` (clients/feed_plots.py) to `<ns>/plots/<sensor>`, with
+congestion control BLOCK (nothing is lost), as fast as possible or at the pace of
+simulation time (`--realtime`); the feed ends with a `<ns>/clock` message one scan after
+the last, then waits for every tracker to confirm receipt (a status query behind the
+data) before it closes its session, which would drop whatever its links still queue.
+`--truth` also publishes the true states on `<ns>/truth/<target>` (an extension key) for
+evaluation.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import zenoh
 
@@ -27,17 +30,24 @@ from service.wire import (
     zenoh_config,
 )
 
-from . import scenarios
+from . import feed_plots, plotgen, scenarios
+
+# one scan: its time (shifted by --t0), its messages (truth first), measurements among them
+Batch = tuple[float, list[tuple[zenoh.KeyExpr, bytes]], int]
 
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-feed", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scenario", choices=[*scenarios.SCENARIOS, "swarm"],
+    p.add_argument("scenario", choices=[*scenarios.SCENARIOS, "swarm", *feed_plots.SCENARIOS],
                    help="display (A, 30 Hz display), radar3d (B, CMKF vs EKF), "
-                        "maneuver (C, manoeuvring target), swarm (many straight targets)")
-    p.add_argument("--runs", type=int, default=1, help="Monte Carlo copies, one target each")
-    p.add_argument("--targets", type=int, default=100, help="swarm: number of targets")
+                        "maneuver (C, manoeuvring target), swarm (many straight targets), "
+                        "crossing and multisensor (unlabelled scans)")
+    p.add_argument("--runs", type=int, default=1,
+                   help="Monte Carlo copies, one target each (display, radar3d, maneuver)")
+    p.add_argument("--targets", type=int, default=None,
+                   help="swarm: number of targets (default 100); crossing, multisensor: "
+                        "default 20")
     p.add_argument("--duration", type=float, default=60.0, help="swarm: seconds simulated")
     p.add_argument("--sectors", type=int, default=32,
                    help="swarm: reports per radar turn, each sent as the beam leaves it")
@@ -48,13 +58,15 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--truth", action="store_true", help="also publish <ns>/truth/<target>")
     p.add_argument("--trackers", type=int, default=1,
                    help="wait for this many tracker liveliness tokens (0: do not wait)")
+    feed_plots.add_args(p)
     add_zenoh_args(p)
     return p
 
 
 def scans(args: argparse.Namespace) -> Iterator[scenarios.Scan]:
     if args.scenario == "swarm":
-        return scenarios.swarm(args.targets, args.seed, args.duration, sectors=args.sectors)
+        return scenarios.swarm(feed_plots.targets(args), args.seed, args.duration,
+                               sectors=args.sectors)
     return scenarios.SCENARIOS[args.scenario](runs=args.runs, seed=args.seed)
 
 
@@ -65,36 +77,66 @@ def stamped(body: dict, t_scan: float, offset: float, **extra: object) -> dict:
             **{k: v for k, v in body.items() if k != "t"}}
 
 
+class KeyCache(dict[str, zenoh.KeyExpr]):
+    """Key expressions made once per name and put on the session: declaring a publisher
+    per target costs O(declared) in zenoh, O(N^2) for a swarm."""
+
+    def __init__(self, key: Callable[[str], str]) -> None:
+        super().__init__()
+        self.key = key
+
+    def __missing__(self, name: str) -> zenoh.KeyExpr:
+        ke = self[name] = zenoh.KeyExpr(self.key(name))
+        return ke
+
+
+def labelled(args: argparse.Namespace, keys: Keys) -> Iterator[Batch]:
+    """The labelled scenario's scans: truth, then measurements numbered by `seq`."""
+    meas_keys = KeyCache(lambda target: keys.meas(args.sensor, target))
+    truth_keys = KeyCache(keys.truth)
+    seq = 0
+    for t0, meas, truth in scans(args):
+        out = [(truth_keys[target], pack(stamped(state, t0, args.t0)))
+               for target, state in truth] if args.truth else []
+        for target, m in meas:
+            out.append((meas_keys[target], pack(stamped(m, t0, args.t0, seq=seq))))
+            seq += 1
+        yield t0 + args.t0, out, len(meas)
+
+
+def plots(args: argparse.Namespace, keys: Keys, sc: plotgen.Scenario) -> Iterator[Batch]:
+    """The unlabelled scans of `sc`: truth ({t, pos, vel} in 2-D), then one plots scan."""
+    plot_keys, truth_keys = KeyCache(keys.plots), KeyCache(keys.truth)
+    for scan in sc:
+        scan = scan._replace(t=scan.t + args.t0)
+        out = [(truth_keys[target], pack({"t": scan.t, "pos": pos.tolist(),
+                                          "vel": vel.tolist()}))
+               for target, (pos, vel) in scan.truth.items()] if args.truth else []
+        out.append((plot_keys[scan.sensor], sc.payload(scan, args.columnar)))
+        yield scan.t, out, len(scan.dets)
+
+
 def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
-    """Publish every scan; return the number of measurements sent."""
+    """Publish every scan; return the number of measurements (detections) sent."""
     keys = Keys(args.ns)
     block = zenoh.CongestionControl.BLOCK
-    # one key expression per target, put on the session: declaring a publisher per
-    # target costs O(declared) in zenoh, O(N^2) for a swarm
-    meas_keys: dict[str, zenoh.KeyExpr] = {}
-    truth_keys: dict[str, zenoh.KeyExpr] = {}
+    if feed_plots.is_plots(args):
+        sc = feed_plots.scenario(args)
+        batches, period = plots(args, keys, sc), sc.dt
+    else:
+        batches, period = labelled(args, keys), scenarios.PERIODS[args.scenario]
     put = session.put
-    sent, seq, t_last = 0, 0, args.t0
+    sent, t_last = 0, args.t0
     wall0 = time.monotonic()
-    for t0, meas, truth in scans(args):
-        t = t0 + args.t0
+    for t, messages, n in batches:
         if args.realtime:
             delay = wall0 + (t - args.t0) - time.monotonic()
             if delay > 0:
                 time.sleep(delay)  # pacing to simulation time is the point here
-        if args.truth:
-            for target, state in truth:
-                ke = truth_keys.get(target) or truth_keys.setdefault(
-                    target, zenoh.KeyExpr(keys.truth(target)))
-                put(ke, pack(stamped(state, t0, args.t0)), congestion_control=block)
-        for target, m in meas:
-            ke = meas_keys.get(target) or meas_keys.setdefault(
-                target, zenoh.KeyExpr(keys.meas(args.sensor, target)))
-            put(ke, pack(stamped(m, t0, args.t0, seq=seq)), congestion_control=block)
-            seq += 1
-            sent += 1
+        for ke, payload in messages:
+            put(ke, payload, congestion_control=block)
+        sent += n
         t_last = t
-    period = scenarios.PERIODS[args.scenario]
     session.put(keys.clock, pack({"t": t_last + period}), congestion_control=block)
     return sent
 
