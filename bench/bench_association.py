@@ -67,6 +67,7 @@ from service.wire import Measurement  # noqa: E402
 
 try:
     import stonesoup
+    from peer_models import PiecewiseConstantVelocity
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
     from stonesoup.dataassociator.probability import JPDA, JPDAwithLBP
     from stonesoup.deleter.time import UpdateTimeStepsDeleter
@@ -75,25 +76,13 @@ try:
     from stonesoup.initiator.simple import MultiMeasurementInitiator
     from stonesoup.measures import Mahalanobis
     from stonesoup.models.measurement.linear import LinearGaussian
-    from stonesoup.models.transition.linear import (
-        CombinedLinearGaussianTransitionModel,
-        ConstantVelocity,
-    )
+    from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel
     from stonesoup.predictor.kalman import KalmanPredictor
     from stonesoup.tracker.simple import MultiTargetMixtureTracker, MultiTargetTracker
     from stonesoup.types.array import CovarianceMatrix, StateVector
     from stonesoup.types.detection import Detection
     from stonesoup.types.state import GaussianState
     from stonesoup.updater.kalman import KalmanUpdater
-
-    class PiecewiseConstantVelocity(ConstantVelocity):
-        """Stone Soup's 1-D CV model with the discrete piecewise-constant white
-        acceleration noise of `service.estimation.models` (noise_diff_coeff = q^2)."""
-
-        def covar(self, time_interval, **kwargs):
-            dt = abs(time_interval.total_seconds())
-            return CovarianceMatrix(self.noise_diff_coeff * np.array(
-                [[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]))
 except ImportError:  # optional peer (pip install '.[bench]')
     stonesoup = None
 

@@ -66,26 +66,15 @@ except ImportError:  # optional peer (pip install '.[bench]')
     KalmanFilter = None
 
 try:
+    from peer_models import PiecewiseConstantVelocity
     from stonesoup.models.measurement.linear import LinearGaussian
-    from stonesoup.models.transition.linear import (
-        CombinedLinearGaussianTransitionModel,
-        ConstantVelocity,
-    )
+    from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel
     from stonesoup.predictor.kalman import KalmanPredictor
     from stonesoup.types.array import CovarianceMatrix, StateVector
     from stonesoup.types.detection import Detection
     from stonesoup.types.hypothesis import SingleHypothesis
     from stonesoup.types.state import GaussianState
     from stonesoup.updater.kalman import KalmanUpdater
-
-    class PiecewiseConstantVelocity(ConstantVelocity):
-        """Stone Soup's 1-D CV model with the discrete piecewise-constant white
-        acceleration noise of `service.models` (noise_diff_coeff = q^2)."""
-
-        def covar(self, time_interval, **kwargs):
-            dt = abs(time_interval.total_seconds())
-            return CovarianceMatrix(self.noise_diff_coeff * np.array(
-                [[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]))
 except ImportError:  # optional peer (pip install '.[bench]')
     KalmanPredictor = None
 

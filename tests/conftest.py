@@ -13,6 +13,9 @@ import pytest
 import zenoh
 
 from clients.procs import stop
+from service.estimation.catalog import FilterSpec
+from service.tracking.display import DisplayConfig
+from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Keys, free_port, peer_config, unpack, wait_for_tracker
 
 
@@ -83,3 +86,14 @@ def service_factory() -> Iterator:
         s.close()
     for p in procs:
         p.stop()
+
+
+DISPLAY_OPTIONS = {"blend", "blend_speed", "rate", "lag", "coast_after"}
+
+
+def make_tracker(order: int = 2, q: float | None = None, **kw: Any) -> Tracker:
+    """A single-model tracker (order 2: CV, 3: CA) whose config also takes the display's
+    options (for the unit tests of the tracker and of the display state)."""
+    disp = DisplayConfig(**{k: kw.pop(k) for k in list(kw) if k in DISPLAY_OPTIONS})
+    return Tracker(TrackerConfig(filter=FilterSpec({2: "cv", 3: "ca"}[order], q), **kw,
+                                 display=disp))

@@ -7,23 +7,11 @@ import math
 
 import numpy as np
 import pytest
+from conftest import make_tracker as make
 
 from service.estimation import models, ucm
 from service.estimation import polar as geometry
-from service.estimation.catalog import FilterSpec
-from service.tracking.display import DisplayConfig
-from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Measurement
-
-DISPLAY = {"blend", "blend_speed", "rate", "lag", "coast_after"}
-
-
-def make(order: int = 2, q: float | None = None, **kw) -> Tracker:
-    """A single-model tracker (order 2: CV, 3: CA) whose config takes the display's
-    options too."""
-    disp = DisplayConfig(**{k: kw.pop(k) for k in list(kw) if k in DISPLAY})
-    spec = FilterSpec({2: "cv", 3: "ca"}[order], q)
-    return Tracker(TrackerConfig(filter=spec, **kw, display=disp))
 
 
 def cart(target, t, pos, sigma=0.0, sensor="s1"):
