@@ -126,7 +126,8 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
                  zip(g.ti, g.dj, np.log(pd) + g.loglik - np.log(lam), strict=True)}
         miss = np.log1p(-pd)
         row_of = {tid: i for i, tid in enumerate(g.arrays.ids[r] for r in g.rows)}
-        chosen = {(row_of[hyp.track[j]], j) for j in hyp.track}
+        chosen = {(row_of[k], j) for j, k in zip(hyp.updates.get(2, []), hyp.tracks.get(2, []),
+                                                 strict=True)}
 
         n_rows = len(g.rows)
 

@@ -179,9 +179,8 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
     ti, dj = g.ti[pairs], index[g.dj[pairs]]
     track_ids = [g.arrays.ids[r] for r in g.rows.tolist()]
     if len(pairs):
-        mine = hyp.updates.setdefault(g.arrays.dim, [])
-        mine += dj.tolist()
-        hyp.track.update(zip(dj.tolist(), (track_ids[i] for i in ti.tolist()), strict=True))
+        hyp.updates.setdefault(g.arrays.dim, []).extend(dj.tolist())
+        hyp.tracks.setdefault(g.arrays.dim, []).extend(track_ids[i] for i in ti.tolist())
     hit = np.zeros(len(g.rows), dtype=bool)
     hit[ti] = True
     gain = np.full(len(g.rows), miss)

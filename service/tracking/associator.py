@@ -37,8 +37,8 @@ class WeightedUpdate:
 class Hypotheses:
     """One scan's associations, as indices into the scan's measurements."""
 
-    updates: dict[int, list[int]] = field(default_factory=dict)  # by dimension: track hits
-    track: dict[int, str] = field(default_factory=dict)  # measurement -> the track it updates
+    updates: dict[int, list[int]] = field(default_factory=dict)  # by dimension: measurements
+    tracks: dict[int, list[str]] = field(default_factory=dict)  # ... and the track each updates
     weighted: list[WeightedUpdate] = field(default_factory=list)  # JPDA's updates
     unassociated: dict[int, list[int]] = field(default_factory=dict)  # by dimension: new
     rejected: dict[int, str] = field(default_factory=dict)  # index -> reason
@@ -85,5 +85,5 @@ class LabelAssociator:
                                    f"update at t={arrays.t[row]:.6f}")
             else:
                 hyp.updates.setdefault(m.dim, []).append(i)
-                hyp.track[i] = m.target
+                hyp.tracks.setdefault(m.dim, []).append(m.target)
         return hyp

@@ -126,7 +126,7 @@ class Tracker:
         for i, reason in hypotheses.rejected.items():
             scan[i].reason = reason
         for dim, idx in hypotheses.updates.items():
-            self.update(dim, [scan[i] for i in idx], [hypotheses.track[i] for i in idx])
+            self.update(dim, [scan[i] for i in idx], hypotheses.tracks[dim])
         for weighted in hypotheses.weighted:
             self.update_weighted(weighted, scan, now)
         self.coast(hypotheses)
