@@ -14,8 +14,9 @@ alpha = 2; clients/gospa.py) and its parts, averaged over the scans; per run, id
 switches, track breaks, false confirmed tracks (never within c of a truth) and their
 lifetimes, and confirmed/false tracks at the last scan; per target, the time from its
 first detection to its first assignment to an established track, and the fraction of
-targets confirmed within `--confirm-within` scans (N = 4: the scan of the first
-detection and the next three, any radar's).
+targets confirmed within `--confirm-within` scans (N = 5, the N of the service's
+default M-of-N rule 3/5: the scan of the first detection and the next four, any
+radar's).
 """
 
 from __future__ import annotations
@@ -49,8 +50,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--scans", type=int, default=100, help="scans per radar")
     g.add_argument("--radars", type=int, choices=(2, 3), default=3, help="multisensor")
     g.add_argument("--c", type=float, default=100.0, help="GOSPA cut-off, m")
-    g.add_argument("--confirm-within", type=int, default=4, metavar="N",
-                   help="count targets confirmed within N scans of their first detection")
+    g.add_argument("--confirm-within", type=int, default=5, metavar="N",
+                   help="count targets confirmed within N scans of their first detection "
+                        "(default %(default)s: the N of the service's M-of-N rule)")
 
 
 @dataclass

@@ -56,7 +56,7 @@ def confirm_rule(text: str) -> tuple[int, int]:
     try:
         m, n = (int(v) for v in text.split("/"))
     except ValueError:
-        raise SystemExit(f"track-service: --confirm takes M/N, e.g. 3/4, not {text!r}") from None
+        raise SystemExit(f"track-service: --confirm takes M/N, e.g. 3/5, not {text!r}") from None
     if not 1 <= m <= n <= 16:
         raise SystemExit(f"track-service: --confirm {text}: need 1 <= M <= N <= 16")
     return m, n

@@ -102,7 +102,7 @@ class _ScanAssociator:
     by nearest neighbour, the detections the established ones left (so a tentative track
     born of clutter never pulls on an established one); what is left starts new tracks.
     The clutter density is estimated (when not configured) from the detections outside
-    every established track's gate."""
+    every track's gate."""
 
     def __init__(self, q: float, sensors: SensorModels | None = None,
                  gate_probability: float = defaults.GATE_PROBABILITY) -> None:
@@ -126,7 +126,7 @@ class _ScanAssociator:
         every = gate(arrays, rows, z, r, m0.t, self.q, gamma)
         confirmed = arrays.confirmed[rows]
         g = restrict(every, confirmed, np.arange(len(scan)))
-        ungated = len(scan) - len(np.unique(g.dj))
+        ungated = len(scan) - len(np.unique(every.dj))
         lam = self.sensors.density(m0.sensor, z, ungated)
         pd = self.sensors.model(m0.sensor).pd
         free = self.resolve(g, np.arange(len(scan)), pd, lam, hyp)
