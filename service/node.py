@@ -193,9 +193,10 @@ class TrackService:
                 except Rejected as exc:
                     self.out.reject(item[1], "clock", str(exc))
                     continue
-                self._flush(pending)
-                for _, (key, scan) in self.reorder.advance(t, flush=True):
-                    self._apply_scan(key, scan)  # nothing older will come
+                if len(self.reorder):  # nothing older will come: the held scans go
+                    self._flush(pending)
+                    for _, (key, scan) in self.reorder.advance(t, flush=True):
+                        self._apply_scan(key, scan)
                 if self.realtime:
                     self.clock.observe(t, item[3])
                 else:

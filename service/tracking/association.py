@@ -150,17 +150,25 @@ class _ScanAssociator:
             seen = arrays.plot[rows] & (arrays.t[rows] <= (np.inf if now is None else now))
             hyp.missed += [ids[i] for i in np.flatnonzero(seen).tolist()]
         # the miss costs ln(1 - Pd) of the sensor, unknown here: of the default
-        miss = float(np.log1p(-min(self.sensors.pd, 1 - 1e-12)))
-        hyp.score = dict.fromkeys(hyp.missed, miss)
+        hyp.score = dict.fromkeys(hyp.missed, miss_score(self.sensors.pd))
         return hyp
+
+
+def scores(g: Gating, pd: float, lam: float) -> tuple[np.ndarray, float]:
+    """The log-likelihood ratio of each gated pair, ln(Pd N(nu; 0, S) / lambda), and of a
+    track that detected nothing, ln(1 - Pd)."""
+    return np.log(pd) + g.loglik - np.log(lam), miss_score(pd)
+
+
+def miss_score(pd: float) -> float:
+    return float(np.log1p(-pd)) if pd < 1 else -UNLIKELY
 
 
 def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) -> np.ndarray:
     """Global nearest neighbour on the gated pairs of `g` (detections scan[index]): the
     best joint assignment of each cluster, recorded in `hyp`; returns the indices of the
     detections no track took."""
-    score = np.log(pd) + g.loglik - np.log(lam)  # ln likelihood ratio of each pair
-    miss = np.log1p(-pd) if pd < 1 else -UNLIKELY
+    score, miss = scores(g, pd, lam)
     single, groups = split(g)
     chosen = [single[score[single] > miss]]
     for k in groups:  # one rectangular assignment per cluster
@@ -216,7 +224,7 @@ class JPDAAssociator(_ScanAssociator):
 
     def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
                 hyp: Hypotheses) -> np.ndarray:
-        ratio = np.exp(np.log(pd) + g.loglik - np.log(lam))  # G of each pair
+        ratio = np.exp(scores(g, pd, lam)[0])  # G of each pair
         beta = np.zeros(len(ratio))
         single, groups = split(g)
         beta[single] = ratio[single] / (ratio[single] + (1 - pd))

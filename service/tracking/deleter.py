@@ -22,3 +22,16 @@ class UpdateTimeDeleter:
             old = np.flatnonzero(now - arrays.t[rows] > self.delete_after)
             out += [ids[i] for i in old.tolist()]
         return out
+
+
+class CompositeDeleter:
+    """Deletes what any of its deleters deletes."""
+
+    def __init__(self, *deleters: object) -> None:
+        self.deleters = deleters
+
+    def delete_tracks(self, store: TrackStore, now: float) -> list[str]:
+        out: dict[str, None] = {}
+        for deleter in self.deleters:
+            out.update(dict.fromkeys(deleter.delete_tracks(store, now)))  # type: ignore[attr-defined]
+        return list(out)

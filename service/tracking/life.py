@@ -67,16 +67,3 @@ class MofNDeleter:
             gone |= var > self.sigma**2
             out += [ids[i] for i in np.flatnonzero(plot & gone).tolist()]
         return out
-
-
-class CompositeDeleter:
-    """Deletes what any of its deleters deletes."""
-
-    def __init__(self, *deleters: object) -> None:
-        self.deleters = deleters
-
-    def delete_tracks(self, store: TrackStore, now: float) -> list[str]:
-        out: dict[str, None] = {}
-        for deleter in self.deleters:
-            out.update(dict.fromkeys(deleter.delete_tracks(store, now)))  # type: ignore[attr-defined]
-        return list(out)

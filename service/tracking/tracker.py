@@ -25,10 +25,10 @@ from ..estimation.ucm import CMKFConversion
 from ..wire import Measurement
 from .association import GNNAssociator, JPDAAssociator, SensorModels
 from .associator import Hypotheses, LabelAssociator, WeightedUpdate
-from .deleter import UpdateTimeDeleter
+from .deleter import CompositeDeleter, UpdateTimeDeleter
 from .display import DisplayConfig, DisplayState, Snapshot
 from .initiator import SinglePointInitiator
-from .life import CompositeDeleter, MofNDeleter, update_life
+from .life import MofNDeleter, update_life
 from .store import States, TrackArrays, TrackStore
 
 if TYPE_CHECKING:
