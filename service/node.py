@@ -124,16 +124,17 @@ class TrackService:
     def _ingest(self, limit: int | None = MAX_BATCH) -> None:
         """Move measurements from Zenoh's channels to the inbox, keeping arrival order.
 
-        With several measurement key expressions (a shard's part of the key space), the
-        order between their channels is lost: everything waiting is taken and merged by
-        measurement time (feeds send in time order), so a lockstep frame is not released
-        by one channel's later measurement while another's earlier ones still wait."""
+        With several channels (measurements and scans; a shard's several key expressions)
+        the order between them is lost: everything waiting is taken and, when more than one
+        channel had something, merged by measurement time (feeds send in time order), so a
+        lockstep frame is not released by one channel's later input while another's
+        earlier ones still wait. One busy channel is taken as it is (no decoding)."""
         with self.ingest_lock:
             now = time.time()
             subs = self.meas_subs
             if len(subs) > 1:
                 limit = None
-            lists = [self._drain(kind, sub, limit, now) for kind, sub in subs]
+            lists = [got for kind, sub in subs if (got := self._drain(kind, sub, limit, now))]
             items = lists[0] if len(lists) == 1 else heapq.merge(*lists, key=_meas_time)
             for item in items:
                 self.inbox.put(item)

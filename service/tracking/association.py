@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from .. import defaults
 from ..estimation.measurements import MeasurementBatch
@@ -168,6 +167,8 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
     """Global nearest neighbour on the gated pairs of `g` (detections scan[index]): the
     best joint assignment of each cluster, recorded in `hyp`; returns the indices of the
     detections no track took."""
+    from scipy.optimize import linear_sum_assignment  # SciPy only once scans come
+
     score, miss = scores(g, pd, lam)
     single, groups = split(g)
     chosen = [single[score[single] > miss]]

@@ -7,7 +7,8 @@ filters use; the update itself then averages R over the prediction). A KD-tree o
 detections (SciPy's `cKDTree`) proposes for each track only the detections within a
 radius that bounds its gate, so no tracks x detections matrix is ever built; the pairs
 that pass are split into independent clusters (connected components of the bipartite
-gate graph), which the associators resolve one at a time.
+gate graph), which the associators resolve one at a time. SciPy is imported when a scan
+first needs it: a service fed only labelled measurements never loads it (about 40 MB).
 """
 
 from __future__ import annotations
@@ -16,10 +17,6 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
-from scipy.stats import chi2
 
 from ..estimation import models
 from ..estimation.measurements import MeasurementBatch
@@ -51,8 +48,11 @@ class Gating:
 
 @functools.lru_cache(maxsize=64)
 def gate_threshold(probability: float, dim: int) -> float:
-    """The chi-square gate gamma with P(d2 <= gamma) = probability for a true pair."""
-    return float(chi2.ppf(probability, dim))
+    """The chi-square gate gamma with P(d2 <= gamma) = probability for a true pair (the
+    inverse of the chi-square survival function)."""
+    from scipy.special import chdtri
+
+    return float(chdtri(dim, 1.0 - probability))
 
 
 def convert(batch: MeasurementBatch) -> tuple[np.ndarray, np.ndarray]:
@@ -72,6 +72,8 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
         return Gating(arrays, rows, xp, pp, z, r, empty, empty, np.zeros(0), np.zeros(0),
                       np.zeros((0, d)), empty)
     # the gate's largest semi-axis is sqrt(gamma lambda_max(S)) <= sqrt(gamma (tr P + tr R))
+    from scipy.spatial import cKDTree
+
     tr_r = np.trace(r, axis1=1, axis2=2).max()
     radius = np.sqrt(gamma * (np.trace(cov, axis1=1, axis2=2) + tr_r))
     near = cKDTree(z).query_ball_point(mean, radius, return_sorted=False)
@@ -111,6 +113,9 @@ def clusters(ti: np.ndarray, dj: np.ndarray, n_tracks: int, n_dets: int) -> np.n
 def clusters_reference(ti: np.ndarray, dj: np.ndarray, n_tracks: int,
                        n_dets: int) -> np.ndarray:
     """`clusters` by SciPy's connected components of the sparse bipartite graph."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     if not len(ti):
         return np.zeros(0, dtype=int)
     n = n_tracks + n_dets
