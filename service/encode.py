@@ -87,13 +87,15 @@ def pack_displays(t: float, ids: Sequence[str], pos: np.ndarray, vel: np.ndarray
 
 
 def pack_frame(t: float, ids: bytes, pos: np.ndarray, vel: np.ndarray,
-               sigma: np.ndarray) -> bytes:
-    """The `frame` body {t, ids, pos, vel, sigma} with `ids` already packed (it changes
-    only when tracks come or go) and the arrays as little-endian float64 bytes."""
-    return b"".join((pack_map_header(5), pack("t"), pack(float(t)), pack("ids"), ids,
+               sigma: np.ndarray, status: np.ndarray) -> bytes:
+    """The `frame` body {t, ids, pos, vel, sigma, status} with `ids` already packed (it
+    changes only when tracks come or go), the arrays as little-endian float64 bytes and
+    `status` one byte per track (an index into wire.STATUSES)."""
+    return b"".join((pack_map_header(6), pack("t"), pack(float(t)), pack("ids"), ids,
                      pack("pos"), pack(pos.astype("<f8").tobytes()),
                      pack("vel"), pack(vel.astype("<f8").tobytes()),
-                     pack("sigma"), pack(sigma.astype("<f8").tobytes())))
+                     pack("sigma"), pack(sigma.astype("<f8").tobytes()),
+                     pack("status"), pack(status.astype(np.uint8).tobytes())))
 
 
 _TRACK_STRINGS = PackedStrings(("id", "model"))

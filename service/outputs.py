@@ -97,7 +97,8 @@ class Publisher:
         snap = self._finite(snap)
         if snap.ids is not self.frame_ids[0]:
             self.frame_ids = (snap.ids, pack(snap.ids))
-        self.pub_frame.put(pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma))
+        self.pub_frame.put(pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma,
+                                      snap.codes))
         if self.per_target_display:
             put, cc, keys = self.session.put, self.display_cc, self._keys
             bodies = pack_displays(t, snap.ids, snap.pos, snap.vel, snap.sigma, snap.age,
@@ -119,7 +120,7 @@ class Publisher:
         return Snapshot(snap.t, [snap.ids[i] for i in pick], snap.pos[keep], snap.vel[keep],
                         snap.sigma[keep], snap.age[keep],
                         [snap.status[i] for i in pick] if snap.status else [],
-                        [snap.shown[i] for i in pick] if snap.shown else [])
+                        [snap.shown[i] for i in pick] if snap.shown else [], snap.codes[keep])
 
     def deleted(self, ids: list[str]) -> None:
         """Announce deleted tracks: a Zenoh delete on each of their keys."""

@@ -76,6 +76,11 @@ def test_frames_between_scans_are_predictions(service_factory):
     disp = display.bodies()
     assert all(np.isfinite(d["pos"]).all() and np.isfinite(d["sigma"]) for d in disp)
     assert {d["status"] for d in disp} >= {"tentative", "confirmed"}
+    # the frame's status bin says what display/ says at the same instant
+    shown = {(round(d["t"], 6), d["id"]): d["status"] for d in disp}
+    framed = {(round(b["t"], 6), r["id"]): r["status"]
+              for b in frames.bodies() for r in decode_frame(b)}
+    assert framed == shown
 
 
 def test_status_query_errors_and_recovery(service_factory):

@@ -49,6 +49,8 @@ def test_pack_tracks_decodes_to_the_same_maps_as_pack():
 def test_pack_frame_decodes_to_the_same_map_as_pack():
     ids = ["a", "b" * 40]
     pos, vel, sigma = np.arange(6.0).reshape(2, 3), -np.arange(6.0).reshape(2, 3), np.ones(2)
+    status = np.array([1, 2], np.uint8)
     want = {"t": 2.5, "ids": ids, "pos": pos.astype("<f8").tobytes(),
-            "vel": vel.astype("<f8").tobytes(), "sigma": sigma.astype("<f8").tobytes()}
-    assert unpack(pack_frame(2.5, pack(ids), pos, vel, sigma)) == want
+            "vel": vel.astype("<f8").tobytes(), "sigma": sigma.astype("<f8").tobytes(),
+            "status": b"\x01\x02"}
+    assert unpack(pack_frame(2.5, pack(ids), pos, vel, sigma, status)) == want

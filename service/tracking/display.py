@@ -137,6 +137,7 @@ class Snapshot:
     age: np.ndarray  # (N,)
     status: list[str]
     shown: list[str]  # per track: "prediction", "blend" or "smoothed"
+    codes: np.ndarray  # (N,) uint8: each status as an index into wire.STATUSES (frame)
 
 
 # the display's columns beside each layout of the store
@@ -221,12 +222,13 @@ class DisplayState:
     def snapshot(self, store: TrackStore, t: float, detail: bool = True) -> Snapshot:
         """Every track as the display shows it at instant t (no change to any state):
         position, velocity, sigma = sqrt(trace of the predicted position covariance).
-        `detail`: also each track's status and what is shown (the display/ keys; the
-        frame does not carry them)."""
+        `detail`: also each track's status and what is shown as strings (the display/
+        keys); the status codes (the frame's `status` bin) are always there."""
         id_parts: list[list[str]] = []
         parts: list[tuple[np.ndarray, ...]] = []
         status: list[str] = []
         shown: list[str] = []
+        code_parts: list[np.ndarray] = []
         for arrays in store.layouts.values():
             rows, layout_ids = arrays.live()
             if not len(rows):
@@ -237,17 +239,20 @@ class DisplayState:
             vel = np.zeros((len(rows), 3))
             pos[:, :d], vel[:, :d] = p, v
             age = np.maximum(t - arrays.t[rows], 0.0)
+            codes = status_codes(arrays, rows, age, self.config.coast_after)
+            code_parts.append(codes.astype(np.uint8))
             if detail:
-                codes = status_codes(arrays, rows, age, self.config.coast_after)
                 status += [STATUSES[k] for k in codes.tolist()]
                 shown += [SHOWN[k] for k in kinds.tolist()]
             id_parts.append(layout_ids)
             parts.append((pos, vel, np.sqrt(np.maximum(var, 0.0)), age))
         if not parts:
             e = np.zeros((0, 3))
-            return Snapshot(t, [], e, e.copy(), np.zeros(0), np.zeros(0), [], [])
+            return Snapshot(t, [], e, e.copy(), np.zeros(0), np.zeros(0), [], [],
+                            np.zeros(0, np.uint8))
         pos, vel, sig, age = (np.concatenate(p) for p in zip(*parts, strict=True))
-        return Snapshot(t, self._joined(id_parts), pos, vel, sig, age, status, shown)
+        return Snapshot(t, self._joined(id_parts), pos, vel, sig, age, status, shown,
+                        np.concatenate(code_parts))
 
     def _joined(self, parts: list[list[str]]) -> list[str]:
         """The layouts' live ids in one list; the same list object while no track comes

@@ -8,6 +8,8 @@ from typing import Any
 
 import msgpack
 
+from .keys import STATUSES
+
 
 class Rejected(ValueError):
     """An input that breaks the contract; the message is the reason a feed's author reads."""
@@ -46,10 +48,16 @@ def f64_list(data: bytes) -> list[float]:
 
 
 def decode_frame(msg: dict[str, Any]) -> list[dict[str, Any]]:
-    """Split a `frame` message into per-track dicts {id, pos, vel, sigma}."""
+    """Split a `frame` message into per-track dicts {id, pos, vel, sigma}, with `status`
+    (a name of STATUSES) when the frame carries its status bin (protocol 1.1)."""
     ids = msg["ids"]
     pos, vel, sig = (f64_list(msg[k]) for k in ("pos", "vel", "sigma"))
-    return [
+    rows = [
         {"id": i, "pos": pos[3 * n:3 * n + 3], "vel": vel[3 * n:3 * n + 3], "sigma": sig[n]}
         for n, i in enumerate(ids)
     ]
+    codes = msg.get("status")
+    if isinstance(codes, bytes) and len(codes) == len(rows):
+        for row, code in zip(rows, codes, strict=True):
+            row["status"] = STATUSES[code] if code < len(STATUSES) else "unknown"
+    return rows
