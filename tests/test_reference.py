@@ -8,11 +8,12 @@ RTOL times the largest entry of its row (a small entry of a matrix carries the r
 of the large ones it is computed from). Each kernel also has a test that the same
 comparison rejects a plausible mistake, so the agreement is not vacuous.
 
-Two limits of the textbook forms themselves are shown, not hidden: the cubature average
-depends on the eigenbasis where eigenvalues repeat (so random covariances keep theirs
-apart), and the textbook UCM covariance is rounded to a few eps r^2 m^2 (so sensors here
-have saz >= 2 mrad and whole steps ranges up to 40 km, with long ranges and precise
-sensors in a test of their own that allows for that rounding explicitly).
+A limit of the textbook forms themselves is shown, not hidden: the textbook UCM
+covariance is rounded to a few eps r^2 m^2 (so sensors here have saz >= 2 mrad and whole
+steps ranges up to 40 km, with long ranges and precise sensors in a test of their own that
+allows for that rounding explicitly). The cubature average uses the symmetric square root
+of the covariance, so it does not depend on the eigenbasis where eigenvalues repeat
+(test_expected_covariance_is_unique_where_an_eigenvalue_repeats).
 """
 
 from __future__ import annotations
@@ -71,12 +72,11 @@ def rotations(rng: np.random.Generator, n: int, d: int) -> np.ndarray:
 
 def spd_eig(rng: np.random.Generator, n: int, d: int, lo: float, hi: float) -> np.ndarray:
     """Random SPD (N, d, d) with eigenvalues log-uniform in [lo, hi] (m^2) and random
-    eigenvectors. The eigenvalues are kept 1e-6 apart (relative): the cubature points
-    depend on the eigenvectors, which a repeated eigenvalue leaves undetermined (see
-    test_expected_covariance_depends_on_the_basis_of_a_repeated_eigenvalue)."""
+    eigenvectors; every tenth row has its two largest eigenvalues equal (the cubature's
+    symmetric square root makes R unique there too)."""
     lam = np.exp(rng.uniform(math.log(lo), math.log(hi), (n, d)))
     lam.sort(1)
-    assert (np.diff(lam, axis=1) > 1e-6 * lam[:, 1:]).all()
+    lam[::10, -2] = lam[::10, -1]
     q = rotations(rng, n, d)
     return symmetric(np.einsum("nij,nj,nkj->nik", q, lam, q))
 
@@ -257,24 +257,33 @@ def test_expected_ucm_comparison_rejects_r_at_the_mean_and_a_wrong_turn(d):
     assert rel_error(got, wrong_turn).min() > 1e3 * RTOL
 
 
-def test_expected_covariance_depends_on_the_basis_of_a_repeated_eigenvalue():
-    # Why the random covariances keep their eigenvalues apart: the cubature points are
-    # mean +- sqrt(d lambda_k) v_k, and where two eigenvalues coincide any basis of their
-    # plane is an eigenbasis, with another average. Splitting a repeated eigenvalue
-    # (1e6 m^2) by 1 m^2 along two directions 45 deg apart in its plane moves R by 1.4 %;
-    # np.linalg.eigh and linalg.eigh, handed the degenerate matrix itself, pick different
-    # bases (their R differ by 6e-4 of the largest entry here). Both kernels agree on
-    # each split matrix.
+def test_expected_covariance_is_unique_where_an_eigenvalue_repeats():
+    # The cubature points are mean +- sqrt(d) times the columns of the symmetric square
+    # root of the prediction's covariance, which (unlike its eigenvectors) is unique where
+    # two eigenvalues coincide. With the points along the eigenvectors instead, splitting
+    # a repeated eigenvalue (1e6 m^2) by 1 m^2 along two directions 45 deg apart in its
+    # plane moved R by 1.4 %, and np.linalg.eigh and linalg.eigh, handed the degenerate
+    # matrix itself, gave R 6e-4 apart. Now both splits and the degenerate matrix give
+    # the same R to within the splitting's own effect, in both kernels.
     q = rotations(np.random.default_rng(5), 1, 3)[0]
     cov = q @ np.diag([1e4, 1e6, 1e6]) @ q.T
     mean, az_meas = np.array([[0.0, 3000.0, 2000.0]]), np.array([0.01])
     split = [cov + np.outer(u, u) for u in (q[:, 1], (q[:, 1] + q[:, 2]) / math.sqrt(2))]
-    got = [ucm.ucm_covariance_expected(mean, c[None], *noise(1, 3), az_meas) for c in split]
-    want = [reference.ucm_covariance_expected(mean, c[None], *noise(1, 3), az_meas)
-            for c in split]
-    for g, w in zip(got, want, strict=True):
-        assert_close(g, w, "R of a split eigenvalue")
-    assert rel_error(want[0], want[1])[0] > 1e-5
+    covs = np.stack([cov, *split])
+    args = (*noise(3, 3), np.repeat(az_meas, 3))
+    got = ucm.ucm_covariance_expected(np.repeat(mean, 3, 0), covs, *args)
+    want = reference.ucm_covariance_expected(np.repeat(mean, 3, 0), covs, *args)
+    assert_close(got, want, "R where an eigenvalue repeats")
+    assert rel_error(want[1:], want[:1].repeat(2, 0)).max() < 1e-6
+    assert rel_error(got[1:2], got[2:3])[0] < 1e-6
+    # the comparison is not vacuous: points along one eigenbasis of the split matrix
+    lam, v = np.linalg.eigh(split[0])
+    pts = mean + np.concatenate([(v * np.sqrt(3 * lam)).T, -(v * np.sqrt(3 * lam)).T])
+    r, az, el = polar.cartesian_to_polar(pts)
+    w_turn = reference.ucm_covariance_expected(mean, split[0][None], *noise(1, 3), az_meas)
+    along_vectors = polar.ucm_covariance_polar(r, az, el, *(np.full(6, v) for v in
+                                                            (20.0, 4e-3, 5e-3))).mean(0)
+    assert rel_error(along_vectors[None], w_turn)[0] > 1e-3
 
 
 def measurements(rng: np.random.Generator, pos: np.ndarray, d: int, cart_every: int = 5

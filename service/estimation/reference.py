@@ -15,6 +15,7 @@ import numpy as np
 from .kalman import S_FLOOR
 from .measurements import MeasurementBatch
 from .polar import cartesian_to_polar, ucm_covariance_polar, unbiased
+from .ucm import ROUNDING
 
 
 def motion_matrices(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray
@@ -54,21 +55,24 @@ def ucm_covariance_expected(mean: np.ndarray, cov: np.ndarray, sr: np.ndarray,
                             az_meas: np.ndarray) -> np.ndarray:
     """UCM error covariance (N, d, d) (Mo et al., IEEE TAES 34(3), 1998:
     `polar.ucm_covariance_polar`) averaged over the prediction N(mean, cov)
-    (sensor-relative) by the third-degree spherical cubature rule of Arasaratnam &
-    Haykin (IEEE TAC 54(6), 2009): the mean over the 2d points mean +- sqrt(d lambda_k) v_k
-    of the eigenpairs of cov, each evaluated at the point's range and elevation and at
-    its azimuth moved toward the measured one by w = var_az / (var_az + saz^2), the
-    azimuth difference wrapped to [-pi, pi]. var_az is the predicted variance along the
-    tangent (y, -x) / rho at the mean over rho^2 = x^2 + y^2 (floored at 1e-12 m^2);
-    at rho = 0 the tangent variance is the mean horizontal variance (c_xx + c_yy) / 2.
-    A row whose cov is not finite gets NaN. Reference of `ucm.ucm_expected_soa`."""
+    (sensor-relative) by the third-degree spherical cubature rule of Arasaratnam & Haykin
+    (IEEE TAC 54(6), 2009): the mean over the 2d points mean +- sqrt(d) s_k, s_k the columns
+    of the symmetric square root S = V diag(sqrt(lambda)) V' of cov (unique where
+    eigenvalues repeat, unlike V; eigenvalues below ROUNDING x the largest taken as zero),
+    each evaluated at the point's range and elevation and at its azimuth moved toward the
+    measured one by w = var_az / (var_az + saz^2), the azimuth difference wrapped to [-pi,
+    pi]. var_az is the predicted variance along the tangent (y, -x) / rho at the mean over
+    rho^2 = x^2 + y^2 (floored at 1e-12 m^2); at rho = 0 the tangent variance is the mean
+    horizontal variance (c_xx + c_yy) / 2. A row whose cov is not finite gets NaN. Reference
+    of `ucm.ucm_expected_soa`."""
     n, d = mean.shape
     out = np.full((n, d, d), np.nan)
     for i in range(n):
         if not np.isfinite(cov[i]).all():
             continue
         lam, v = np.linalg.eigh(cov[i])
-        root = (v * np.sqrt(d * np.maximum(lam, 0.0))).T  # row k: sqrt(d lambda_k) v_k
+        lam = np.where(lam > ROUNDING * lam.max(), lam, 0.0)  # rounding of a zero: zero
+        root = (v * np.sqrt(d * lam)) @ v.T  # sqrt(d) x the symmetric square root
         pts = np.concatenate([mean[i] + root, mean[i] - root])
         x, y = mean[i, 0], mean[i, 1]
         rho2 = x * x + y * y

@@ -18,6 +18,9 @@ from .linalg import cos_sin, eigh
 from .measurements import MeasurementBatch
 from .polar import ucm_covariance, unbiased
 
+# relative size below which an eigenvalue of a prediction's covariance is rounding (zero)
+ROUNDING = 1e-12
+
 
 @dataclass
 class CMKFConversion:
@@ -136,15 +139,17 @@ def ucm_expected_soa(mean: np.ndarray, cov: np.ndarray, sr: np.ndarray, saz: np.
     """Covariance of the UCM error for targets predicted at N(mean, cov), sensor-relative,
     given the measured azimuth, batch axis last: mean (d, N), cov (d, d, N) -> out (d, d, N).
 
-    R depends on where the target truly is, which only the prediction tells: averaging
-    R(p) over the prediction (2d-point spherical cubature, Arasaratnam & Haykin, IEEE TAC
-    54(6), 2009) instead of taking R(mean) keeps the filter consistent where R changes
-    fast across the predicted region: near the zenith, the overhead pass of scenario B.
-    There the prediction hardly knows the azimuth, which orients R, while the measured
-    azimuth knows it well; so each cubature point's azimuth is moved toward the measured
-    one by the weight w = var_pred / (var_pred + saz^2) of a scalar fusion of the two.
-    Far from the zenith w ~ 0 and R keeps no dependence on the measurement error (the
-    decorrelation of Bordonaro, Willett & Bar-Shalom, IEEE TAES 50(2), 2014).
+    R depends on where the target truly is, which only the prediction tells: averaging R(p)
+    over the prediction (2d-point spherical cubature, Arasaratnam & Haykin, IEEE TAC 54(6),
+    2009, on the symmetric square root of cov, so that R does not depend on the choice of
+    eigenvectors where eigenvalues repeat) instead of taking R(mean) keeps the filter
+    consistent where R changes fast across the predicted region: near the zenith, the
+    overhead pass of scenario B. There the prediction hardly knows the azimuth, which
+    orients R, while the measured azimuth knows it well; so each cubature point's azimuth is
+    moved toward the measured one by the weight w = var_pred / (var_pred + saz^2) of a
+    scalar fusion of the two. Far from the zenith w ~ 0 and R keeps no dependence on the
+    measurement error (the decorrelation of Bordonaro, Willett & Bar-Shalom, IEEE TAES
+    50(2), 2014).
     A row whose cov has a non-finite entry gets NaN (flagged by the caller's check).
     """
     d, n = mean.shape
@@ -153,13 +158,21 @@ def ucm_expected_soa(mean: np.ndarray, cov: np.ndarray, sr: np.ndarray, saz: np.
     if bad.any():
         cov = np.where(bad, 0.0, cov)
     vals, vecs = eigh(cov, d)
-    # the 2d points mean +- sqrt(d lambda_k) v_k: pts[i] (2d, N) is coordinate i
+    # the 2d points mean +- sqrt(d) s_i, s_i the columns of the symmetric square root
+    # S = sum_k sqrt(lambda_k) v_k v_k' (unique where eigenvalues repeat, unlike the
+    # eigenvectors): pts[i] (2d, N) is coordinate i
     pts, root = scratch.buffer("ucm.pts", (d, k2), n), scratch.buffer("ucm.root", (d,), n)
-    for k in range(d):
-        scale = np.sqrt(d * np.maximum(vals[k], 0.0))
-        np.multiply(vecs[k], scale, out=root)
-        np.add(mean, root, out=pts[:, k])
-        np.subtract(mean, root, out=pts[:, d + k])
+    # an eigenvalue within rounding of zero (below ROUNDING x the largest) is zero: its
+    # square root would be rounding noise magnified
+    floor = ROUNDING * np.maximum(np.maximum(vals[0], vals[1]), vals[-1])
+    scale = [np.sqrt(d * np.where(vals[k] > floor, vals[k], 0.0)) for k in range(d)]
+    term = scratch.buffer("ucm.term", (d,), n)
+    for i in range(d):
+        np.multiply(vecs[0], scale[0] * vecs[0][i], out=root)
+        for k in range(1, d):
+            root += np.multiply(vecs[k], scale[k] * vecs[k][i], out=term)
+        np.add(mean, root, out=pts[:, i])
+        np.subtract(mean, root, out=pts[:, d + i])
     # predicted variance along the tangent (y, -x) / rho
     tangent = root[:2]
     np.copyto(tangent[0], mean[1])
