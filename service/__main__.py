@@ -152,6 +152,10 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--reorder", type=float, default=defaults.REORDER, metavar="SECONDS",
                    help="how long a scan waits for older scans of other sensors, s of "
                         "simulation time (default %(default)s)")
+    p.add_argument("--max-jump", type=float, default=defaults.MAX_JUMP, metavar="SECONDS",
+                   help="refuse an input more than this from the picture's time, unless "
+                        f"{defaults.NEW_TIMELINE} such come in a row (a new timeline; "
+                        "default %(default)s s)")
     p.add_argument("--instance", default=None, help="liveliness instance name")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -172,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
                        noise=(args.sr, args.saz, args.sel, args.sigma),
                        per_target_display=not args.no_display_keys,
                        meas_keys=args.meas or None, plot_keys=args.plots or None,
-                       reorder=args.reorder).start()
+                       reorder=args.reorder, max_jump=args.max_jump).start()
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

@@ -52,3 +52,9 @@ SAZ = math.radians(0.5)  # rad: azimuth
 SEL = math.radians(0.5)  # rad: elevation
 SIGMA = 1.0  # m: each Cartesian axis
 NOISE = (SR, SAZ, SEL, SIGMA)
+
+# ---------------------------------------------------------------- time faults
+# (docs/protocol.md §6.1) the input limits themselves are protocol constants
+# (service.wire.keys: MAX_TIME, sizes, bounds)
+MAX_JUMP = 600.0  # s: an input farther than this from the picture's time is rejected ...
+NEW_TIMELINE = 10  # ... unless this many such inputs come in a row: a new timeline

@@ -25,6 +25,7 @@ from . import __version__, defaults
 from .outputs import Publisher
 from .tracking.clock import Lockstep, Realtime
 from .tracking.reorder import ReorderBuffer
+from .tracking.timeline import Timeline
 from .tracking.tracker import Tracker
 from .wire import (
     PROTOCOL_VERSION,
@@ -61,8 +62,8 @@ class TrackService:
                  clock: str = defaults.CLOCK, instance: str = "0",
                  noise: tuple[float, float, float, float] = defaults.NOISE,
                  per_target_display: bool = True, meas_keys: list[str] | None = None,
-                 plot_keys: list[str] | None = None, reorder: float = defaults.REORDER
-                 ) -> None:
+                 plot_keys: list[str] | None = None, reorder: float = defaults.REORDER,
+                 max_jump: float = defaults.MAX_JUMP) -> None:
         self.session, self.keys, self.tracker = session, keys, tracker
         rate = tracker.config.display.rate
         self.realtime = clock == "realtime"
@@ -74,6 +75,8 @@ class TrackService:
         self.started = time.monotonic()
         self.inbox: queue.SimpleQueue[tuple] = queue.SimpleQueue()
         self.last_seq: dict[str, int] = {}
+        self.timeline = Timeline(max_jump)
+        self.picture_t: float | None = None  # lockstep: the newest input time taken
         self.stop = threading.Event()
         put = self.inbox.put
 
@@ -179,7 +182,7 @@ class TrackService:
             kind = item[0]
             if kind == "meas":
                 m = self._validate(item[1], item[2])
-                if m is None:
+                if m is None or not self._admit(m.t, item[3], item[1], m.sensor, pending):
                     continue
                 if self.realtime:
                     if item[3] != seen[0] or m.t > seen[1]:  # else it cannot move the offset
@@ -193,6 +196,8 @@ class TrackService:
                     t = parse_clock(item[2])
                 except Rejected as exc:
                     self.out.reject(item[1], "clock", str(exc))
+                    continue
+                if not self._admit(t, item[3], item[1], "clock", pending):
                     continue
                 if len(self.reorder):  # nothing older will come: the held scans go
                     self._flush(pending)
@@ -236,11 +241,13 @@ class TrackService:
             if len(chunks) != 1:
                 raise Rejected("scan key must be <ns>/plots/<sensor>")
             scan = parse_plots(chunks[0], payload, self.noise)
-            late = self.reorder.late(scan.t)
+            late = self.reorder.late(scan.t, sensor)
             if late:
                 raise Rejected(late)
         except Rejected as exc:
             self.out.reject(key, sensor, str(exc))
+            return
+        if not self._admit(scan.t, wall, key, sensor, []):
             return
         for _, reason in scan.rejected:
             self.out.reject(key, sensor, reason)
@@ -248,6 +255,39 @@ class TrackService:
             self.clock.observe(scan.t, wall)
         for _, (k, s) in self.reorder.push(sensor, scan.t, (key, scan)):
             self._apply_scan(k, s)
+
+    def _admit(self, t: float, wall: float, key: str, sensor: str,
+               pending: list[Measurement]) -> bool:
+        """The time policy (`tracking.timeline`, docs/protocol.md §6.1) for an input of
+        time t received at `wall`: False when it was refused (and reported)."""
+        if self.realtime:
+            off = self.clock.offset
+            now = None if off is None else wall + off
+        else:
+            now = self.picture_t
+        reason, jump = self.timeline.admit(t, now, len(self.tracker))
+        if reason is not None:
+            self.out.reject(key, sensor, reason)
+            return False
+        if jump:
+            self._new_timeline(t, now, pending)  # realtime: its clock starts one itself
+        if not self.realtime and (self.picture_t is None or t > self.picture_t):
+            self.picture_t = t
+        return True
+
+    def _new_timeline(self, t: float, now: float | None, pending: list[Measurement]) -> None:
+        """Move the picture to time t: the old timeline's inputs go first, the lockstep
+        clock starts afresh (no frames for the gap), and going back the tracks of the
+        abandoned later timeline are dropped (they would never age out)."""
+        self._flush(pending)
+        for _, (k, s) in self.reorder.advance(math.inf, flush=True):
+            self._apply_scan(k, s)
+        self.reorder.reset()
+        if not self.realtime:
+            self.clock.restart(t)
+            self.picture_t = t
+        if now is not None and t < now:
+            self.out.deleted(self.tracker.drop_newer(t))
 
     def _apply_scan(self, key: str, scan: PlotScan) -> None:
         if not self.realtime:
@@ -301,9 +341,10 @@ class TrackService:
             "rate": self.rate, "meas_lost": c.meas_lost, "frames_missed": c.frames_missed,
             "tracks_deleted": c.tracks_deleted,
             "frames_skipped": getattr(self.clock, "skipped", 0),
+            "timeline_jumps": self.timeline.jumps,
             "states_withheld": c.states_withheld,
             "scans_applied": c.scans_applied, "scans_held": len(self.reorder),
-            "reject_reasons": dict(c.reasons),
+            "rejected_by_reason": dict(c.by_reason),
             "queue": self.inbox.qsize(),
         }
 

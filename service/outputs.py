@@ -15,9 +15,10 @@ from .encode import pack_displays, pack_frame, pack_tracks
 from .tracking.display import Snapshot
 from .tracking.store import States
 from .tracking.tracker import Outcome
-from .wire import CHUNK, Keys, pack
+from .wire import CHUNK, Keys, pack, reason_code
 
 log = logging.getLogger("track-service")
+LOG_EVERY = 10.0  # s: rejected inputs are logged at most once in this period
 
 
 @dataclass
@@ -30,7 +31,7 @@ class Counters:
     tracks_deleted: int = 0
     states_withheld: int = 0
     scans_applied: int = 0
-    reasons: dict[str, int] = field(default_factory=dict)
+    by_reason: dict[str, int] = field(default_factory=dict)  # rejections by reason code
 
 
 
@@ -43,6 +44,7 @@ class Publisher:
         self.session, self.keys = session, keys
         self.per_target_display = per_target_display
         self.count = Counters()
+        self.log_after = 0.0  # wall time before which no rejection is logged
         cc = zenoh.CongestionControl
         self.display_cc = cc.DROP if realtime else cc.BLOCK
         self.block = cc.BLOCK
@@ -56,13 +58,15 @@ class Publisher:
     def reject(self, key: str, sensor: str, reason: str) -> None:
         c = self.count
         c.meas_rejected += 1
-        # counted by the kind of problem (a scan's "detection <i>: " prefix dropped)
-        head = reason.split(": ", 1)[-1] if reason.startswith("detection ") else reason
-        head = head.split(":")[0]
-        c.reasons[head] = c.reasons.get(head, 0) + 1
-        log.warning("rejected %s: %s", key, reason)
+        code = reason_code(reason)  # a short, stable set: the map stays bounded
+        c.by_reason[code] = c.by_reason.get(code, 0) + 1
+        now = time.time()
+        if now >= self.log_after:  # at most one line per LOG_EVERY s: a flood of bad
+            self.log_after = now + LOG_EVERY  # input must not flood the log
+            log.warning("rejected %s: %s (%d rejected so far: %s)", key[:200], reason,
+                        c.meas_rejected, c.by_reason)
         self.session.put(self.keys.errors(sensor if CHUNK.fullmatch(sensor) else "unknown"),
-                         pack({"key": key, "reason": reason, "t_wall": time.time()}),
+                         pack({"key": key, "reason": reason, "code": code, "t_wall": now}),
                          congestion_control=zenoh.CongestionControl.BLOCK)
 
     def states(self, outcomes: list[Outcome], key: str | None = None) -> None:

@@ -131,9 +131,11 @@ def test_stale_track_deleted(service_factory):
 def test_scenarios_run_through_feed(service_factory):
     svc, s = service_factory("--clock", "lockstep")
     frames = Collector(s, "track/frame")
-    for args in (("display",), ("maneuver", "--runs", "3"),
-                 ("swarm", "--targets", "50", "--duration", "10")):
-        svc.feed(*args, "--t0", "0")
+    # one timeline: each feed starts after the last (a restart 800 s back would be a
+    # time fault, docs/protocol.md §6.1)
+    for args, t0 in ((("display",), "0"), (("maneuver", "--runs", "3"), "100"),
+                     (("swarm", "--targets", "50", "--duration", "10"), "1000")):
+        svc.feed(*args, "--t0", t0)
     st = unpack(next(iter(s.get("track/status", timeout=10))).ok.payload.to_bytes())
     assert st["meas_rejected"] == 0
     # display's track ends at 56 s and is deleted during maneuver's 800 s

@@ -159,10 +159,25 @@ def test_out_of_sequence_rejected_and_changes_nothing():
     assert "out of sequence" in out[0].reason and "t=4.000000" in out[0].reason
     assert "t=5.000000" in out[0].reason
     assert_same(before, dump(table))
-    # within the 1 us tolerance it counts as simultaneous and is applied
+    # within the 1 us tolerance it counts as simultaneous: from another sensor it is
+    # applied, from the same sensor it is a duplicate
     out, _ = table.track([cart("a", 5.0 - 0.5e-6, (5.0, 0.0, 0.0), sigma=1.0)])
+    assert out[0].reason.startswith("duplicate: sensor s1")
+    assert_same(before, dump(table))
+    out, _ = table.track([cart("a", 5.0 - 0.5e-6, (5.0, 0.0, 0.0), sigma=1.0, sensor="s2")])
     assert out[0].reason is None
     assert table.state("a")["updates"] == 3
+
+
+def test_duplicates_in_one_batch_and_after_deletion():
+    table = make(delete_after=2.0)
+    out, _ = table.track([cart("a", 0.0, (0.0, 0.0, 0.0), sigma=1.0),
+                          cart("a", 0.0, (0.0, 0.0, 0.0), sigma=1.0)])
+    assert out[0].reason is None and out[1].reason.startswith("duplicate")
+    assert table.state("a")["updates"] == 1
+    table.step([], now=10.0)  # deleted: the id starts afresh
+    out, _ = table.track([cart("a", 0.0, (0.0, 0.0, 0.0), sigma=1.0)])
+    assert out[0].reason is None and table.state("a")["updates"] == 1
 
 
 def test_rejection_in_batch_leaves_other_rows_updated():

@@ -60,7 +60,7 @@ def test_polar_3d_with_sigmas_and_partial_sigmas():
 
 
 def test_polar_zero_range_and_zero_sigmas_and_el_past_zenith():
-    # r = 0 and zero noise are legal (>= 0); noise may carry el past 90 deg.
+    # r = 0 and zero noise are legal (>= 0); noise may carry el a little past 90 deg
     m = parse({"t": 0.0, "r": 0.0, "az": 0.0, "el": 1.6, "sr": 0.0, "saz": 0.0, "sel": 0.0})
     assert m.values == (0.0, 0.0, 1.6) and m.sigmas == (0.0, 0.0, 0.0)
 
@@ -102,10 +102,11 @@ def test_unknown_keys_ignored():
     assert parse(extra) == parse(base)
 
 
-def test_non_string_keys_ignored():
+def test_non_string_keys_rejected():
+    """The contract's maps have string keys; unknown string keys are ignored."""
     payload = msgpack.packb({"t": 1.0, "pos": [1.0, 2.0], 7: "x"}, use_bin_type=True)
-    m = parse_measurement("s", "t", payload, DEFAULTS)
-    assert m.values == (1.0, 2.0)
+    rejected(None, "map keys must be strings", payload=payload)
+    assert parse({"t": 1.0, "pos": [1.0, 2.0], "colour": "red"}).values == (1.0, 2.0)
 
 
 def test_chunks_with_digits_dash_underscore():

@@ -49,10 +49,19 @@ class Hypotheses:
 
 class LabelAssociator:
     """A measurement belongs to the track its label names; a label with no track starts
-    one. A measurement for a track of the other dimension, or older than the track's last
-    update (labelled tracks are not retrodicted), is rejected. Labelled measurements do
+    one. A measurement for a track of the other dimension, older than the track's last
+    update (labelled tracks are not retrodicted), or a duplicate (the same sensor at the
+    same time as the track's last update) is rejected. Labelled measurements do
     not say which tracks a sensor missed, so `missed` stays empty: the tracks' status
     follows from their age (`status`)."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, str] = {}  # track -> the sensor of its last update
+
+    def forget(self, ids: Sequence[str]) -> None:
+        """Tracks deleted: drop what is kept of them."""
+        for track_id in ids:
+            self.last.pop(track_id, None)
 
     def scans(self, meas: Sequence[Measurement]) -> list[list[int]]:
         """Split a batch into scans in which each target appears at most once, keeping
@@ -72,10 +81,12 @@ class LabelAssociator:
     def associate(self, store: TrackStore, scan: Sequence[Measurement],
                   now: float | None = None) -> Hypotheses:
         hyp = Hypotheses()
+        last = self.last
         for i, m in enumerate(scan):
             hit = store.where.get(m.target)
             if hit is None:
                 hyp.unassociated.setdefault(m.dim, []).append(i)
+                last[m.target] = m.sensor
                 continue
             arrays, row = hit
             if arrays.dim != m.dim:
@@ -83,7 +94,11 @@ class LabelAssociator:
             elif m.t < arrays.t[row] - TIME_TOL:
                 hyp.rejected[i] = (f"out of sequence: t={m.t:.6f} is before the track's last "
                                    f"update at t={arrays.t[row]:.6f}")
+            elif m.t <= arrays.t[row] + TIME_TOL and last.get(m.target) == m.sensor:
+                hyp.rejected[i] = (f"duplicate: sensor {m.sensor} already measured this "
+                                   f"target at t={m.t:.6f}")
             else:
                 hyp.updates.setdefault(m.dim, []).append(i)
                 hyp.tracks.setdefault(m.dim, []).append(m.target)
+                last[m.target] = m.sensor
         return hyp

@@ -36,6 +36,13 @@ class Lockstep:
         self.next_n = last + 1
         return due
 
+    def restart(self, t: float) -> None:
+        """A new timeline at time t (`timeline.Timeline`): the next input starts the
+        frames again as the first one did; the instants of a gap forward are skipped."""
+        if self.next_n is not None:
+            self.skipped += max(0, math.ceil((t - TOL) * self.rate) - self.next_n)
+        self.next_n = None
+
 
 class Realtime:
     """Frames on a wall-clock schedule at the display rate.

@@ -41,11 +41,23 @@ class ReorderBuffer(Generic[T]):
     def __len__(self) -> int:
         return len(self.heap)
 
-    def late(self, t: float) -> str | None:
-        """Why an item of time t cannot be taken any more (None: it can)."""
+    def reset(self) -> None:
+        """Forget every sensor and time (a new timeline; hold nothing when called)."""
+        self.sensors.clear()
+        self.released = self.newest = -float("inf")
+        self.first = None
+
+    def late(self, t: float, sensor: str | None = None) -> str | None:
+        """Why an item of time t (of `sensor`) cannot be taken any more (None: it can):
+        older than one already released, or not newer than the sensor's last one (a
+        sensor's own scans come in order, so that is a duplicate)."""
         if t < self.released:
             return (f"late scan: t={t:.6f} is before t={self.released:.6f}, already applied "
                     f"(scans may arrive up to --reorder {self.lag:g} s out of order)")
+        last = self.sensors.get(sensor) if sensor is not None else None
+        if last is not None and t <= last:
+            return (f"duplicate or out-of-order scan: t={t:.6f} is not after this sensor's "
+                    f"last scan at t={last:.6f}")
         return None
 
     def push(self, sensor: str, t: float, item: T) -> list[tuple[float, T]]:

@@ -188,8 +188,20 @@ class Tracker:
 
     def delete(self, now: float) -> list[str]:
         """Remove the tracks the deleter picks at time `now`; their ids."""
-        ids = self.deleter.delete_tracks(self.store, now)
+        return self.remove(self.deleter.delete_tracks(self.store, now))
+
+    def drop_newer(self, t: float) -> list[str]:
+        """Remove the tracks updated after time t (a timeline abandoned for an earlier
+        one: they would never age out); their ids."""
+        ids: list[str] = []
+        for arrays in self.store.layouts.values():
+            rows, names = arrays.live()
+            ids += [names[i] for i in np.flatnonzero(arrays.t[rows] > t + 1e-6).tolist()]
+        return self.remove(ids)
+
+    def remove(self, ids: list[str]) -> list[str]:
         self.store.remove(ids)
+        self.associator.forget(ids)
         return ids
 
     def initiate(self, dim: int, scan: list[Outcome]) -> None:

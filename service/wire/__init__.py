@@ -6,10 +6,33 @@ and the standard library (Zenoh is imported when a session is opened), so a disp
 a feed can be written against it without the estimation code (tests/test_layers.py).
 """
 
-from .codec import Rejected, decode_frame, decode_map, f64_bin, f64_list, pack, unpack
-from .keys import CHUNK, DEFAULT_NS, PROTOCOL_VERSION, SHOWN, STATUSES, Keys
+from .codec import (
+    REASON_CODES,
+    Rejected,
+    check_size,
+    decode_frame,
+    decode_map,
+    f64_bin,
+    f64_list,
+    pack,
+    reason_code,
+    unpack,
+)
+from .keys import (
+    BOUNDS,
+    CHUNK,
+    DEFAULT_NS,
+    MAX_MEAS_BYTES,
+    MAX_ROWS,
+    MAX_SCAN_BYTES,
+    MAX_TIME,
+    PROTOCOL_VERSION,
+    SHOWN,
+    STATUSES,
+    Keys,
+)
 from .messages import Measurement, parse_clock, parse_full, parse_measurement
-from .plots import MAX_DETECTIONS, PlotScan, parse_plots
+from .plots import MAX_DETECTIONS, PlotScan, bad_rows, parse_plots
 from .session import (
     BLOCK_WAIT_US,
     DEFAULT_ENDPOINT,
@@ -23,9 +46,11 @@ from .session import (
 )
 
 __all__ = [
-    "BLOCK_WAIT_US", "CHUNK", "DEFAULT_ENDPOINT", "DEFAULT_NS", "MAX_DETECTIONS",
-    "PROTOCOL_VERSION", "SHOWN", "STATUSES", "Keys", "Measurement", "PlotScan", "Rejected",
-    "add_zenoh_args", "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port",
-    "open_session", "pack", "parse_clock", "parse_full", "parse_measurement", "parse_plots",
-    "patient", "peer_config", "unpack", "wait_for_tracker", "zenoh_config",
+    "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "DEFAULT_ENDPOINT", "DEFAULT_NS", "MAX_DETECTIONS",
+    "MAX_MEAS_BYTES", "MAX_ROWS", "MAX_SCAN_BYTES", "MAX_TIME", "PROTOCOL_VERSION",
+    "REASON_CODES", "SHOWN", "STATUSES", "Keys", "Measurement", "PlotScan", "Rejected",
+    "add_zenoh_args", "bad_rows", "check_size", "decode_frame", "decode_map", "f64_bin",
+    "f64_list", "free_port", "open_session", "pack", "parse_clock", "parse_full",
+    "parse_measurement", "parse_plots", "patient", "peer_config", "reason_code", "unpack",
+    "wait_for_tracker", "zenoh_config",
 ]

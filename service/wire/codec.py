@@ -12,7 +12,47 @@ from .keys import STATUSES
 
 
 class Rejected(ValueError):
-    """An input that breaks the contract; the message is the reason a feed's author reads."""
+    """An input that breaks the contract; the message is the reason a feed's author reads,
+    `code` its kind (a key of `status`'s `rejected_by_reason`)."""
+
+    @property
+    def code(self) -> str:
+        return reason_code(str(self))
+
+
+# The kind of every rejection the service gives, by the words its reason starts with or
+# contains (checked in order; the first match wins): a short, stable set of codes, so
+# that counting by code stays bounded whatever the inputs (docs/protocol.md §4).
+REASON_CODES: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("too_large", ("payload of ", "more than the limit")),
+    ("not_msgpack", ("payload is not valid MessagePack",)),
+    ("not_a_map", ("payload must be a MessagePack map", "map keys must be strings")),
+    ("bad_key", ("key must be <ns>/", "chunk '")),
+    ("time_out_of_range", ("outside the plausible range",)),
+    ("time_far", ("from the picture's time",)),
+    ("not_finite", ("is not finite",)),
+    ("out_of_range", ("must be >= ", "must be <= ", "must be in [")),
+    ("bad_type", ("must be a number", "must be a list", "must be an integer",
+                  "must be a bin", "must be a map", "must have 1 or", "must be 2 or 3",
+                  "not a multiple of 8", "not rows of", "is not ", "unequal lengths")),
+    ("missing_field", ("missing required field", "needs", "exactly one of", "either",
+                       "send one form")),
+    ("duplicate", ("duplicate",)),
+    ("out_of_sequence", ("out of sequence", "late scan")),
+    ("dimension", ("-D measurement for a",)),
+    ("non_finite_result", ("gave a non-finite",)),
+)
+
+
+def reason_code(reason: str) -> str:
+    """The code of a rejection reason (a scan's `detection <i>: ` prefix ignored);
+    `other` for a reason no entry of REASON_CODES names."""
+    if reason.startswith("detection "):
+        reason = reason.split(": ", 1)[-1]
+    for code, words in REASON_CODES:
+        if any(w in reason for w in words):
+            return code
+    return "other"
 
 
 def pack(msg: dict[str, Any]) -> bytes:
@@ -27,14 +67,27 @@ def unpack(data: bytes) -> Any:
         raise ValueError(f"payload is not valid MessagePack: {exc}") from None
 
 
-def decode_map(payload: bytes) -> dict[str, Any]:
-    """The map of one payload; `Rejected` for anything else (empty, malformed, not a map)."""
+def check_size(payload: bytes, limit: int) -> None:
+    """`Rejected` when a payload is longer than `limit` bytes (keys.MAX_*_BYTES)."""
+    if len(payload) > limit:
+        raise Rejected(f"payload of {len(payload)} bytes is longer than the limit of "
+                       f"{limit} bytes")
+
+
+def decode_map(payload: bytes, limit: int | None = None) -> dict[str, Any]:
+    """The map of one payload; `Rejected` for anything else (longer than `limit` bytes,
+    empty, malformed, not a map, a key that is not a string)."""
+    if limit is not None:
+        check_size(payload, limit)
     try:
         msg = unpack(payload) if payload else None
     except ValueError as exc:
         raise Rejected(str(exc)) from None
     if not isinstance(msg, dict):
         raise Rejected("payload must be a MessagePack map")
+    for k in msg:
+        if type(k) is not str:
+            raise Rejected(f"map keys must be strings, got {type(k).__name__}")
     return msg
 
 

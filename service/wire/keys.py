@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 
 PROTOCOL_VERSION = 1
@@ -9,6 +10,30 @@ DEFAULT_NS = "track"
 CHUNK = re.compile(r"^[A-Za-z0-9_-]+$")  # one key chunk: sensor, target, instance
 STATUSES = ("tentative", "confirmed", "coasting")  # display/<id> status
 SHOWN = ("prediction", "blend", "smoothed")  # display/<id> shown (project extension)
+
+# ---------------------------------------------------------------- input limits
+# (docs/protocol.md §4): an input beyond one is rejected with a reason, nothing applied
+MAX_MEAS_BYTES = 64 * 1024  # bytes of one meas/ or clock payload
+MAX_SCAN_BYTES = 16 * 1024 * 1024  # bytes of one plots/ (or scan/) payload
+MAX_ROWS = 100_000  # detections of one plots/ scan (rows of one scan/ message)
+MAX_TIME = 1e10  # s: |t| beyond this is absurd (Unix seconds reach it in the year 2286)
+MAX_DISTANCE = 1e9  # m: range, every coordinate and every distance noise
+# angles: additive noise carries a measurement of a target at the zenith (scenario B's
+# overhead pass) or at az = 2 pi a little past the bound; ANGLE_MARGIN (about 6 sigma of
+# the default 0.5 deg noise) keeps those, and refuses everything farther
+ANGLE_MARGIN = 0.05  # rad
+MAX_AZ = 2 * math.pi + ANGLE_MARGIN  # rad: |az| ([-pi, pi] and [0, 2 pi) conventions fit)
+MAX_EL = math.pi / 2 + ANGLE_MARGIN  # rad: |el|
+MAX_ANGLE_NOISE = math.pi / 2  # rad: saz, sel (a wider 1-sigma says nothing of the angle)
+MAX_SEQ = 2**53  # seq in [0, MAX_SEQ]
+# the inclusive bounds of every numeric field (list fields: of each element)
+BOUNDS: dict[str, tuple[float, float]] = {
+    "t": (-MAX_TIME, MAX_TIME),
+    "r": (0.0, MAX_DISTANCE), "az": (-MAX_AZ, MAX_AZ), "el": (-MAX_EL, MAX_EL),
+    "sr": (0.0, MAX_DISTANCE), "saz": (0.0, MAX_ANGLE_NOISE), "sel": (0.0, MAX_ANGLE_NOISE),
+    "sigma": (0.0, MAX_DISTANCE),
+    "pos": (-MAX_DISTANCE, MAX_DISTANCE), "sensor_pos": (-MAX_DISTANCE, MAX_DISTANCE),
+}
 
 
 class Keys:

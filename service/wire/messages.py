@@ -11,7 +11,17 @@ from dataclasses import dataclass
 from typing import Any
 
 from .codec import Rejected, decode_map, unpack
-from .keys import CHUNK
+from .keys import (
+    BOUNDS,
+    CHUNK,
+    MAX_ANGLE_NOISE,
+    MAX_AZ,
+    MAX_DISTANCE,
+    MAX_EL,
+    MAX_MEAS_BYTES,
+    MAX_SEQ,
+    MAX_TIME,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,15 +39,26 @@ class Measurement:
     seq: int | None
 
 
-def _num(msg: dict[str, Any], key: str, lo: float = -math.inf) -> float:
+_ANY = (-math.inf, math.inf)
+
+
+def _num(msg: dict[str, Any], key: str) -> float:
+    """The field `key` of msg as a float: a number, finite, within `keys.BOUNDS[key]`."""
     v = msg[key]
     if isinstance(v, bool) or not isinstance(v, int | float):
         raise Rejected(f"field '{key}' must be a number, got {type(v).__name__}")
-    v = float(v)
+    try:
+        v = float(v)
+    except OverflowError:  # an integer beyond float64
+        v = math.copysign(math.inf, v)
     if not math.isfinite(v):
         raise Rejected(f"field '{key}' is not finite ({v})")
-    if v < lo:
-        raise Rejected(f"field '{key}' must be >= {lo}, got {v}")
+    lo, hi = BOUNDS.get(key, _ANY)
+    if not lo <= v <= hi:
+        if key == "t":
+            raise Rejected(f"time t={v!r} is outside the plausible range |t| <= {hi:g} s")
+        raise Rejected(f"field '{key}' must be >= {lo}, got {v}" if v < lo else
+                       f"field '{key}' must be <= {hi}, got {v}")
     return v
 
 
@@ -71,8 +92,8 @@ def parse_full(
     """`parse_measurement` field by field, naming the first problem found."""
     for what, chunk in (("sensor", sensor), ("target", target)):
         if not CHUNK.fullmatch(chunk):
-            raise Rejected(f"{what} chunk '{chunk}' must be letters, digits, '-' or '_'")
-    msg = decode_map(payload)
+            raise Rejected(f"{what} chunk '{chunk[:64]}' must be letters, digits, '-' or '_'")
+    msg = decode_map(payload, MAX_MEAS_BYTES)
     if "t" not in msg:
         raise Rejected("missing required field 't'")
     t = _num(msg, "t")
@@ -83,34 +104,38 @@ def parse_full(
     seq = msg.get("seq")
     if seq is not None and (isinstance(seq, bool) or not isinstance(seq, int)):
         raise Rejected("field 'seq' must be an integer")
+    if seq is not None and not 0 <= seq <= MAX_SEQ:
+        raise Rejected(f"field 'seq' must be in [0, 2^53], got {seq}")
     if polar:
         if "r" not in msg or "az" not in msg:
             raise Rejected("polar measurement needs both 'r' and 'az'")
-        values = (_num(msg, "r", 0.0), _num(msg, "az"))
+        values = (_num(msg, "r"), _num(msg, "az"))
         sig = [msg.get("sr", defaults[0]), msg.get("saz", defaults[1])]
         names = ["sr", "saz"]
         if "el" in msg:
-            values += (_num(msg, "el"),)  # noise may carry el past 90 deg: still valid
+            values += (_num(msg, "el"),)
             sig.append(msg.get("sel", defaults[2]))
             names.append("sel")
-        sigmas = tuple(_num({n: s}, n, 0.0) for n, s in zip(names, sig, strict=True))
+        sigmas = tuple(_num({n: s}, n) for n, s in zip(names, sig, strict=True))
         return Measurement(sensor, target, t, len(values), True, values, sigmas, sensor_pos, seq)
     pos = _vec(msg, "pos", (2, 3))
     raw = msg.get("sigma", defaults[3])
     if isinstance(raw, list | tuple):
         if len(raw) not in (1, len(pos)):
             raise Rejected(f"field 'sigma' must have 1 or {len(pos)} entries")
-        sig = tuple(_num({"sigma": s}, "sigma", 0.0) for s in raw)
+        sig = tuple(_num({"sigma": s}, "sigma") for s in raw)
     else:
-        sig = (_num({"sigma": raw}, "sigma", 0.0),)
+        sig = (_num({"sigma": raw}, "sigma"),)
     sigmas = sig * len(pos) if len(sig) == 1 else sig
     return Measurement(sensor, target, t, len(pos), False, pos, sigmas, sensor_pos, seq)
 
 
 def _fast_polar(sensor: str, target: str, payload: bytes) -> tuple | None:
     """(t, r, az, el, sr, saz, sel, seq) of a well-formed 3-D polar measurement with all
-    its fields given as floats; None for anything else (the full check then runs and
-    names the problem)."""
+    its fields given as floats, within bounds; None for anything else (the full check
+    then runs and names the problem)."""
+    if len(payload) > MAX_MEAS_BYTES:
+        return None
     try:
         msg = unpack(payload)
         if type(msg) is not dict or not POLAR_3D.issuperset(msg) or len(msg) < 7:
@@ -125,15 +150,18 @@ def _fast_polar(sensor: str, target: str, payload: bytes) -> tuple | None:
             return None
     except (ValueError, KeyError, OverflowError):  # fsum overflows on huge finite values
         return None
-    if (r < 0.0 or sr < 0.0 or saz < 0.0 or sel < 0.0
-            or (seq is not None and type(seq) is not int)
+    if (not (0.0 <= r <= MAX_DISTANCE and -MAX_AZ <= az <= MAX_AZ and -MAX_EL <= el <= MAX_EL
+             and -MAX_TIME <= t <= MAX_TIME and 0.0 <= sr <= MAX_DISTANCE
+             and 0.0 <= saz <= MAX_ANGLE_NOISE and 0.0 <= sel <= MAX_ANGLE_NOISE)
+            or (seq is not None and (type(seq) is not int or not 0 <= seq <= MAX_SEQ))
             or not (CHUNK.fullmatch(sensor) and CHUNK.fullmatch(target))):
         return None
     return (*v, seq)
 
 
 def parse_clock(payload: bytes) -> float:
-    msg = decode_map(payload)
+    """The `t` of one `<ns>/clock` payload, checked like a measurement's."""
+    msg = decode_map(payload, MAX_MEAS_BYTES)
     if "t" not in msg:
         raise Rejected("clock message needs field 't'")
     return _num(msg, "t")

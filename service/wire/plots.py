@@ -23,9 +23,10 @@ from itertools import compress, repeat
 from typing import Any
 
 from .codec import Rejected, decode_map, pack
+from .keys import BOUNDS, MAX_ROWS, MAX_SCAN_BYTES
 from .messages import Measurement, _num, _vec, parse_full
 
-MAX_DETECTIONS = 100_000  # per scan; documented limit, larger scans are rejected whole
+MAX_DETECTIONS = MAX_ROWS  # per scan; documented limit, larger scans are rejected whole
 
 NOISE = ("sr", "saz", "sel", "sigma")
 COLUMNS = ("r", "az", "el", "pos")  # the detection fields of the columnar form
@@ -55,7 +56,7 @@ def parse_plots(
     listed in `rejected` as `(i, "detection <i>: <reason>")`, the reason worded as
     `parse_full` words it for a labelled measurement.
     """
-    msg = decode_map(payload)
+    msg = decode_map(payload, MAX_SCAN_BYTES)
     # the sensor chunk, `t` and `sensor_pos` checked as a labelled message's, by parse_full
     # itself (with a placeholder detection)
     head = {k: msg[k] for k in ("t", "sensor_pos") if k in msg}
@@ -95,7 +96,7 @@ class _Scan:
         """Check a scan-wide noise field: a number >= 0 (for `sigma` also a list per axis)."""
         v = self.msg[key]
         per_axis = key == "sigma" and isinstance(v, list | tuple)
-        values = [_num({key: x}, key, 0.0)
+        values = [_num({key: x}, key)
                   for x in (_vec(self.msg, key, (1, 2, 3)) if per_axis else (v,))]
         self.eff[key] = values if per_axis else values[0]
         self.base[key] = v
@@ -150,20 +151,24 @@ class _Scan:
             sig = _axes(s, len(pos)) if type(s) is list else (s,) * len(pos)
             if sig is None:
                 return None
-            low = sig
+            names = _CART[len(pos)]
         elif "r" in det and "az" in det:
             if "el" in det:
                 vals = (det["r"], det["az"], det["el"])
                 sig = (get("sr", eff["sr"]), get("saz", eff["saz"]), get("sel", eff["sel"]))
+                names = _POLAR3
             else:
                 vals = (det["r"], det["az"])
                 sig = (get("sr", eff["sr"]), get("saz", eff["saz"]))
-            low = (vals[0], *sig)
+                names = _POLAR2
         else:
             return None
         every = vals + sig
-        if {*map(type, every)} != _FLOAT or not math.isfinite(sum(every)) or min(low) < 0.0:
+        if {*map(type, every)} != _FLOAT or not math.isfinite(sum(every)):
             return None  # a finite sum of floats proves each finite (overflow: full check)
+        for v, (lo, hi) in zip(every, names, strict=True):
+            if not lo <= v <= hi:
+                return None
         return vals, sig
 
     # ------------------------------------------------------------ columnar: bins
@@ -206,18 +211,20 @@ class _Scan:
             vals = list(zip(*(cols[k] for k in names), strict=True))
             noise = [cols[k] if k in cols else [self.eff[k]] * n for k in NOISE[:len(names)]]
             sigs = list(zip(*noise, strict=True))
-            bad = _bad(cols["r"], 0.0).union(*(_bad(cols[k]) for k in names[1:]),
-                                             *(_bad(c, 0.0) for c in noise))
+            bad = bad_rows(cols["r"], "r").union(
+                *(bad_rows(cols[k], k) for k in names[1:]),
+                *(bad_rows(c, k) for c, k in zip(noise, NOISE, strict=False)))
         else:
             vals = list(zip(*[iter(cols["pos"])] * width, strict=True))
             if "sigma" in cols:
-                sigs, bad = [(x,) * width for x in cols["sigma"]], _bad(cols["sigma"], 0.0)
+                sigs = [(x,) * width for x in cols["sigma"]]
+                bad = bad_rows(cols["sigma"], "sigma")
             else:
                 s = self.eff["sigma"]
                 one = _axes(s, width) if type(s) is list else (s,) * width
                 sigs = [one] * n  # one is None: no row is good, the full check says why
-                bad = set(range(n)) if one is None or _bad(list(one), 0.0) else set()
-            bad |= {j // width for j in _bad(cols["pos"])}
+                bad = set(range(n)) if one is None or bad_rows(list(one), "sigma") else set()
+            bad |= {j // width for j in bad_rows(cols["pos"], "pos")}
         out: list[Measurement | str] = _records(
             n, sensor=self.sensor, target="", t=self.t, dim=len(names) if polar else width,
             polar=polar, values=vals, sigmas=sigs, sensor_pos=self.sensor_pos, seq=None)
@@ -259,14 +266,22 @@ def _axes(s: Any, dim: int) -> tuple | None:
     return tuple(s) * dim if len(s) == 1 else tuple(s)
 
 
-def _bad(col: list[float], lo: float = -math.inf) -> set[int]:
-    """Indices of the values (floats) that are not finite or below `lo`."""
-    if not col or math.isfinite(sum(col)) and min(col) >= lo:
+def bad_rows(col: list[float], key: str) -> set[int]:
+    """Indices of the values (floats) of column `key` that are not finite or outside
+    `keys.BOUNDS[key]`: the checks of a field, a whole column at once (the sum, min and
+    max run in C; only a column with a bad value is looked at row by row). Reusable by
+    every columnar input."""
+    lo, hi = BOUNDS.get(key, (-math.inf, math.inf))
+    if not col or math.isfinite(sum(col)) and min(col) >= lo and max(col) <= hi:
         return set()
-    return {i for i, v in enumerate(col) if not (math.isfinite(v) and v >= lo)}
+    return {i for i, v in enumerate(col) if not (math.isfinite(v) and lo <= v <= hi)}
 
 
 _FLOAT = {float}
+_B = BOUNDS
+_POLAR2 = (_B["r"], _B["az"], _B["sr"], _B["saz"])
+_POLAR3 = (_B["r"], _B["az"], _B["el"], _B["sr"], _B["saz"], _B["sel"])
+_CART = {n: (_B["pos"],) * n + (_B["sigma"],) * n for n in (2, 3)}
 _NEW = object.__new__
 _SET = {f.name: Measurement.__dict__[f.name].__set__ for f in fields(Measurement)}
 
