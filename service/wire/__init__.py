@@ -35,22 +35,24 @@ from .messages import Measurement, parse_clock, parse_full, parse_measurement
 from .plots import MAX_DETECTIONS, PlotScan, bad_rows, parse_plots
 from .session import (
     BLOCK_WAIT_US,
+    CONNECT_RETRY,
     DEFAULT_ENDPOINT,
     add_zenoh_args,
     free_port,
     open_session,
     patient,
     peer_config,
+    quick_retry,
     wait_for_tracker,
     zenoh_config,
 )
 
 __all__ = [
-    "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "DEFAULT_ENDPOINT", "DEFAULT_NS", "MAX_DETECTIONS",
-    "MAX_MEAS_BYTES", "MAX_ROWS", "MAX_SCAN_BYTES", "MAX_TIME", "PROTOCOL_VERSION",
-    "REASON_CODES", "SHOWN", "STATUSES", "Keys", "Measurement", "PlotScan", "Rejected",
-    "add_zenoh_args", "bad_rows", "check_size", "decode_frame", "decode_map", "f64_bin",
-    "f64_list", "free_port", "open_session", "pack", "parse_clock", "parse_full",
-    "parse_measurement", "parse_plots", "patient", "peer_config", "reason_code", "unpack",
-    "wait_for_tracker", "zenoh_config",
+    "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "CONNECT_RETRY", "DEFAULT_ENDPOINT", "DEFAULT_NS",
+    "MAX_DETECTIONS", "MAX_MEAS_BYTES", "MAX_ROWS", "MAX_SCAN_BYTES", "MAX_TIME",
+    "PROTOCOL_VERSION", "REASON_CODES", "SHOWN", "STATUSES", "Keys", "Measurement",
+    "PlotScan", "Rejected", "add_zenoh_args", "bad_rows", "check_size", "decode_frame",
+    "decode_map", "f64_bin", "f64_list", "free_port", "open_session", "pack", "parse_clock",
+    "parse_full", "parse_measurement", "parse_plots", "patient", "peer_config",
+    "quick_retry", "reason_code", "unpack", "wait_for_tracker", "zenoh_config",
 ]

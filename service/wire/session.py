@@ -12,6 +12,13 @@ from .keys import DEFAULT_NS, Keys
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
+# Zenoh's `connect/retry` for every program, unless its config file sets one: after a
+# lost router (or peer) a session tries again 0.1 s later, doubling the wait up to 1 s
+# (Zenoh's own default: 1 s doubling up to 4 s). A router that comes back is found
+# within 1 s plus the handshake, and a waiting client sends one connection attempt a
+# second (docs/operations.md, tests/test_router_faults.py).
+CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}
+
 
 def add_zenoh_args(parser: argparse.ArgumentParser, ns: bool = True) -> None:
     """Zenoh options in the style of the zenoh-python examples."""
@@ -46,6 +53,7 @@ def zenoh_config(args: argparse.Namespace, serve: bool = False) -> Any:
     conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
     if not args.config:
         conf.insert_json5("scouting/multicast/enabled", "false")
+    quick_retry(conf)
     if args.mode:
         conf.insert_json5("mode", json.dumps(args.mode))
     connect, listen = list(args.connect), list(args.listen)
@@ -70,6 +78,13 @@ def peer_config(endpoint: str) -> Any:
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    return quick_retry(conf)
+
+
+def quick_retry(conf: Any) -> Any:
+    """`CONNECT_RETRY` as the config's `connect/retry`, unless the config sets one."""
+    if json.loads(conf.get_json("connect/retry")) is None:
+        conf.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
     return conf
 
 

@@ -1,0 +1,85 @@
+"""`track-router`: a Zenoh router from the Python wheel, for machines without `zenohd`.
+
+Takes the same Zenoh config files as `zenohd -c` (deploy/router.json5, the secured
+variants under deploy/secure/): listen endpoints, TLS, user/password authentication and
+access control all come from the file. `-l/--listen` and `-e/--connect` add endpoints;
+the mode is always "router". Runs until SIGINT or SIGTERM (docs/operations.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import signal
+import sys
+import threading
+
+from . import __version__
+from .wire import DEFAULT_ENDPOINT
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="track-router", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("-c", "--config", metavar="FILE.json5",
+                   help="Zenoh configuration file (as zenohd -c)")
+    p.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                   help=f"endpoint to listen on (repeatable; default {DEFAULT_ENDPOINT} "
+                        "when neither this nor the config file gives one)")
+    p.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="another router to connect to (repeatable)")
+    return p
+
+
+def router_config(args: argparse.Namespace):  # -> zenoh.Config
+    """The router's zenoh.Config: the file, then the command line's endpoints; multicast
+    scouting off unless the file turns it on."""
+    import zenoh
+
+    conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    if not args.config:
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    listen = list(args.listen)
+    if not listen and not isinstance(json.loads(conf.get_json("listen/endpoints")), list):
+        listen = [DEFAULT_ENDPOINT]  # the file sets none (Zenoh's default is every interface)
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    if args.connect:
+        conf.insert_json5("connect/endpoints", json.dumps(args.connect))
+    return conf
+
+
+def one_line(exc: BaseException) -> str:
+    """Zenoh's error text on one line, without the Rust source location."""
+    text = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", str(exc))
+    return " ".join(text.replace("|", " ").replace("-->", " ").split())
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parser().parse_args(argv)
+    import zenoh
+
+    try:
+        conf = router_config(args)
+    except (zenoh.ZError, OSError, ValueError) as exc:
+        raise SystemExit(f"track-router: cannot read config {args.config}: "
+                         f"{one_line(exc)}") from None
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise SystemExit(f"track-router: cannot start: {one_line(exc)}") from None
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    listen = json.loads(conf.get_json("listen/endpoints"))
+    print(f"track-router {__version__}: router {session.info.zid()} listening on "
+          f"{', '.join(map(str, listen))}", flush=True)
+    done.wait()
+    session.close()
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    main()
