@@ -24,10 +24,9 @@ from service.wire import (
     BLOCK_WAIT_US,
     Keys,
     add_zenoh_args,
+    open_session,
     pack,
-    patient,
     wait_for_tracker,
-    zenoh_config,
 )
 
 from . import feed_plots, plotgen, scenarios
@@ -153,8 +152,7 @@ def delivered(session: zenoh.Session, keys: Keys, trackers: int,
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
-    conf = zenoh_config(args)
-    session = zenoh.open(conf if args.config else patient(conf))  # block, never drop
+    session = open_session(args, block=True)  # block, never drop
     try:
         if args.trackers and not wait_for_tracker(session, Keys(args.ns), args.trackers):
             sys.exit(f"track-feed: no tracker alive on '{args.ns}' after 30 s "

@@ -9,15 +9,13 @@ import signal
 import threading
 import uuid
 
-import zenoh
-
 from . import __version__, defaults
 from .estimation.catalog import FILTERS, FilterSpec
 from .node import TrackService
 from .tracking.association import SensorModels
 from .tracking.display import DisplayConfig
 from .tracking.tracker import Tracker, TrackerConfig
-from .wire import Keys, add_zenoh_args, patient, zenoh_config
+from .wire import Keys, add_zenoh_args, fail, open_session, read_file
 
 
 def steady_malloc() -> None:
@@ -39,8 +37,7 @@ def tracker_config(args: argparse.Namespace) -> TrackerConfig:
     spec = FilterSpec(args.filter, args.q, args.imm_ct_q, args.imm_turn, args.imm_sojourn,
                       args.vdf_detect, args.vdf_settle)
     m, n = confirm_rule(args.confirm)
-    sensors = SensorModels.from_file(args.sensors, args.pd, args.clutter_density) \
-        if args.sensors else SensorModels(args.pd, args.clutter_density)
+    sensors = sensor_models(args)
     return TrackerConfig(filter=spec, init_speed=args.init_speed, init_accel=args.init_accel,
                          delete_after=args.delete_after,
                          display=DisplayConfig(rate=args.rate, blend=args.blend,
@@ -49,6 +46,19 @@ def tracker_config(args: argparse.Namespace) -> TrackerConfig:
                          gate_probability=args.gate, max_speed=args.max_speed,
                          confirm_m=m, confirm_n=n, confirm_score=args.confirm_score,
                          delete_misses=args.delete_misses, delete_sigma=args.delete_sigma)
+
+
+def sensor_models(args: argparse.Namespace) -> SensorModels:
+    """Pd and clutter density per sensor: the flags, and --sensors FILE.json over them
+    (an unreadable or malformed file: one line and exit 2)."""
+    if not args.sensors:
+        return SensorModels(args.pd, args.clutter_density)
+    text = read_file(args.sensors, "--sensors file")
+    try:
+        return SensorModels.from_json(text, args.pd, args.clutter_density)
+    except (ValueError, TypeError, AttributeError) as exc:
+        fail(f"--sensors {args.sensors}: not a JSON map of sensor -> {{pd, clutter_density}}"
+             f" ({exc})")
 
 
 def confirm_rule(text: str) -> tuple[int, int]:
@@ -167,10 +177,8 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     tracker = Tracker(tracker_config(args))
-    conf = zenoh_config(args, serve=True)
-    if args.clock == "lockstep" and not args.config:
-        patient(conf)  # lockstep drops nothing: wait for a slow subscriber
-    session = zenoh.open(conf)
+    # lockstep drops nothing: BLOCK puts wait for a slow subscriber
+    session = open_session(args, serve=True, block=args.clock == "lockstep")
     svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),

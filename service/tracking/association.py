@@ -67,7 +67,12 @@ class SensorModels:
     @classmethod
     def from_file(cls, path: str | Path, pd: float = defaults.PD,
                   clutter_density: float | None = defaults.CLUTTER_DENSITY) -> SensorModels:
-        data = json.loads(Path(path).read_text())
+        return cls.from_json(Path(path).read_text(), pd, clutter_density)
+
+    @classmethod
+    def from_json(cls, text: str, pd: float = defaults.PD,
+                  clutter_density: float | None = defaults.CLUTTER_DENSITY) -> SensorModels:
+        data = json.loads(text)
         out = cls(pd, clutter_density)
         for name, cfg in data.items():
             out.per_sensor[name] = SensorModel(float(cfg.get("pd", pd)),

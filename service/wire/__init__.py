@@ -6,6 +6,7 @@ and the standard library (Zenoh is imported when a session is opened), so a disp
 a feed can be written against it without the estimation code (tests/test_layers.py).
 """
 
+from .cli import CONNECT_TIMEOUT, fail, open_or_exit, read_file
 from .codec import (
     REASON_CODES,
     Rejected,
@@ -55,4 +56,5 @@ __all__ = [
     "decode_map", "f64_bin", "f64_list", "free_port", "open_session", "pack", "parse_clock",
     "parse_full", "parse_measurement", "parse_plots", "patient", "peer_config",
     "quick_retry", "reason_code", "unpack", "wait_for_tracker", "zenoh_config",
+    "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
 ]

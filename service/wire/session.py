@@ -8,6 +8,7 @@ import json
 import socket
 from typing import Any
 
+from .cli import CONNECT_TIMEOUT, open_or_exit
 from .keys import DEFAULT_NS, Keys
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -29,6 +30,9 @@ def add_zenoh_args(parser: argparse.ArgumentParser, ns: bool = True) -> None:
     g.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to listen on (repeatable)")
     g.add_argument("-c", "--config", metavar="FILE.json5", help="Zenoh configuration file")
+    g.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT, metavar="SECONDS",
+                   help="keep trying to reach the connect endpoints this long before giving "
+                        "up (default %(default)s)")
     if ns:
         g.add_argument("--ns", default=DEFAULT_NS, help="key namespace (default %(default)s)")
 
@@ -100,10 +104,16 @@ def patient(conf: Any) -> Any:
     return conf
 
 
-def open_session(args: argparse.Namespace, serve: bool = False) -> Any:
-    import zenoh
+def open_session(args: argparse.Namespace, serve: bool = False, block: bool = False) -> Any:
+    """The session of a program's options, or one line on stderr and exit 2 (a port
+    taken, a router not reached within --connect-retry, a config that does not load).
+    `block`: BLOCK puts wait for slow receivers (`patient`) unless a config file is given."""
+    def make() -> Any:
+        conf = zenoh_config(args, serve)
+        return patient(conf) if block and not args.config else conf
 
-    return zenoh.open(zenoh_config(args, serve))
+    return open_or_exit(make, getattr(args, "connect_timeout", CONNECT_TIMEOUT),
+                        what=f" {args.config}" if args.config else "")
 
 
 def wait_for_tracker(session: Any, keys: Keys, count: int = 1, timeout: float = 30.0) -> bool:
