@@ -6,12 +6,14 @@ import argparse
 import ctypes
 import logging
 import signal
+import sys
 import threading
 import uuid
 
 from . import __version__, defaults
 from .estimation.catalog import FILTERS, FilterSpec
 from .node import TrackService
+from .state import StateFile
 from .tracking.association import SensorModels
 from .tracking.display import DisplayConfig
 from .tracking.tracker import Tracker, TrackerConfig
@@ -162,6 +164,12 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--reorder", type=float, default=defaults.REORDER, metavar="SECONDS",
                    help="how long a scan waits for older scans of other sensors, s of "
                         "simulation time (default %(default)s)")
+    p.add_argument("--state", metavar="PATH",
+                   help="keep the track table in this file: a checkpoint every "
+                        "--state-period s and at SIGTERM/SIGINT, read back at start "
+                        "(docs/operations.md)")
+    p.add_argument("--state-period", type=float, default=defaults.STATE_PERIOD,
+                   metavar="SECONDS", help="seconds between checkpoints (default %(default)s)")
     p.add_argument("--max-jump", type=float, default=defaults.MAX_JUMP, metavar="SECONDS",
                    help="refuse an input more than this from the picture's time, unless "
                         f"{defaults.NEW_TIMELINE} such come in a row (a new timeline; "
@@ -184,7 +192,11 @@ def main(argv: list[str] | None = None) -> None:
                        noise=(args.sr, args.saz, args.sel, args.sigma),
                        per_target_display=not args.no_display_keys,
                        meas_keys=args.meas or None, plot_keys=args.plots or None,
-                       reorder=args.reorder, max_jump=args.max_jump).start()
+                       reorder=args.reorder, max_jump=args.max_jump)
+    if args.state:
+        svc.state = StateFile(args.state, args.state_period)
+        print(f"track-service: {svc.state.restore(svc)}", file=sys.stderr, flush=True)
+    svc.start()
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

@@ -58,3 +58,6 @@ NOISE = (SR, SAZ, SEL, SIGMA)
 # (service.wire.keys: MAX_TIME, sizes, bounds)
 MAX_JUMP = 600.0  # s: an input farther than this from the picture's time is rejected ...
 NEW_TIMELINE = 10  # ... unless this many such inputs come in a row: a new timeline
+
+# ---------------------------------------------------------------- state file (--state)
+STATE_PERIOD = 1.0  # s: a checkpoint of the track table this often (and at SIGTERM/SIGINT)

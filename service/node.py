@@ -76,6 +76,7 @@ class TrackService:
         self.inbox: queue.SimpleQueue[tuple] = queue.SimpleQueue()
         self.last_seq: dict[str, int] = {}
         self.timeline = Timeline(max_jump)
+        self.state: Any = None  # service.state.StateFile with --state: checkpoints
         self.picture_t: float | None = None  # lockstep: the newest input time taken
         self.stop = threading.Event()
         put = self.inbox.put
@@ -122,6 +123,8 @@ class TrackService:
         self.stop.set()
         self.inbox.put(("wake",))
         self.thread.join(timeout=10)
+        if self.state is not None and not self.thread.is_alive():
+            self.state.final(self)  # the worker has stopped: the table is still
         self.token.undeclare()
 
     def _ingest(self, limit: int | None = MAX_BATCH) -> None:
@@ -171,6 +174,8 @@ class TrackService:
                 self._process(batch)
                 if self.realtime:
                     self._tick()
+                if self.state is not None:
+                    self.state.tick(self)
             except Exception:  # keep serving: one bad batch must not stop the service
                 log.exception("worker failed on a batch of %d inputs", len(batch))
 

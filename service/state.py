@@ -1,0 +1,156 @@
+"""`track-service --state PATH`: the track table kept in a file across restarts.
+
+The worker thread takes a checkpoint (`tracking.checkpoint`: the tracks, the display
+clock, the last `seq` per sensor) every `--state-period` seconds (default 1 s) and hands
+its bytes to a writer thread, which writes them atomically: a temporary file in the same
+directory, flushed and fsync'ed, then `os.replace` over PATH, so PATH always holds one
+whole checkpoint. On SIGTERM/SIGINT the service stops its worker and writes a last one.
+At start the file is read back before the service takes any input; a file that is not a
+checkpoint this service can take is refused with one line on stderr and the service
+starts empty (docs/operations.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from . import defaults
+from .tracking import checkpoint
+from .tracking.clock import Lockstep, Realtime
+
+if TYPE_CHECKING:
+    from .node import TrackService
+
+log = logging.getLogger("track-service")
+
+
+class StateFile:
+    """The state file of one service: periodic checkpoints, written off the worker."""
+
+    def __init__(self, path: str | Path, period: float = defaults.STATE_PERIOD) -> None:
+        self.path = Path(path)
+        self.period = period
+        self.next_due = time.monotonic() + period
+        self.pending: bytes | None = None
+        self.cond = threading.Condition()
+        self.closed = False
+        self.writes = 0
+        self.writer = threading.Thread(target=self._write_loop, name="state-writer",
+                                       daemon=True)
+        self.writer.start()
+
+    # ------------------------------------------------------------ worker side
+    def tick(self, svc: TrackService) -> None:
+        """On the worker thread: a checkpoint when one is due."""
+        now = time.monotonic()
+        if now >= self.next_due:
+            self.next_due = now + self.period
+            self._hand_over(capture(svc))
+
+    def final(self, svc: TrackService) -> None:
+        """The last checkpoint, once the worker has stopped; written before returning."""
+        data = capture(svc)
+        with self.cond:
+            self.closed, self.pending = True, None
+            self.cond.notify_all()
+        self.writer.join(timeout=10)
+        self.write(data)
+
+    def _hand_over(self, data: bytes) -> None:
+        with self.cond:
+            self.pending = data  # an older one not yet written is superseded
+            self.cond.notify_all()
+
+    # ------------------------------------------------------------ writer side
+    def _write_loop(self) -> None:
+        while True:
+            with self.cond:
+                self.cond.wait_for(lambda: self.pending is not None or self.closed)
+                if self.closed:
+                    return
+                data, self.pending = self.pending, None
+            try:
+                self.write(data)
+            except OSError as exc:
+                log.error("cannot write the state file %s: %s", self.path, exc)
+
+    def write(self, data: bytes) -> None:
+        """Replace the file atomically with `data` (same directory, fsync, os.replace)."""
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, self.path)
+        self.writes += 1
+
+    # ------------------------------------------------------------ start
+    def restore(self, svc: TrackService) -> str:
+        """Read the file into the service (before it starts); the line to print. A file
+        that cannot be read or a place that cannot be written is an operator's mistake:
+        SystemExit with one line. A file that is not a checkpoint this service can take
+        is set aside as PATH.refused, and the service starts empty."""
+        where = self.path.parent
+        if self.path.is_dir() or not where.is_dir() or not os.access(where, os.W_OK):
+            raise SystemExit(f"track-service: cannot write the state file {self.path} "
+                             "(not a file in a writable directory)")
+        try:
+            data = self.path.read_bytes()
+        except FileNotFoundError:
+            return f"state file {self.path} not there yet: starting empty"
+        except OSError as exc:
+            raise SystemExit(f"track-service: cannot read the state file {self.path}: "
+                             f"{exc.strerror}") from None
+        try:
+            meta = checkpoint.load(svc.tracker, data)
+        except checkpoint.CheckpointError as exc:
+            refused = self.path.with_name(self.path.name + ".refused")
+            os.replace(self.path, refused)
+            return f"state file {self.path} refused ({exc}; kept as {refused}): starting empty"
+        extra = meta.get("extra", {})
+        note = _restore_clock(svc, extra.get("clock"))
+        seq = extra.get("last_seq", {})
+        if isinstance(seq, dict):
+            svc.last_seq.update({k: v for k, v in seq.items()
+                                 if isinstance(k, str) and isinstance(v, int)})
+        age = time.time() - extra.get("wall", time.time())
+        return (f"restored {len(svc.tracker)} tracks from {self.path} "
+                f"(written {age:.1f} s ago{note})")
+
+
+def capture(svc: TrackService) -> bytes:
+    """The service's checkpoint: its tracker's tracks with the clock and `seq` state."""
+    clock: dict[str, Any]
+    if isinstance(svc.clock, Realtime):
+        clock = {"kind": "realtime", "offset": svc.clock.offset}
+    else:
+        clock = {"kind": "lockstep", "next_n": svc.clock.next_n, "picture_t": svc.picture_t}
+    return checkpoint.dump(svc.tracker, extra={"clock": clock, "last_seq": svc.last_seq,
+                                               "wall": time.time(), "ns": svc.keys.ns})
+
+
+def _restore_clock(svc: TrackService, clock: Any) -> str:
+    """The display clock where the checkpoint left it: realtime frames go on at once
+    (the offset of simulation time to wall time kept), lockstep frames resume after the
+    last instant published. A clock of the other kind is not taken."""
+    if not isinstance(clock, dict):
+        return ""
+    if isinstance(svc.clock, Realtime) and clock.get("kind") == "realtime":
+        off = clock.get("offset")
+        if isinstance(off, int | float) and abs(off) < 1e12:
+            wall = time.time()
+            svc.clock.observe(wall + off, wall)
+            return f"; realtime frames resume at t={wall + off:.3f}"
+    elif isinstance(svc.clock, Lockstep) and clock.get("kind") == "lockstep":
+        n, t = clock.get("next_n"), clock.get("picture_t")
+        if isinstance(n, int):
+            svc.clock.next_n = n
+        if isinstance(t, int | float):
+            svc.picture_t = float(t)
+            return f"; lockstep picture at t={t:.3f}"
+    return ""
