@@ -1,6 +1,8 @@
 """`track-display`: the live track table in a terminal, updated in place.
 
-Subscribes `<ns>/display/**`; a Zenoh delete on a track's key removes its row.
+Subscribes `<ns>/display/**`; a Zenoh delete on a track's key removes its row. At start it
+asks the service for the latest instant (`get <ns>/display/**`), so the table is full at
+once even when the picture is paused.
 """
 
 from __future__ import annotations
@@ -50,12 +52,23 @@ def main(argv: list[str] | None = None) -> None:
                 return
             try:
                 msg = unpack(s.payload.to_bytes())
+                if tid in rows and msg["t"] < rows[tid]["t"]:
+                    return  # a query's answer older than what the subscription brought
                 rows[tid] = {k: msg[k] for k in ("t", "pos", "vel", "sigma", "status", "age")}
             except (ValueError, KeyError, TypeError):
                 return
 
+    def catch_up() -> None:
+        """The latest instant at once, without waiting for the next one (a paused
+        lockstep picture may have none for long): the service answers display/**."""
+        for reply in session.get(keys.space("display"), target=zenoh.QueryTarget.ALL,
+                                 timeout=5):
+            if reply.ok is not None:
+                on_sample(reply.ok)
+
     session = open_session(args)
     sub = session.declare_subscriber(keys.display("*"), on_sample)
+    threading.Thread(target=catch_up, daemon=True).start()
     try:
         while True:
             with lock:

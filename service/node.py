@@ -110,6 +110,10 @@ class TrackService:
             session.declare_queryable(keys.space("tracks"),
                                       direct(lambda q: control(("tracks", q)))),
             session.declare_queryable(keys.status, direct(lambda q: control(("status", q)))),
+            # late joiners: the latest instant published, at once (docs/operations.md)
+            session.declare_queryable(keys.frame, direct(lambda q: control(("frame", q)))),
+            session.declare_queryable(keys.space("display"),
+                                      direct(lambda q: control(("display", q)))),
         ]
         self.token = session.liveliness().declare_token(keys.alive(instance))
         self.thread = threading.Thread(target=self._run, name="track-worker", daemon=True)
@@ -215,7 +219,7 @@ class TrackService:
             elif kind == "plots":
                 self._flush(pending)  # the labelled ones received before it go first
                 self._take_scan(item[1], item[2], item[3])
-            elif kind in ("tracks", "status"):
+            elif kind in ("tracks", "status", "frame", "display"):
                 self._flush(pending)
                 self._answer(kind, item[1])
         self._flush(pending)
@@ -357,6 +361,17 @@ class TrackService:
         try:
             if kind == "status":
                 query.reply(self.keys.status, pack(self.status()))
+            elif kind == "frame":
+                if self.out.latest[0] is not None:
+                    query.reply(self.keys.frame, self.out.latest[0])
+            elif kind == "display":
+                sel = zenoh.KeyExpr(str(query.key_expr))
+                _, ids, bodies = self.out.latest
+                for track_id, body in zip(ids, bodies, strict=True):
+                    if track_id in self.tracker.store:  # not deleted since
+                        key = zenoh.KeyExpr(self.keys.display(track_id))
+                        if sel.intersects(key):
+                            query.reply(key, body)
             else:
                 sel = zenoh.KeyExpr(str(query.key_expr))
                 for track_id in list(self.tracker.store.where):

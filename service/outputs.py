@@ -54,6 +54,8 @@ class Publisher:
         # publisher per target would make starting N tracks O(N^2) (bench/README.md)
         self.track_keys: dict[str, tuple[zenoh.KeyExpr, zenoh.KeyExpr]] = {}
         self.frame_ids: tuple[list[str] | None, bytes] = (None, b"")  # ids, packed
+        # the latest instant's frame and display/ bodies: late joiners get them by query
+        self.latest: tuple[bytes | None, list[str], list[bytes]] = (None, [], [])
 
     def reject(self, key: str, sensor: str, reason: str) -> None:
         c = self.count
@@ -101,14 +103,16 @@ class Publisher:
         snap = self._finite(snap)
         if snap.ids is not self.frame_ids[0]:
             self.frame_ids = (snap.ids, pack(snap.ids))
-        self.pub_frame.put(pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma,
-                                      snap.codes))
+        frame = pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma, snap.codes)
+        self.pub_frame.put(frame)
+        self.latest = (frame, [], [])
         if self.per_target_display:
             put, cc, keys = self.session.put, self.display_cc, self._keys
             bodies = pack_displays(t, snap.ids, snap.pos, snap.vel, snap.sigma, snap.age,
                                    snap.status, snap.shown)
             for track_id, body in zip(snap.ids, bodies, strict=True):
                 put(keys(track_id)[0], body, congestion_control=cc)
+            self.latest = (frame, snap.ids, bodies)
         self.count.frames_published += 1
 
     def _finite(self, snap: Snapshot) -> Snapshot:
