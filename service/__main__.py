@@ -125,7 +125,9 @@ def parser() -> argparse.ArgumentParser:
                    help="publish frames for now - lag, smoothed between the two filtered "
                         "states that bracket the instant (accuracy rather than latency)")
     p.add_argument("--no-display-keys", action="store_true",
-                   help="publish only the `frame` key, not per-target display/ keys")
+                   help="publish only the `frame` key, never per-target display/<id> keys "
+                        "(by default display/<id> goes out for the tracks someone "
+                        "subscribes to, and for no other)")
     p.add_argument("--meas", action="append", default=[], metavar="KEYEXPR",
                    help="measurement key expression(s) this instance tracks (repeatable; "
                         "default <ns>/meas/**): a shard takes its part of the key space, "
@@ -186,7 +188,8 @@ def main(argv: list[str] | None = None) -> None:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     tracker = Tracker(tracker_config(args))
     # lockstep drops nothing: BLOCK puts wait for a slow subscriber
-    session = open_session(args, serve=True, block=args.clock == "lockstep")
+    session = open_session(args, serve=True, block=args.clock == "lockstep",
+                           admin=True)
     svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),

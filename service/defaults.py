@@ -15,6 +15,7 @@ CLOCK = "realtime"  # or "lockstep"
 BLEND = 0.0  # s: absorb a correction over this period (0: plain prediction)
 BLEND_SPEED = 0.0  # m/s: absorb a correction at this speed (0: no speed limit)
 LAG = 0.0  # s: display instants lag the clock, smoothed when bracketed
+LISTENERS_REFRESH = 0.1  # s: how often a realtime service re-reads who subscribes display/, tracks/
 
 # ---------------------------------------------------------------- filters
 FILTER = "imm"  # imm, cv, ca, ekf, vdf

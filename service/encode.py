@@ -111,3 +111,25 @@ def pack_tracks(t: np.ndarray, ids: Sequence[str], pos: np.ndarray, vel: np.ndar
              for i, m in zip(ids, models, strict=True)]
     return pack_rows([("t", t), ("pos", pos), ("vel", vel), ("x", x), ("P", p), ("nis", nis),
                       ("updates", updates)], tails, 2)
+
+
+def _f64(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype="<f8").tobytes()
+
+
+def pack_states(st: Any) -> bytes:
+    """The batched `states` body of one block of updated tracks (`tracking.States`):
+    {t, ids, n, pos, vel, x, P, nis, updates} with each numeric field a bin of
+    little-endian float64, row-major ((N,), (N, 3), (N, n), (N, n * n)), plus `model`
+    (the one model's name) or `modes` and `mu` ((N, M) mode probabilities)."""
+    models = st.models
+    body: dict[str, Any] = {"t": _f64(st.t), "ids": list(st.ids), "n": int(st.x.shape[1]),
+                            "pos": _f64(st.pos), "vel": _f64(st.vel), "x": _f64(st.x),
+                            "P": _f64(st.p), "nis": _f64(st.nis), "updates": _f64(st.updates)}
+    if models and isinstance(models[0], dict):
+        modes = list(models[0])
+        body["modes"] = modes
+        body["mu"] = _f64(np.array([[m[k] for k in modes] for m in models]))
+    elif models:
+        body["model"] = models[0] if len(set(models)) == 1 else list(models)
+    return pack(body)

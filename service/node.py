@@ -11,6 +11,7 @@ wire (decode, validate) -> tracking (associate, update, delete, initiate; displa
 from __future__ import annotations
 
 import heapq
+import json
 import logging
 import math
 import queue
@@ -22,7 +23,7 @@ import numpy as np
 import zenoh
 
 from . import __version__, defaults
-from .outputs import Publisher
+from .outputs import MSGPACK, Publisher
 from .tracking.clock import Lockstep, Realtime
 from .tracking.reorder import ReorderBuffer
 from .tracking.timeline import Timeline
@@ -70,7 +71,8 @@ class TrackService:
         self.clock = Realtime(rate) if self.realtime else Lockstep(rate)
         self.rate, self.instance, self.noise = rate, instance, noise
         self.per_target_display = per_target_display
-        self.out = Publisher(session, keys, self.realtime, per_target_display)
+        self.out = Publisher(session, keys, self.realtime, per_target_display,
+                             defaults.LISTENERS_REFRESH if self.realtime else 0.0)
         self.count = self.out.count
         self.started = time.monotonic()
         self.inbox: queue.SimpleQueue[tuple] = queue.SimpleQueue()
@@ -130,6 +132,7 @@ class TrackService:
         if self.state is not None and not self.thread.is_alive():
             self.state.final(self)  # the worker has stopped: the table is still
         self.token.undeclare()
+        self.out.close()
 
     def _ingest(self, limit: int | None = MAX_BATCH) -> None:
         """Move measurements from Zenoh's channels to the inbox, keeping arrival order.
@@ -185,6 +188,8 @@ class TrackService:
 
     # ------------------------------------------------------------ inputs
     def _process(self, batch: list[tuple]) -> None:
+        if batch:
+            self.out.look()  # who listens to display/ and tracks/ (cheap unless due)
         pending: list[Measurement] = []
         seen = (None, -np.inf)  # (arrival stamp, newest t) last given to the clock
         for item in batch:
@@ -327,7 +332,7 @@ class TrackService:
 
     def _publish_frame(self, t: float) -> None:
         self.out.deleted(self.tracker.step([], now=t))  # an empty scan: coast and delete
-        self.out.frame(t, self.tracker.snapshot(t, detail=self.per_target_display))
+        self.out.frame(t, self.tracker.snapshot(t, detail=False))
 
     def _tick(self) -> None:
         if len(self.reorder) and self.clock.offset is not None:
@@ -335,6 +340,7 @@ class TrackService:
                 self._apply_scan(key, scan)
         instant = self.clock.due(time.time() - self.tracker.config.display.lag)
         if instant is not None:
+            self.out.look()
             self.count.frames_missed = self.clock.missed
             self._publish_frame(instant)
 
@@ -354,29 +360,35 @@ class TrackService:
             "states_withheld": c.states_withheld,
             "scans_applied": c.scans_applied, "scans_held": len(self.reorder),
             "rejected_by_reason": dict(c.by_reason),
+            "display_puts": c.display_puts, "tracks_puts": c.tracks_puts,
             "queue": self.inbox.qsize(),
         }
 
     def _answer(self, kind: str, query: Any) -> None:
+        """Answer a query: `status` (as JSON when asked `?format=json`), the latest
+        `frame` and `display/**`, `tracks/**`."""
         try:
             if kind == "status":
-                query.reply(self.keys.status, pack(self.status()))
+                if query.parameters.get("format") == "json":
+                    query.reply(self.keys.status, json.dumps(self.status()),
+                                encoding=zenoh.Encoding.APPLICATION_JSON)
+                else:
+                    query.reply(self.keys.status, pack(self.status()), encoding=MSGPACK)
             elif kind == "frame":
                 if self.out.latest[0] is not None:
-                    query.reply(self.keys.frame, self.out.latest[0])
+                    query.reply(self.keys.frame, self.out.latest[0], encoding=MSGPACK)
             elif kind == "display":
                 sel = zenoh.KeyExpr(str(query.key_expr))
-                _, ids, bodies = self.out.latest
-                for track_id, body in zip(ids, bodies, strict=True):
+                for track_id, body in zip(*self.out.latest_displays(), strict=True):
                     if track_id in self.tracker.store:  # not deleted since
                         key = zenoh.KeyExpr(self.keys.display(track_id))
                         if sel.intersects(key):
-                            query.reply(key, body)
+                            query.reply(key, body, encoding=MSGPACK)
             else:
                 sel = zenoh.KeyExpr(str(query.key_expr))
                 for track_id in list(self.tracker.store.where):
                     key = zenoh.KeyExpr(self.keys.tracks(track_id))
                     if sel.intersects(key):
-                        query.reply(key, pack(self.tracker.state(track_id)))
+                        query.reply(key, pack(self.tracker.state(track_id)), encoding=MSGPACK)
         finally:
             query.drop()

@@ -1,6 +1,11 @@
 """The service's outputs on Zenoh: `tracks/` states, 30 Hz `display/` and `frame`,
 deletions and `errors/`, each encoded in bulk from the tracker's columns (`encode`),
-with the counters that `status` reports."""
+with the counters that `status` reports.
+
+`frame` is always published; `display/<id>` and `tracks/<id>` only for the tracks that
+some subscriber listens to (`listeners.Listeners`), and the batched `states` key only
+while someone subscribes it. Every put and reply carries the Zenoh encoding
+`application/vnd.msgpack` (`wire.ENCODING`; JSON replies `application/json`)."""
 
 from __future__ import annotations
 
@@ -11,11 +16,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from .encode import pack_displays, pack_frame, pack_tracks
+from . import defaults
+from .encode import pack_displays, pack_frame, pack_states, pack_tracks
+from .listeners import Listeners
 from .tracking.display import Snapshot
 from .tracking.store import States
 from .tracking.tracker import Outcome
-from .wire import CHUNK, Keys, pack, reason_code
+from .wire import CHUNK, ENCODING, Keys, pack, reason_code
+
+MSGPACK = zenoh.Encoding(ENCODING)
 
 log = logging.getLogger("track-service")
 LOG_EVERY = 10.0  # s: rejected inputs are logged at most once in this period
@@ -32,15 +41,19 @@ class Counters:
     states_withheld: int = 0
     scans_applied: int = 0
     by_reason: dict[str, int] = field(default_factory=dict)  # rejections by reason code
+    display_puts: int = 0  # display/<id> messages put (only for tracks someone listens to)
+    tracks_puts: int = 0  # tracks/<id> messages put (likewise)
 
 
 
 class Publisher:
     """Everything the service puts. `realtime`: display keys may drop under congestion
-    (a stale frame is worthless); `tracks/`, deletions and errors never do."""
+    (a stale frame is worthless); `tracks/`, `states`, deletions and errors never do.
+    `per_target_display` False: no `display/<id>` even when someone listens."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, realtime: bool,
-                 per_target_display: bool) -> None:
+                 per_target_display: bool, refresh: float = defaults.LISTENERS_REFRESH
+                 ) -> None:
         self.session, self.keys = session, keys
         self.per_target_display = per_target_display
         self.count = Counters()
@@ -48,14 +61,20 @@ class Publisher:
         cc = zenoh.CongestionControl
         self.display_cc = cc.DROP if realtime else cc.BLOCK
         self.block = cc.BLOCK
-        self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc)
+        self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc,
+                                                   encoding=MSGPACK)
+        self.pub_states = session.declare_publisher(keys.states, congestion_control=self.block,
+                                                    encoding=MSGPACK)
+        self.display_listeners = Listeners(session, keys.display("").rstrip("/"), refresh)
+        self.track_listeners = Listeners(session, keys.tracks("").rstrip("/"), refresh)
         # key expressions of each track's display/ and tracks/ keys, made once per track;
         # plain session.put on them: zenoh declares cost O(declared) each, so a
         # publisher per target would make starting N tracks O(N^2) (bench/README.md)
         self.track_keys: dict[str, tuple[zenoh.KeyExpr, zenoh.KeyExpr]] = {}
         self.frame_ids: tuple[list[str] | None, bytes] = (None, b"")  # ids, packed
-        # the latest instant's frame and display/ bodies: late joiners get them by query
-        self.latest: tuple[bytes | None, list[str], list[bytes]] = (None, [], [])
+        # the latest instant's frame and snapshot: late joiners get them by query
+        self.latest: tuple[bytes | None, Snapshot | None] = (None, None)
+        self.latest_bodies: tuple[Snapshot | None, list[bytes]] = (None, [])
 
     def reject(self, key: str, sensor: str, reason: str) -> None:
         c = self.count
@@ -69,7 +88,16 @@ class Publisher:
                         c.meas_rejected, c.by_reason)
         self.session.put(self.keys.errors(sensor if CHUNK.fullmatch(sensor) else "unknown"),
                          pack({"key": key, "reason": reason, "code": code, "t_wall": now}),
-                         congestion_control=zenoh.CongestionControl.BLOCK)
+                         congestion_control=zenoh.CongestionControl.BLOCK, encoding=MSGPACK)
+
+    def look(self) -> None:
+        """Bring the listeners of `display/` and `tracks/` up to date (once per step)."""
+        self.display_listeners.look()
+        self.track_listeners.look()
+
+    def close(self) -> None:
+        self.display_listeners.close()
+        self.track_listeners.close()
 
     def states(self, outcomes: list[Outcome], key: str | None = None) -> None:
         """Count and report each measurement's outcome; put the `tracks/` bodies of the
@@ -83,12 +111,26 @@ class Publisher:
             self.count.meas_accepted += 1
             if out.states is not None:
                 blocks.setdefault(id(out.states), out.states)
+        if not blocks:
+            return
+        if self.pub_states.matching_status.matching:
+            for st in blocks.values():
+                self.pub_states.put(pack_states(st))
+        listeners = self.track_listeners
+        if listeners.none:
+            return  # nobody listens to tracks/: nothing to encode
         put, keys, block = self.session.put, self._keys, self.block
         for st in blocks.values():
+            if not listeners.everything:
+                pick = [i for i, k in enumerate(st.ids) if listeners.wants(k)]
+                if not pick:
+                    continue
+                st = st.select(pick)
             bodies = pack_tracks(st.t, st.ids, st.pos, st.vel, st.x, st.p, st.models, st.nis,
                                  st.updates)
             for track_id, body in zip(st.ids, bodies, strict=True):
-                put(keys(track_id)[1], body, congestion_control=block)
+                put(keys(track_id)[1], body, congestion_control=block, encoding=MSGPACK)
+            self.count.tracks_puts += len(bodies)
 
     def _keys(self, track_id: str) -> tuple[zenoh.KeyExpr, zenoh.KeyExpr]:
         """The display/ and tracks/ key expressions of a track."""
@@ -98,22 +140,45 @@ class Publisher:
                                               zenoh.KeyExpr(self.keys.tracks(track_id)))
         return ke
 
+    @property
+    def wants_display(self) -> bool:
+        """Whether any `display/<id>` is to be put (the snapshot needs its details)."""
+        return self.per_target_display and not self.display_listeners.none
+
     def frame(self, t: float, snap: Snapshot) -> None:
-        """The display keys of instant t: `frame`, and `display/<id>` when asked for."""
+        """The display keys of instant t: `frame`, and `display/<id>` of the tracks that
+        someone listens to."""
         snap = self._finite(snap)
         if snap.ids is not self.frame_ids[0]:
             self.frame_ids = (snap.ids, pack(snap.ids))
         frame = pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma, snap.codes)
         self.pub_frame.put(frame)
-        self.latest = (frame, [], [])
-        if self.per_target_display:
+        self.latest = (frame, snap)
+        if self.wants_display and len(snap.ids):
+            rows = self.display_listeners.rows(snap.ids)
+            if rows is not None:
+                snap = snap.select(rows)
+            snap = snap.detailed()
             put, cc, keys = self.session.put, self.display_cc, self._keys
             bodies = pack_displays(t, snap.ids, snap.pos, snap.vel, snap.sigma, snap.age,
                                    snap.status, snap.shown)
             for track_id, body in zip(snap.ids, bodies, strict=True):
-                put(keys(track_id)[0], body, congestion_control=cc)
-            self.latest = (frame, snap.ids, bodies)
+                put(keys(track_id)[0], body, congestion_control=cc, encoding=MSGPACK)
+            self.count.display_puts += len(bodies)
         self.count.frames_published += 1
+
+    def latest_displays(self) -> tuple[list[str], list[bytes]]:
+        """The ids and `display/<id>` bodies of the latest instant published (made when
+        first asked: a late joiner's query)."""
+        snap = self.latest[1]
+        if snap is None:
+            return [], []
+        if self.latest_bodies[0] is not snap:
+            full = snap.detailed()
+            self.latest_bodies = (snap, pack_displays(
+                snap.t, full.ids, full.pos, full.vel, full.sigma, full.age, full.status,
+                full.shown))
+        return snap.ids, self.latest_bodies[1]
 
     def _finite(self, snap: Snapshot) -> Snapshot:
         """Withhold (and count) any track whose displayed state is not finite."""
@@ -123,12 +188,7 @@ class Publisher:
         ok = (np.isfinite(snap.pos).all(1) & np.isfinite(snap.vel).all(1)
               & np.isfinite(snap.sigma))
         self.count.states_withheld += int((~ok).sum())
-        keep = np.flatnonzero(ok)
-        pick = keep.tolist()
-        return Snapshot(snap.t, [snap.ids[i] for i in pick], snap.pos[keep], snap.vel[keep],
-                        snap.sigma[keep], snap.age[keep],
-                        [snap.status[i] for i in pick] if snap.status else [],
-                        [snap.shown[i] for i in pick] if snap.shown else [], snap.codes[keep])
+        return snap.select(np.flatnonzero(ok))
 
     def deleted(self, ids: list[str]) -> None:
         """Announce deleted tracks: a Zenoh delete on each of their keys."""

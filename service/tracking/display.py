@@ -10,7 +10,7 @@ and/or over a set period. `smoothed` serves a lagged display: the fixed-interval
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -138,6 +138,24 @@ class Snapshot:
     status: list[str]
     shown: list[str]  # per track: "prediction", "blend" or "smoothed"
     codes: np.ndarray  # (N,) uint8: each status as an index into wire.STATUSES (frame)
+    kinds: np.ndarray | None = None  # (N,) what is shown, as an index into wire.SHOWN
+
+    def select(self, rows: np.ndarray) -> Snapshot:
+        """The tracks at `rows` (indices) only."""
+        pick = rows.tolist()
+        return Snapshot(self.t, [self.ids[i] for i in pick], self.pos[rows], self.vel[rows],
+                        self.sigma[rows], self.age[rows],
+                        [self.status[i] for i in pick] if self.status else [],
+                        [self.shown[i] for i in pick] if self.shown else [], self.codes[rows],
+                        None if self.kinds is None else self.kinds[rows])
+
+    def detailed(self) -> Snapshot:
+        """This snapshot with its status and shown strings (made from the codes only now,
+        for the rows that need them: the display/ keys)."""
+        if self.status or not self.ids or self.kinds is None:
+            return self
+        return replace(self, status=[STATUSES[k] for k in self.codes.tolist()],
+                       shown=[SHOWN[k] for k in self.kinds.tolist()])
 
 
 # the display's columns beside each layout of the store
@@ -229,6 +247,7 @@ class DisplayState:
         status: list[str] = []
         shown: list[str] = []
         code_parts: list[np.ndarray] = []
+        kind_parts: list[np.ndarray] = []
         for arrays in store.layouts.values():
             rows, layout_ids = arrays.live()
             if not len(rows):
@@ -241,6 +260,7 @@ class DisplayState:
             age = np.maximum(t - arrays.t[rows], 0.0)
             codes = status_codes(arrays, rows, age, self.config.coast_after)
             code_parts.append(codes.astype(np.uint8))
+            kind_parts.append(np.asarray(kinds, dtype=np.uint8))
             if detail:
                 status += [STATUSES[k] for k in codes.tolist()]
                 shown += [SHOWN[k] for k in kinds.tolist()]
@@ -249,10 +269,10 @@ class DisplayState:
         if not parts:
             e = np.zeros((0, 3))
             return Snapshot(t, [], e, e.copy(), np.zeros(0), np.zeros(0), [], [],
-                            np.zeros(0, np.uint8))
+                            np.zeros(0, np.uint8), np.zeros(0, np.uint8))
         pos, vel, sig, age = (np.concatenate(p) for p in zip(*parts, strict=True))
         return Snapshot(t, self._joined(id_parts), pos, vel, sig, age, status, shown,
-                        np.concatenate(code_parts))
+                        np.concatenate(code_parts), np.concatenate(kind_parts))
 
     def _joined(self, parts: list[list[str]]) -> list[str]:
         """The layouts' live ids in one list; the same list object while no track comes

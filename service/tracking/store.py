@@ -127,6 +127,13 @@ class States:
                 "model": self.models[i], "nis": float(self.nis[i]),
                 "updates": int(self.updates[i])}
 
+    def select(self, rows: list[int]) -> States:
+        """The tracks at `rows` (indices) only."""
+        r = np.asarray(rows, dtype=int)
+        return States([self.ids[i] for i in rows], self.t[r], self.pos[r], self.vel[r],
+                      self.x[r], self.p[r], [self.models[i] for i in rows], self.nis[r],
+                      self.updates[r])
+
 
 class TrackStore:
     """All tracks, keyed by id: one `TrackArrays` per dimension, all of one model order

@@ -23,6 +23,7 @@ from .keys import (
     BOUNDS,
     CHUNK,
     DEFAULT_NS,
+    ENCODING,
     MAX_MEAS_BYTES,
     MAX_ROWS,
     MAX_SCAN_BYTES,
@@ -50,6 +51,7 @@ from .session import (
 
 __all__ = [
     "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "CONNECT_RETRY", "DEFAULT_ENDPOINT", "DEFAULT_NS",
+    "ENCODING",
     "MAX_DETECTIONS", "MAX_MEAS_BYTES", "MAX_ROWS", "MAX_SCAN_BYTES", "MAX_TIME",
     "PROTOCOL_VERSION", "REASON_CODES", "SHOWN", "STATUSES", "Keys", "Measurement",
     "PlotScan", "Rejected", "add_zenoh_args", "bad_rows", "check_size", "decode_frame",

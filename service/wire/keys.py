@@ -10,6 +10,7 @@ DEFAULT_NS = "track"
 CHUNK = re.compile(r"^[A-Za-z0-9_-]+$")  # one key chunk: sensor, target, instance
 STATUSES = ("tentative", "confirmed", "coasting")  # display/<id> status
 SHOWN = ("prediction", "blend", "smoothed")  # display/<id> shown (project extension)
+ENCODING = "application/vnd.msgpack"  # the Zenoh encoding of every MessagePack body (IANA)
 
 # ---------------------------------------------------------------- input limits
 # (docs/protocol.md §4): an input beyond one is rejected with a reason, nothing applied
@@ -71,6 +72,15 @@ class Keys:
     @property
     def frame(self) -> str:
         return f"{self.ns}/frame"
+
+    @property
+    def states(self) -> str:
+        """Extension: the filtered states of each applied batch, columnar (bulk consumers)."""
+        return f"{self.ns}/states"
+
+    def scan(self, sensor: str = "*") -> str:
+        """1.1: a batched labelled scan, columnar."""
+        return f"{self.ns}/scan/{sensor}"
 
     @property
     def clock(self) -> str:

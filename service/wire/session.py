@@ -104,12 +104,24 @@ def patient(conf: Any) -> Any:
     return conf
 
 
-def open_session(args: argparse.Namespace, serve: bool = False, block: bool = False) -> Any:
+def admin_space(conf: Any) -> Any:
+    """Zenoh's admin space, readable: the service reads from it which display/ and
+    tracks/ keys have subscribers (`service.listeners`)."""
+    conf.insert_json5("adminspace/enabled", "true")
+    conf.insert_json5("adminspace/permissions", '{"read": true, "write": false}')
+    return conf
+
+
+def open_session(args: argparse.Namespace, serve: bool = False, block: bool = False,
+                 admin: bool = False) -> Any:
     """The session of a program's options, or one line on stderr and exit 2 (a port
     taken, a router not reached within --connect-retry, a config that does not load).
-    `block`: BLOCK puts wait for slow receivers (`patient`) unless a config file is given."""
+    `block`: BLOCK puts wait for slow receivers (`patient`) unless a config file is given;
+    `admin`: the admin space readable (`admin_space`) unless a config file is given."""
     def make() -> Any:
         conf = zenoh_config(args, serve)
+        if admin and not args.config:
+            admin_space(conf)
         return patient(conf) if block and not args.config else conf
 
     return open_or_exit(make, getattr(args, "connect_timeout", CONNECT_TIMEOUT),

@@ -1,0 +1,133 @@
+"""Per-target keys only where someone listens (service/listeners.py), the Zenoh encoding
+of every output, and `status` as JSON: the real service process on loopback."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+import zenoh
+from conftest import Collector
+
+from clients.procs import stop
+from service.wire import ENCODING, unpack
+
+pytestmark = pytest.mark.slow
+
+
+def status(s: zenoh.Session) -> dict:
+    return unpack(next(iter(s.get("track/status", timeout=10))).ok.payload.to_bytes())
+
+
+def poll(pred, timeout: float = 20.0, every: float = 0.05) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(every)
+    return False
+
+
+class Encodings:
+    """Subscribes a key expression and keeps (key, encoding, arrival) of every put."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.got: list[tuple[str, str, float]] = []
+        self.sub = session.declare_subscriber(key, self._on)
+
+    def _on(self, s: zenoh.Sample) -> None:
+        if s.kind == zenoh.SampleKind.PUT:
+            self.got.append((str(s.key_expr), str(s.encoding), time.monotonic()))
+
+
+def test_display_keys_only_for_the_tracks_someone_listens_to(service_factory):
+    svc, s = service_factory("--clock", "realtime")
+    frames = Encodings(s, "track/frame")
+    feed = subprocess.Popen([sys.executable, "-m", "clients.feed", "swarm", "--targets", "20",
+                             "--duration", "30", "--realtime", "-e", svc.endpoint],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        assert poll(lambda: status(s)["tracks"] == 20, timeout=30)
+        # nobody listens to display/ or tracks/: frames only
+        st = status(s)
+        assert st["frames_published"] > 30 and st["display_puts"] == 0 and st["tracks_puts"] == 0
+        assert frames.got and {e for _, e, _ in frames.got} == {ENCODING}
+
+        one = Encodings(s, "track/display/swarm-00007")
+        asked = time.monotonic()
+        assert poll(lambda: len(one.got) >= 45)  # 1.5 s of frames
+        first = one.got[0][2] - asked
+        assert {k for k, _, _ in one.got} == {"track/display/swarm-00007"}
+        assert {e for _, e, _ in one.got} == {ENCODING}
+        before = status(s)["display_puts"]
+        time.sleep(1.0)
+        grown = status(s)["display_puts"] - before
+        assert 20 <= grown <= 40, grown  # one track at 30 Hz, not 20
+
+        every = Collector(s, "track/display/**")
+        assert every.wait_for(lambda ss: len({k for k, _, _ in ss}) == 20, timeout=10)
+        tracks = Encodings(s, "track/tracks/*")
+        assert poll(lambda: len({k for k, _, _ in tracks.got}) == 20, timeout=10)
+        assert {e for _, e, _ in tracks.got} == {ENCODING}
+
+        for sub in (one.sub, every.sub, tracks.sub):
+            sub.undeclare()
+        assert poll(lambda: (a := status(s)) and (time.sleep(0.5) or True)
+                    and status(s)["display_puts"] == a["display_puts"]
+                    and status(s)["tracks_puts"] == a["tracks_puts"], timeout=10)
+        print(f"first display/<id> sample {first * 1e3:.0f} ms after subscribing")
+    finally:
+        stop(feed)
+
+
+def test_status_as_json_and_encodings_of_replies(service_factory):
+    svc, s = service_factory("--clock", "lockstep")
+    svc.feed("swarm", "--targets", "3", "--duration", "2")
+    reply = next(iter(s.get("track/status?format=json", timeout=10))).ok
+    assert str(reply.encoding) == "application/json"
+    body = json.loads(reply.payload.to_bytes())
+    assert body["tracks"] == 3 and body["meas_accepted"] == 9
+    reply = next(iter(s.get("track/status", timeout=10))).ok
+    assert str(reply.encoding) == ENCODING and unpack(reply.payload.to_bytes())["tracks"] == 3
+    replies = [r.ok for r in s.get("track/tracks/**", timeout=10)]
+    assert len(replies) == 3 and {str(r.encoding) for r in replies} == {ENCODING}
+
+
+def test_lockstep_tracks_of_one_target_every_update(service_factory):
+    svc, s = service_factory("--clock", "lockstep")
+    one = Collector(s, "track/tracks/swarm-00003")
+    svc.feed("swarm", "--targets", "10", "--duration", "4")
+    assert one.wait_for(lambda ss: len(ss) >= 5, timeout=20)
+    assert {k for k, _, _ in one.samples} == {"track/tracks/swarm-00003"}
+    assert [b["updates"] for b in one.bodies()] == [1, 2, 3, 4, 5]
+    assert status(s)["tracks_puts"] == 5
+
+
+def test_batched_states_equal_the_per_target_messages(service_factory):
+    import numpy as np
+
+    svc, s = service_factory("--clock", "lockstep")
+    batched = Collector(s, "track/states")
+    single = Collector(s, "track/tracks/*")
+    svc.feed("swarm", "--targets", "30", "--duration", "2")
+    assert single.wait_for(lambda ss: len(ss) >= 90, timeout=20)
+    assert batched.wait_for(lambda ss: sum(len(b["ids"]) for _, _, b in ss) >= 90, timeout=20)
+    rows = {}
+    for b in batched.bodies():
+        n, k = b["n"], len(b["ids"])
+        x = np.frombuffer(b["x"], "<f8").reshape(k, n)
+        p = np.frombuffer(b["P"], "<f8").reshape(k, n * n)
+        t = np.frombuffer(b["t"], "<f8")
+        upd = np.frombuffer(b["updates"], "<f8")
+        mu = np.frombuffer(b["mu"], "<f8").reshape(k, len(b["modes"]))
+        for i, track_id in enumerate(b["ids"]):
+            model = dict(zip(b["modes"], mu[i].tolist(), strict=True))
+            rows[(track_id, int(upd[i]))] = (t[i], x[i], p[i], model)
+    assert len(rows) == 90
+    for body in single.bodies():
+        t, x, p, model = rows[(body["id"], body["updates"])]
+        assert t == body["t"] and x.tolist() == body["x"] and p.tolist() == body["P"]
+        assert model == body["model"]
