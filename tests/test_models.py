@@ -211,3 +211,24 @@ def test_predict_is_symmetric_and_matches_f_p_ft_plus_q():
     np.testing.assert_allclose(xp, np.einsum("nij,nj->ni", f, x), rtol=1e-12)
     np.testing.assert_allclose(pp, f @ p @ f.transpose(0, 2, 1) + q, rtol=1e-12, atol=1e-12)
     assert np.array_equal(pp, pp.transpose(0, 2, 1))
+
+
+@pytest.mark.parametrize("order,dim", [(2, 2), (2, 3), (3, 2), (3, 3)])
+@pytest.mark.parametrize("per_row_q", [False, True])
+def test_predict_position_is_the_position_part_of_the_textbook_prediction(order, dim,
+                                                                         per_row_q):
+    """The gate's shortcut equals the position rows of F P F' + Q (reference form)."""
+    from service.estimation import reference
+
+    rng = np.random.default_rng(order * 10 + dim)
+    n_rows, n = 40, order * dim
+    x = rng.normal(size=(n_rows, n)) * 100
+    a = rng.normal(size=(n_rows, n, n))
+    p = a @ a.transpose(0, 2, 1) + np.eye(n)
+    dt = rng.uniform(-2.0, 3.0, n_rows)
+    q = rng.uniform(0.1, 3.0, n_rows) if per_row_q else 1.5
+    f, qm = reference.motion_matrices(dt, order, dim, q)
+    xp, pp = reference.predict(x, p, f, qm)
+    mean, rows = models.predict_position(x, p, dt, order, dim, q)
+    assert np.allclose(mean, xp[:, :dim], rtol=1e-12, atol=1e-9)
+    assert np.allclose(rows, pp[:, :dim, :], rtol=1e-10, atol=1e-9 * np.abs(pp).max())

@@ -52,6 +52,12 @@ class MeasurementBatch:
     def dim(self) -> int:
         return self.values.shape[1]
 
+    def take(self, index: Sequence[int] | np.ndarray) -> MeasurementBatch:
+        """The measurements at `index`, in that order."""
+        i = np.asarray(index, dtype=int)
+        return MeasurementBatch(self.t[i], self.polar[i], np.asfortranarray(self.values[i]),
+                                np.asfortranarray(self.sigmas[i]), self.origin[i])
+
     def rows(self, lo: int, hi: int) -> MeasurementBatch:
         return MeasurementBatch(self.t[lo:hi], self.polar[lo:hi], self.values[lo:hi],
                                 self.sigmas[lo:hi], self.origin[lo:hi])

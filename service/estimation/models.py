@@ -76,6 +76,35 @@ def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
     return xp, pp
 
 
+def predict_position(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+                     q: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The position part of `predict`: the predicted position (N, dim) and the position
+    rows of the predicted covariance (N, dim, n), without the rest (what a gate needs).
+    With F = kron(Phi, I): A = sum_c Phi[0, c] P[c, :] (blocks), then block b of the rows
+    is sum_e Phi[b, e] A[:, e] + Q[0, b]."""
+    dt = np.asarray(dt, dtype=float)
+    n_rows, n = x.shape
+    coef = [None] + [(dt ** k / math.factorial(k))[:, None] for k in range(1, order)]
+    blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
+    mean = x[:, blk[0]].copy()
+    a = p[:, blk[0], :].copy()
+    for c in range(1, order):
+        mean += coef[c] * x[:, blk[c]]
+        a += coef[c][:, :, None] * p[:, blk[c], :]
+    rows = np.empty((n_rows, dim, n))
+    gain = np.abs(dt)
+    g = [gain ** (order - k) / math.factorial(order - k) for k in range(order)]
+    noise = np.square(q) * g[0]
+    diag = np.arange(dim)
+    for b in range(order):
+        acc = rows[:, :, blk[b]]
+        acc[...] = a[:, :, blk[b]]
+        for e in range(b + 1, order):
+            acc += coef[e - b][:, :, None] * a[:, :, blk[e]]
+        acc[:, diag, diag] += (noise * g[b])[:, None]
+    return mean, rows
+
+
 def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
                 q: float | np.ndarray) -> None:
     """`predict` in place on batch-last arrays x (n, N) and symmetric P (n, n, N).

@@ -37,7 +37,7 @@ import numpy as np
 from .. import defaults
 from ..estimation.measurements import MeasurementBatch
 from ..wire import Measurement
-from .associator import Hypotheses, WeightedUpdate
+from .associator import Hypotheses, Seen, WeightedUpdate
 from .gating import Gating, convert, gate, gate_threshold, restrict, split
 from .store import TrackStore
 
@@ -124,9 +124,9 @@ class _ScanAssociator:
         arrays = store.layout(m0.dim)
         rows = arrays.rows()
         rows = rows[arrays.plot[rows] & (arrays.t[rows] <= m0.t + 1e-6)]
-        z, r = convert(MeasurementBatch.of(scan, m0.dim))
+        hyp = Hypotheses(columns=MeasurementBatch.of(scan, m0.dim))
+        z, r = convert(hyp.columns)
         gamma = gate_threshold(self.gate_probability, m0.dim)
-        hyp = Hypotheses()
         every = gate(arrays, rows, z, r, m0.t, self.q, gamma)
         confirmed = arrays.confirmed[rows]
         g = restrict(every, confirmed, np.arange(len(scan)))
@@ -149,12 +149,13 @@ class _ScanAssociator:
         """An empty scan: the sensor saw none of the unlabelled tracks (of any layout:
         an empty scan says nothing of its dimension)."""
         hyp = Hypotheses()
+        miss = miss_score(self.sensors.pd)  # of the sensor, unknown here: of the default
         for arrays in store.layouts.values():
-            rows, ids = arrays.live()
-            seen = arrays.plot[rows] & (arrays.t[rows] <= (np.inf if now is None else now))
-            hyp.missed += [ids[i] for i in np.flatnonzero(seen).tolist()]
-        # the miss costs ln(1 - Pd) of the sensor, unknown here: of the default
-        hyp.score = dict.fromkeys(hyp.missed, miss_score(self.sensors.pd))
+            rows = arrays.rows()
+            rows = rows[arrays.plot[rows] & (arrays.t[rows] <= (np.inf if now is None else now))]
+            if len(rows):
+                hyp.seen.append(Seen(arrays, rows, np.zeros(len(rows), dtype=bool),
+                                     np.full(len(rows), miss)))
         return hyp
 
 
@@ -190,24 +191,19 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
         chosen.append(np.array([lookup[a, b] for a, b in zip(r[hit], c[hit], strict=True)
                                 if (a, b) in lookup], dtype=int))
     pairs = np.concatenate(chosen) if chosen else np.zeros(0, dtype=int)
-    ti, dj = g.ti[pairs], index[g.dj[pairs]]
-    track_ids = [g.arrays.ids[r] for r in g.rows.tolist()]
+    ti, dj = g.ti[pairs], g.dj[pairs]
     if len(pairs):
-        hyp.updates.setdefault(g.arrays.dim, []).extend(dj.tolist())
-        hyp.tracks.setdefault(g.arrays.dim, []).extend(track_ids[i] for i in ti.tolist())
+        ids = g.arrays.ids
+        hyp.updates.setdefault(g.arrays.dim, []).extend(index[dj].tolist())
+        hyp.tracks.setdefault(g.arrays.dim, []).extend(ids[r] for r in g.rows[ti].tolist())
     hit = np.zeros(len(g.rows), dtype=bool)
     hit[ti] = True
     gain = np.full(len(g.rows), miss)
     gain[ti] = score[pairs]
-    _life(hyp, track_ids, hit, gain)
-    return np.setdiff1d(index, dj)
-
-
-def _life(hyp: Hypotheses, track_ids: list, detected: np.ndarray, gain: np.ndarray) -> None:
-    """Record which tracks the scan detected or missed, and their score gains."""
-    hyp.detected += [track_ids[i] for i in np.flatnonzero(detected).tolist()]
-    hyp.missed += [track_ids[i] for i in np.flatnonzero(~detected).tolist()]
-    hyp.score.update(zip(track_ids, gain.tolist(), strict=True))
+    hyp.seen.append(Seen(g.arrays, g.rows, hit, gain))
+    free = np.ones(len(index), dtype=bool)
+    free[dj] = False
+    return index[free]
 
 
 class GNNAssociator(_ScanAssociator):
@@ -239,11 +235,10 @@ class JPDAAssociator(_ScanAssociator):
         update, mass = pda(g, beta)
         if len(update.rows):
             hyp.weighted.append(update)
-        track_ids = [g.arrays.ids[r] for r in g.rows.tolist()]
         # M of N counts a track as seen when it was more likely detected than not; the
         # score gains the log of the track's likelihood ratio, detected or not
         gain = np.log(np.bincount(g.ti, ratio, len(g.rows)) + (1 - pd))
-        _life(hyp, track_ids, mass >= 0.5, gain)
+        hyp.seen.append(Seen(g.arrays, g.rows, mass >= 0.5, gain))
         # a detection mostly explained as clutter is left to tentative and new tracks
         claimed = np.bincount(g.dj, beta, len(index))
         return index[claimed < 0.5]
@@ -296,9 +291,9 @@ def pda(g: Gating, beta: np.ndarray) -> tuple[WeightedUpdate, np.ndarray]:
     some = b > 1e-9
     safe = np.where(some, b, 1.0)
     r_mean = r / safe[:, None, None]
-    z = g.xp[:, :d] + nu / safe[:, None]
-    s = g.pp[:, :d, :d] + r_mean
-    gain = np.linalg.solve(s, g.pp[:, :d, :]).transpose(0, 2, 1)  # K = P H' S^-1 (n, d)
+    z = g.mean + nu / safe[:, None]
+    s = g.cov + r_mean
+    gain = np.linalg.solve(s, g.cross).transpose(0, 2, 1)  # K = P H' S^-1 (n, d)
     spread_d = second - nu[:, :, None] * nu[:, None, :]
     spread = gain @ spread_d @ gain.transpose(0, 2, 1)
     return WeightedUpdate(g.arrays, g.rows[some], z[some], r_mean[some], b[some],

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..estimation.measurements import MeasurementBatch
 from ..wire import Measurement
 from .store import TrackArrays, TrackStore
 
@@ -34,6 +35,17 @@ class WeightedUpdate:
 
 
 @dataclass
+class Seen:
+    """Tracks of one layout that a scan could have seen: which it `detected` (else
+    missed) and the log-likelihood ratio each gains (`life.update_life`, M of N)."""
+
+    arrays: TrackArrays
+    rows: np.ndarray
+    detected: np.ndarray  # (T,) bool
+    gain: np.ndarray  # (T,)
+
+
+@dataclass
 class Hypotheses:
     """One scan's associations, as indices into the scan's measurements."""
 
@@ -42,9 +54,15 @@ class Hypotheses:
     weighted: list[WeightedUpdate] = field(default_factory=list)  # JPDA's updates
     unassociated: dict[int, list[int]] = field(default_factory=dict)  # by dimension: new
     rejected: dict[int, str] = field(default_factory=dict)  # index -> reason
-    detected: list[str] = field(default_factory=list)  # tracks the scan saw (M-of-N)
-    missed: list[str] = field(default_factory=list)  # tracks the scan should have seen
-    score: dict[str, float] = field(default_factory=dict)  # track -> log-likelihood ratio
+    seen: list[Seen] = field(default_factory=list)  # unlabelled tracks in view (M of N)
+    columns: MeasurementBatch | None = None  # the scan as columns, if the associator made them
+
+    def batch(self, meas: Sequence[Measurement], dim: int, index: list[int]
+              ) -> MeasurementBatch:
+        """The measurements meas[index] (all of dimension `dim`) as columns."""
+        if self.columns is not None:
+            return self.columns.take(index)
+        return MeasurementBatch.of([meas[i] for i in index], dim)
 
 
 class LabelAssociator:
@@ -52,7 +70,7 @@ class LabelAssociator:
     one. A measurement for a track of the other dimension, older than the track's last
     update (labelled tracks are not retrodicted), or a duplicate (the same sensor at the
     same time as the track's last update) is rejected. Labelled measurements do
-    not say which tracks a sensor missed, so `missed` stays empty: the tracks' status
+    not say which tracks a sensor missed, so `seen` stays empty: the tracks' status
     follows from their age (`status`)."""
 
     def __init__(self) -> None:

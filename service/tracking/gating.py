@@ -27,15 +27,16 @@ from .store import TrackArrays
 @dataclass
 class Gating:
     """The gated pairs of one scan in one layout. Tracks are `rows` of `arrays`
-    (predicted to the scan time: `xp`, `pp`), detections the scan's converted points
+    (predicted to the scan time: position `mean`, position rows of the covariance
+    `cross`, its position block `cov`), detections the scan's converted points
     `z` with covariances `r`. Pair k joins track `ti[k]` and detection `dj[k]`, with
     squared Mahalanobis distance `d2[k]` and log-likelihood `loglik[k]` of the
     innovation; `cluster[k]` numbers its independent cluster."""
 
     arrays: TrackArrays
     rows: np.ndarray  # (T,) store rows of the candidate tracks
-    xp: np.ndarray  # (T, n) predicted states
-    pp: np.ndarray  # (T, n, n)
+    mean: np.ndarray  # (T, d) predicted positions
+    cross: np.ndarray  # (T, d, n) position rows of the predicted covariances
     z: np.ndarray  # (D, d) converted detections
     r: np.ndarray  # (D, d, d)
     ti: np.ndarray  # (K,) track index of each pair (into rows)
@@ -44,6 +45,11 @@ class Gating:
     loglik: np.ndarray  # (K,)
     nu: np.ndarray  # (K, d) innovations
     cluster: np.ndarray  # (K,) cluster label of each pair
+
+    @property
+    def cov(self) -> np.ndarray:
+        """(T, d, d) predicted position covariances."""
+        return self.cross[:, :, :self.arrays.dim]
 
 
 @functools.lru_cache(maxsize=64)
@@ -65,11 +71,12 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     """Predict the tracks `rows` to `t` and find their pairs with the converted detections
     z, R (`convert`) within the gate `gamma`."""
     d, o = arrays.dim, arrays.order
-    xp, pp = models.predict(arrays.x[rows], arrays.p[rows], t - arrays.t[rows], o, d, q)
-    mean, cov = xp[:, :d], pp[:, :d, :d]
+    mean, cross = models.predict_position(arrays.x[rows], arrays.p[rows], t - arrays.t[rows],
+                                          o, d, q)
+    cov = cross[:, :, :d]
     empty = np.zeros(0, dtype=int)
     if not len(rows) or not len(z):
-        return Gating(arrays, rows, xp, pp, z, r, empty, empty, np.zeros(0), np.zeros(0),
+        return Gating(arrays, rows, mean, cross, z, r, empty, empty, np.zeros(0), np.zeros(0),
                       np.zeros((0, d)), empty)
     # the gate's largest semi-axis is sqrt(gamma lambda_max(S)) <= sqrt(gamma (tr P + tr R))
     from scipy.spatial import cKDTree
@@ -88,7 +95,7 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     ti, dj, d2, nu, s = ti[keep], dj[keep], d2[keep], nu[keep], s[keep]
     logdet = np.linalg.slogdet(s)[1] if len(s) else np.zeros(0)
     loglik = -0.5 * (d2 + logdet + d * np.log(2 * np.pi))
-    return Gating(arrays, rows, xp, pp, z, r, ti, dj, d2, loglik, nu,
+    return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu,
                   clusters(ti, dj, len(rows), len(z)))
 
 
@@ -132,7 +139,7 @@ def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray) -> Gating:
     d_new[dets] = np.arange(len(dets))
     keep = (t_new[g.ti] >= 0) & (d_new[g.dj] >= 0)
     ti, dj = t_new[g.ti[keep]], d_new[g.dj[keep]]
-    return Gating(g.arrays, g.rows[tracks], g.xp[tracks], g.pp[tracks], g.z[dets],
+    return Gating(g.arrays, g.rows[tracks], g.mean[tracks], g.cross[tracks], g.z[dets],
                   g.r[dets], ti, dj, g.d2[keep], g.loglik[keep], g.nu[keep],
                   clusters(ti, dj, int(tracks.sum()), len(dets)))
 
@@ -140,12 +147,9 @@ def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray) -> Gating:
 def split(g: Gating) -> tuple[np.ndarray, list[np.ndarray]]:
     """The pairs that are a cluster on their own (one track, one detection), and the
     indices of the pairs of each larger cluster."""
-    if not len(g.cluster):
-        return np.zeros(0, dtype=int), []
-    order = np.argsort(g.cluster, kind="stable")
-    labels, starts, sizes = np.unique(g.cluster[order], return_index=True,
-                                      return_counts=True)
-    single = order[starts[sizes == 1]]
-    groups = [order[s:s + k] for s, k in zip(starts[sizes > 1], sizes[sizes > 1],
-                                             strict=True)]
-    return single, groups
+    size = np.bincount(g.cluster)[g.cluster] if len(g.cluster) else g.cluster
+    single, multi = np.flatnonzero(size == 1), np.flatnonzero(size > 1)
+    if not len(multi):
+        return single, []
+    order = multi[np.argsort(g.cluster[multi], kind="stable")]
+    return single, np.split(order, np.flatnonzero(np.diff(g.cluster[order])) + 1)

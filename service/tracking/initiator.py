@@ -8,7 +8,6 @@ import numpy as np
 
 from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import cmkf_arrays
-from ..wire import Measurement
 from .store import TrackArrays, TrackStore
 
 
@@ -22,22 +21,20 @@ class SinglePointInitiator:
     def __init__(self, init_speed: float, init_accel: float) -> None:
         self.init_speed, self.init_accel = init_speed, init_accel
 
-    def initiate(self, store: TrackStore, dim: int, meas: Sequence[Measurement],
-                 ids: Sequence[str] | None = None, speed: float | None = None
+    def initiate(self, store: TrackStore, dim: int, batch: MeasurementBatch,
+                 names: Sequence[str], speed: float | None = None
                  ) -> tuple[TrackArrays, np.ndarray, list[str | None]]:
-        """New tracks, one per measurement, named by its target label (or by `ids`): the
-        layout, the rows created and, per measurement, None or the reason it started no
-        track. `speed`: the velocity prior's std instead of `init_speed`."""
+        """New tracks, one per measurement of `batch`, named by `names`: the layout, the
+        rows created and, per measurement, None or the reason it started no track.
+        `speed`: the velocity prior's std instead of `init_speed`."""
         arrays = store.layout(dim)
-        batch = MeasurementBatch.of(meas, dim)
         z, r = cmkf_arrays(batch, None)
         finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
         speed = self.init_speed if speed is None else speed
         prior = [speed**2, self.init_accel**2][: arrays.order - 1]
-        names = [m.target for m in meas] if ids is None else ids
         ok = finite.tolist()
-        rows = np.array([store.add(k, dim)[1] for k, good in zip(names, ok, strict=True)
-                         if good], dtype=int)
+        arrays, rows = store.add_many([k for k, good in zip(names, ok, strict=True) if good],
+                                      dim)
         arrays.x[rows] = 0.0
         arrays.x[rows, :dim] = z[finite]
         arrays.p[rows] = np.diag(np.repeat([0.0, *prior], dim))

@@ -1,7 +1,7 @@
 """Track life of unlabelled tracks: M-of-N confirmation and the misses that end tracks.
 
 Each scan that could have seen a track counts it as detected or missed
-(`associator.Hypotheses.detected` / `missed`) and adds its log-likelihood ratio to the
+(`associator.Hypotheses.seen`) and adds its log-likelihood ratio to the
 track's score (a detection ln(Pd N(nu; 0, S) / lambda), a miss ln(1 - Pd): the
 sequential test of Blackman & Popoli 1999, sec. 6.2). A track keeps its last N outcomes
 as bits; it is confirmed once M of them are detections and its score has reached the
@@ -19,31 +19,22 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .associator import Seen
 from .store import TrackStore
 
 
-def update_life(store: TrackStore, detected: Sequence[str], missed: Sequence[str],
-                score: dict[str, float], m: int, n: int, threshold: float) -> None:
+def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:
     """Record one scan's detections and misses of unlabelled tracks, and add the scan's
     log-likelihood ratio to each track's score; confirm those detected M of the last N
     scans whose score reached `threshold`."""
     mask = (1 << n) - 1
-    for ids, hit in ((detected, 1), (missed, 0)):
-        for arrays, rows in _rows(store, ids):
-            arrays.hits[rows] = ((arrays.hits[rows] << 1) | hit) & mask
-            arrays.scans[rows] += 1
-            arrays.misses[rows] = 0 if hit else arrays.misses[rows] + 1
-            arrays.score[rows] += [score.get(arrays.ids[r], 0.0) for r in rows.tolist()]
-            arrays.confirmed[rows] |= ((np.bitwise_count(arrays.hits[rows]) >= m)
-                                       & (arrays.score[rows] >= threshold))
-
-
-def _rows(store: TrackStore, ids: Sequence[str]) -> list[tuple]:
-    by_layout: dict[int, tuple] = {}
-    for track_id in ids:
-        arrays, row = store.where[track_id]
-        by_layout.setdefault(id(arrays), (arrays, []))[1].append(row)
-    return [(a, np.array(r, dtype=int)) for a, r in by_layout.values()]
+    for s in seen:
+        a, rows, hit = s.arrays, s.rows, s.detected
+        a.hits[rows] = ((a.hits[rows] << 1) | hit) & mask
+        a.scans[rows] += 1
+        a.misses[rows] = np.where(hit, 0, a.misses[rows] + 1)
+        a.score[rows] += s.gain
+        a.confirmed[rows] |= (np.bitwise_count(a.hits[rows]) >= m) & (a.score[rows] >= threshold)
 
 
 class MofNDeleter:

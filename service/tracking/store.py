@@ -76,22 +76,28 @@ class TrackArrays(Columns):
         self.ids.extend([None] * (self.capacity - old))
         self.free.extend(range(self.capacity - 1, old - 1, -1))
 
-    def add(self, track_id: str) -> int:
-        if not self.free:
-            self.grow(2 * self.capacity)
-        row = self.free.pop()
-        self.ids[row] = track_id
-        self.alive[row] = True
-        self.plot[row], self.confirmed[row] = False, False
-        self.hits[row] = self.scans[row] = self.misses[row] = 0
-        self.score[row] = 0.0
+    def add(self, track_ids: Sequence[str]) -> np.ndarray:
+        """Rows for new tracks (freed rows first, lowest first), their bookkeeping reset."""
+        k = len(track_ids)
+        if len(self.free) < k:
+            self.grow(max(2 * self.capacity, self.capacity + k))
+        taken = self.free[len(self.free) - k:][::-1]
+        del self.free[len(self.free) - k:]
+        for row, track_id in zip(taken, track_ids, strict=True):
+            self.ids[row] = track_id
+        rows = np.array(taken, dtype=int)
+        self.alive[rows] = True
+        self.plot[rows], self.confirmed[rows] = False, False
+        self.hits[rows] = self.scans[rows] = self.misses[rows] = 0
+        self.score[rows] = 0.0
         self._live = None
-        return row
+        return rows
 
-    def remove(self, row: int) -> None:
-        self.ids[row] = None
-        self.alive[row] = False
-        self.free.append(row)
+    def remove(self, rows: Sequence[int]) -> None:
+        for row in rows:
+            self.ids[row] = None
+        self.alive[np.asarray(rows, dtype=int)] = False
+        self.free.extend(rows)
         self._live = None
 
     def live(self) -> tuple[np.ndarray, list[str]]:
@@ -157,13 +163,24 @@ class TrackStore:
 
     def add(self, track_id: str, dim: int) -> tuple[TrackArrays, int]:
         arrays = self.layout(dim)
-        hit = self.where[track_id] = (arrays, arrays.add(track_id))
-        return hit
+        return arrays, int(self.add_many([track_id], dim)[1][0])
+
+    def add_many(self, track_ids: Sequence[str], dim: int) -> tuple[TrackArrays, np.ndarray]:
+        """New tracks of one dimension: their layout and rows."""
+        arrays = self.layout(dim)
+        rows = arrays.add(track_ids)
+        where = self.where
+        for track_id, row in zip(track_ids, rows.tolist(), strict=True):
+            where[track_id] = (arrays, row)
+        return arrays, rows
 
     def remove(self, ids: Iterable[str]) -> None:
+        by_layout: dict[int, tuple[TrackArrays, list[int]]] = {}
         for track_id in ids:
             arrays, row = self.where.pop(track_id)
-            arrays.remove(row)
+            by_layout.setdefault(id(arrays), (arrays, []))[1].append(row)
+        for arrays, rows in by_layout.values():
+            arrays.remove(rows)
 
     def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray,
                labels: list) -> States:

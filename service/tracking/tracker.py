@@ -126,7 +126,8 @@ class Tracker:
         for i, reason in hypotheses.rejected.items():
             scan[i].reason = reason
         for dim, idx in hypotheses.updates.items():
-            self.update(dim, [scan[i] for i in idx], hypotheses.tracks[dim])
+            self.update(dim, [scan[i] for i in idx], hypotheses.tracks[dim],
+                        hypotheses.batch(meas, dim, idx))
         for weighted in hypotheses.weighted:
             self.update_weighted(weighted, scan, now)
         self.coast(hypotheses)
@@ -134,18 +135,18 @@ class Tracker:
             now = max((m.t for m in meas), default=None)
         deleted = self.delete(now) if now is not None else []
         for dim, idx in hypotheses.unassociated.items():
-            self.initiate(dim, [scan[i] for i in idx])
+            self.initiate(dim, [scan[i] for i in idx], hypotheses.batch(meas, dim, idx))
         return deleted
 
     # ------------------------------------------------------------ the steps
-    def update(self, dim: int, scan: list[Outcome], tracks: list[str]) -> None:
-        """Predict and update `tracks` (of one layout) with their measurements."""
+    def update(self, dim: int, scan: list[Outcome], tracks: list[str],
+               batch: MeasurementBatch) -> None:
+        """Predict and update `tracks` (of one layout) with their measurements (`batch`:
+        the same as columns)."""
         store = self.store
         arrays = store.layout(dim)
-        meas = [o.meas for o in scan]
         rows = np.array([store.where[k][1] for k in tracks], dtype=int)
-        t = np.array([m.t for m in meas])
-        batch = MeasurementBatch.of(meas, dim)  # the records as columns, once
+        t = batch.t
         conversion = EKFConversion(batch) if self.conversion == "ekf" else \
             CMKFConversion(batch)  # the filter core converts a CMKF batch in its kernel
         xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows], conversion)
@@ -183,8 +184,7 @@ class Tracker:
         predicts to every instant (labelled ones turn coasting with age); unlabelled ones
         count the scan as a detection or a miss (M of N)."""
         c = self.config
-        update_life(self.store, hypotheses.detected, hypotheses.missed, hypotheses.score,
-                    c.confirm_m, c.confirm_n, c.confirm_score)
+        update_life(hypotheses.seen, c.confirm_m, c.confirm_n, c.confirm_score)
 
     def delete(self, now: float) -> list[str]:
         """Remove the tracks the deleter picks at time `now`; their ids."""
@@ -204,15 +204,16 @@ class Tracker:
         self.associator.forget(ids)
         return ids
 
-    def initiate(self, dim: int, scan: list[Outcome]) -> None:
+    def initiate(self, dim: int, scan: list[Outcome], batch: MeasurementBatch) -> None:
         """Start a track from each unassociated measurement of one layout: named by its
         label, or, unlabelled, `<sensor>-<n>` with n counting per sensor from 1 (never
         reused in a run), tentative until confirmed M of N."""
         meas = [o.meas for o in scan]
         unlabelled = bool(meas) and not meas[0].target
-        ids = [self._new_id(m.sensor) for m in meas] if unlabelled else None
+        ids = [self._new_id(m.sensor) for m in meas] if unlabelled else \
+            [m.target for m in meas]
         speed = self.config.max_speed / 3 if unlabelled else None
-        arrays, rows, reasons = self.initiator.initiate(self.store, dim, meas, ids, speed)
+        arrays, rows, reasons = self.initiator.initiate(self.store, dim, batch, ids, speed)
         if unlabelled:
             arrays.plot[rows], arrays.hits[rows], arrays.scans[rows] = True, 1, 1
             arrays.confirmed[rows] = self.config.confirm_m <= 1 and \
