@@ -22,6 +22,7 @@ import zenoh
 
 from service.wire import (
     BLOCK_WAIT_US,
+    MSGPACK_ENCODING,
     Keys,
     add_zenoh_args,
     open_session,
@@ -124,7 +125,7 @@ def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
         batches, period = plots(args, keys, sc), sc.dt
     else:
         batches, period = labelled(args, keys), scenarios.PERIODS[args.scenario]
-    put = session.put
+    put, enc = session.put, zenoh.Encoding(MSGPACK_ENCODING)
     sent, t_last = 0, args.t0
     wall0 = time.monotonic()
     for t, messages, n in batches:
@@ -133,10 +134,10 @@ def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
             if delay > 0:
                 time.sleep(delay)  # pacing to simulation time is the point here
         for ke, payload in messages:
-            put(ke, payload, congestion_control=block)
+            put(ke, payload, encoding=enc, congestion_control=block)
         sent += n
         t_last = t
-    session.put(keys.clock, pack({"t": t_last + period}), congestion_control=block)
+    put(keys.clock, pack({"t": t_last + period}), encoding=enc, congestion_control=block)
     return sent
 
 

@@ -66,7 +66,15 @@ from typing import Any
 
 import zenoh
 
-from service.wire import CHUNK, Keys, add_zenoh_args, open_session, pack, unpack
+from service.wire import (
+    CHUNK,
+    MSGPACK_ENCODING,
+    Keys,
+    add_zenoh_args,
+    open_session,
+    pack,
+    unpack,
+)
 
 from .guidance import (
     DEFAULT_CAPTURE,
@@ -245,6 +253,7 @@ class Interceptors:
                     if pub is None:
                         pub = self.pubs[tid] = self.session.declare_publisher(
                             self.keys.display(f"{self.name}-{tid}"),
+                            encoding=zenoh.Encoding(MSGPACK_ENCODING),
                             congestion_control=zenoh.CongestionControl.BLOCK)
                     pub.put(pack(state))
         if wake:  # once the frame's state is out

@@ -11,23 +11,28 @@ import pytest
 from conftest import Collector
 
 from clients import feed, feed_plots, plotgen, scenarios
-from service.wire import Keys, unpack
+from service.wire import MSGPACK_ENCODING, Keys, unpack
 
 
 class Recorder:
-    """Stands in for a zenoh.Session: records every put."""
+    """Stands in for a zenoh.Session: records every put (and its encoding)."""
 
     def __init__(self) -> None:
         self.puts: list[tuple[str, bytes]] = []
+        self.encodings: set[str] = set()
 
-    def put(self, key: object, payload: bytes, congestion_control: object = None) -> None:
+    def put(self, key: object, payload: bytes, congestion_control: object = None,
+            encoding: object = None) -> None:
         self.puts.append((str(key), bytes(payload)))
+        self.encodings.add(str(encoding))
 
 
 def published(*argv: str) -> tuple[argparse.Namespace, int, list[tuple[str, bytes]]]:
     args = feed.parser().parse_args(list(argv))
     rec = Recorder()
-    return args, feed.publish(rec, args), rec.puts  # type: ignore[arg-type]
+    sent = feed.publish(rec, args)  # type: ignore[arg-type]
+    assert rec.encodings == {MSGPACK_ENCODING}  # every put says what its payload is
+    return args, sent, rec.puts
 
 
 @pytest.mark.parametrize("argv", [

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from . import kalman, models, scratch
+from .batch import einsum
 from .measurements import MeasurementBatch
 from .ucm import CMKFConversion, cmkf_soa
 
@@ -97,7 +98,7 @@ def predict(x: np.ndarray, p: np.ndarray, f: np.ndarray, q: np.ndarray
 
 def moments(x: np.ndarray, p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean and covariance of Gaussian mixtures: x (N, M, n), P (N, M, n, n), w (N, M)."""
-    mean = np.einsum("nm,nmi->ni", w, x)
+    mean = einsum("nm,nmi->ni", w, x)
     d = x - mean[:, None]
-    cov = np.einsum("nm,nmij->nij", w, p + d[..., :, None] * d[..., None, :])
+    cov = einsum("nm,nmij->nij", w, p + d[..., :, None] * d[..., None, :])
     return mean, kalman.symmetrise(cov)

@@ -10,6 +10,7 @@ import numpy as np
 
 from .. import defaults
 from . import kalman, models
+from .batch import einsum
 from .filters import Convert, Result, moments, predict
 
 
@@ -61,11 +62,11 @@ class IMM:
     def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         pi = self.transition(dt)  # pi[n, i, j] = P(mode j next | mode i now)
-        c = np.einsum("nij,ni->nj", pi, mu)  # predicted mode probabilities
+        c = einsum("nij,ni->nj", pi, mu)  # predicted mode probabilities
         w = pi * mu[:, :, None] / np.maximum(c[:, None, :], 1e-300)  # mixing mu_{i|j}
-        x0 = np.einsum("nij,nix->njx", w, mx)
+        x0 = einsum("nij,nix->njx", w, mx)
         d = mx[:, :, None, :] - x0[:, None, :, :]  # (N, i, j, n)
-        p0 = np.einsum("nij,nijxy->njxy", w, mp[:, :, None] + d[..., :, None] * d[..., None, :])
+        p0 = einsum("nij,nijxy->njxy", w, mp[:, :, None] + d[..., :, None] * d[..., None, :])
         xps, pps = [], []
         for j, (_, kind, q, omega) in enumerate(self.modes):
             f, qm = models.motion(kind, dt, self.order, arrays.dim, q, omega)

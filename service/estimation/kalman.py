@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import scratch
+from .batch import einsum
 from .linalg import ldl_inverse, ldl_solve
 
 # Floor added to the innovation covariance so an exact measurement of an exactly known
@@ -128,15 +129,15 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     up, lk = ops[:2 * m], ops[m:]
     kt, et = ops[m:2 * m], ops[2 * m:]  # K' and E' (m, n)
     ops[:m] = p[:m]
-    np.einsum("abn,bin->ain", sinv, p[:m], out=kt)
-    sn = np.einsum("abn,bn->an", sinv, nu, out=scratch.buffer("upd.sn", (m,), k))  # S^-1 nu
-    np.einsum("an,an->n", nu, sn, out=nis)
-    x += np.einsum("ain,an->in", kt, nu, out=scratch.buffer("upd.dx", (n,), k))
-    np.einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
+    einsum("abn,bin->ain", sinv, p[:m], out=kt)
+    sn = einsum("abn,bn->an", sinv, nu, out=scratch.buffer("upd.sn", (m,), k))  # S^-1 nu
+    einsum("an,an->n", nu, sn, out=nis)
+    x += einsum("ain,an->in", kt, nu, out=scratch.buffer("upd.dx", (n,), k))
+    einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
     np.subtract(p[:m], et, out=et)
     # P - [K E] [P[:m]; K'], its upper triangle row by row, then mirrored
     for i in range(n):
-        row = np.einsum("an,ajn->jn", lk[:, i], up[:, i:], out=p_out[i, i:])
+        row = einsum("an,ajn->jn", lk[:, i], up[:, i:], out=p_out[i, i:])
         np.subtract(p[i, i:], row, out=row)
     for i in range(n - 1):
         p_out[i + 1:, i] = p_out[i, i + 1:]

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import scratch
+from .batch import einsum
 
 
 def eigh(cov: np.ndarray, d: int) -> tuple[list, list]:
@@ -51,8 +52,8 @@ def _eigh3(cov: np.ndarray, a: dict, n: int) -> tuple[list, list]:
     np.subtract(a22, q, out=b22)
     # p = sqrt((b00^2 + b11^2 + b22^2 + 2 (a01^2 + a02^2 + a12^2)) / 6)
     bq, aq = e[1:4], cov[0, 1:]  # (b00, b11, b22) and (a01, a02)
-    np.einsum("kn,kn->n", bq, bq, out=p)
-    np.einsum("kn,kn->n", aq, aq, out=t2)
+    einsum("kn,kn->n", bq, bq, out=p)
+    einsum("kn,kn->n", aq, aq, out=t2)
     t2 += np.multiply(a12, a12, out=t)
     t2 *= 2
     p += t2
@@ -188,8 +189,8 @@ def _rotate(cov: np.ndarray, uw: np.ndarray) -> tuple[list, list]:
     e = scratch.buffer("rot", (7,), n)
     t, first, cs = e[0], e[1], e[2:4]
     # the projection [[uu, uw], [uw, ww]] = [u w]' (cov [u w])
-    cuw = np.einsum("ijn,ajn->ain", cov, uw, out=scratch.buffer("rot.c", (2, d), n))
-    proj = np.einsum("ain,bin->abn", uw, cuw, out=scratch.buffer("rot.p", (2, 2), n))
+    cuw = einsum("ijn,ajn->ain", cov, uw, out=scratch.buffer("rot.c", (2, d), n))
+    proj = einsum("ain,bin->abn", uw, cuw, out=scratch.buffer("rot.p", (2, 2), n))
     uu, uv, ww = proj[0, 0], proj[0, 1], proj[1, 1]
     # 0.5 atan2(2 uw, uu - ww), cos and sin as cos_sin
     np.subtract(uu, ww, out=t)
@@ -208,10 +209,10 @@ def _rotate(cov: np.ndarray, uw: np.ndarray) -> tuple[list, list]:
     t *= ww
     first += t
     vecs = scratch.buffer("rot.v", (2, d), n)
-    np.einsum("jn,jin->in", cs, uw, out=vecs[0])  # c u + s w
+    einsum("jn,jin->in", cs, uw, out=vecs[0])  # c u + s w
     np.negative(s, out=e[4])
     np.copyto(e[5], c)
-    np.einsum("jn,jin->in", e[4:6], uw, out=vecs[1])  # c w - s u
+    einsum("jn,jin->in", e[4:6], uw, out=vecs[1])  # c w - s u
     uu += ww
     uu -= first
     return [first, uu], [vecs[0], vecs[1]]

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import scratch
+from .batch import einsum
 from .linalg import cos_sin, eigh
 from .measurements import MeasurementBatch
 from .polar import ucm_covariance, unbiased
@@ -177,8 +178,8 @@ def ucm_expected_soa(mean: np.ndarray, cov: np.ndarray, sr: np.ndarray, saz: np.
     tangent = root[:2]
     np.copyto(tangent[0], mean[1])
     np.negative(mean[0], out=tangent[1])
-    rho2 = np.einsum("in,in->n", mean[:2], mean[:2])
-    var_t = np.einsum("in,ijn,jn->n", tangent, cov[:2, :2], tangent)
+    rho2 = einsum("in,in->n", mean[:2], mean[:2])
+    var_t = einsum("in,ijn,jn->n", tangent, cov[:2, :2], tangent)
     if (rho2 > 0).all():
         var_t /= rho2
     else:
@@ -225,7 +226,7 @@ def _ucm_sums_2d(pts: np.ndarray, sin: np.ndarray, cos: np.ndarray, sr: np.ndarr
     out (2, 2, N) (upper triangle)."""
     k2, n = sin.shape
     sr2, s2a = sr * sr, saz * saz
-    rho2 = np.einsum("ckn,ckn->kn", pts, pts, out=scratch.buffer("ucm.rho2", (k2,), n))
+    rho2 = einsum("ckn,ckn->kn", pts, pts, out=scratch.buffer("ucm.rho2", (k2,), n))
     sum_rho2 = rho2.sum(0)
     sum_a = np.sinh(s2a) * (sum_rho2 + k2 * sr2)
     c = np.multiply(rho2, np.expm1(-s2a), out=rho2)
@@ -253,7 +254,7 @@ def _ucm_sums_3d(pts: np.ndarray, sin: np.ndarray, cos: np.ndarray, sr: np.ndarr
     pt = scratch.buffer("ucm.pt", (4, k2), n)  # r^2, ce^2, rho2, z^2 of each point
     r2, ce2, rho2, z2 = pt
     inv_r2 = scratch.buffer("ucm.ir2", (k2,), n)
-    np.einsum("ckn,ckn->kn", pts[:2], pts[:2], out=rho2)
+    einsum("ckn,ckn->kn", pts[:2], pts[:2], out=rho2)
     np.multiply(z, z, out=z2)
     np.add(rho2, z2, out=r2)
     if r2.min() > 0:
@@ -263,7 +264,7 @@ def _ucm_sums_3d(pts: np.ndarray, sin: np.ndarray, cos: np.ndarray, sr: np.ndarr
         np.divide(1.0, np.where(r2 > 0, r2, 1.0), out=inv_r2)
         ce2[...] = np.where(r2 > 0, rho2 * inv_r2, 1.0)
     sum_ce2, sum_rho2, sum_z2 = pt[1:].sum(1)
-    sum_se2 = np.einsum("kn,kn->n", z2, inv_r2)  # z^2 / r^2
+    sum_se2 = einsum("kn,kn->n", z2, inv_r2)  # z^2 / r^2
     sum_b = sum_rho2 + sum_z2 + k2 * sr2
     sum_a = sinh_a * (e_el * (sum_rho2 + sr2 * sum_ce2) + sinh_e * sum_b)
     g0, g1 = sr2 * e_el, np.expm1(-s2e)  # g / r^2 = g0 / r^2 + g1
@@ -274,14 +275,14 @@ def _ucm_sums_3d(pts: np.ndarray, sin: np.ndarray, cos: np.ndarray, sr: np.ndarr
     np.multiply(sr2, e_az * e_el, out=coef[1])
     np.expm1(-s2a - s2e, out=coef[2])
     sum_c = coef[0] * sum_b + coef[1] * sum_ce2 + coef[2] * sum_rho2
-    c = np.einsum("jn,jkn->kn", coef, pt[:3], out=scratch.buffer("ucm.c", (k2,), n))
+    c = einsum("jn,jkn->kn", coef, pt[:3], out=scratch.buffer("ucm.c", (k2,), n))
     c += coef[0] * sr2
     # f = z rho (g0 / r^2 + g1): sums of z rho / r^2 and z rho times sin and cos
     zr = scratch.buffer("ucm.zr", (2, k2), n)
     np.sqrt(rho2, out=zr[1])
     zr[1] *= z
     np.multiply(zr[1], inv_r2, out=zr[0])
-    fs, fc = np.einsum("jkn,kn->jn", zr, sin), np.einsum("jkn,kn->jn", zr, cos)
+    fs, fc = einsum("jkn,kn->jn", zr, sin), einsum("jkn,kn->jn", zr, cos)
     out[0, 2] = g0 * fs[0] + g1 * fs[1]
     out[1, 2] = g0 * fc[0] + g1 * fc[1]
     _horizontal(c, sum_c, sum_a, sin, cos, out)
@@ -290,8 +291,8 @@ def _ucm_sums_3d(pts: np.ndarray, sin: np.ndarray, cos: np.ndarray, sr: np.ndarr
 def _horizontal(c: np.ndarray, sum_c: np.ndarray, sum_a: np.ndarray, sin: np.ndarray,
                 cos: np.ndarray, out: np.ndarray) -> None:
     """Sums of the horizontal block a I + c u u' over the points (k, N)."""
-    out[0, 1] = np.einsum("kn,kn,kn->n", c, sin, cos)
-    out[0, 0] = np.einsum("kn,kn,kn->n", c, sin, sin)
+    out[0, 1] = einsum("kn,kn,kn->n", c, sin, cos)
+    out[0, 0] = einsum("kn,kn,kn->n", c, sin, sin)
     np.subtract(sum_c, out[0, 0], out=out[1, 1])  # sum of c cos^2
     out[0, 0] += sum_a
     out[1, 1] += sum_a

@@ -9,6 +9,7 @@ import numpy as np
 
 from .. import defaults
 from . import kalman, models
+from .batch import einsum
 from .filters import Convert, Result, predict
 
 
@@ -74,7 +75,7 @@ class VDF:
         rho = self.alpha * arrays.rho[rows] + np.where(ok, nis, 0.0)
         a = xn[:, 2 * d:]
         paa = pn[:, 2 * d:, 2 * d:] + 1e-12 * np.eye(d)
-        sig = np.einsum("ni,ni->n", a, kalman.solve(paa, a[:, :, None])[:, :, 0])
+        sig = einsum("ni,ni->n", a, kalman.solve(paa, a[:, :, None])[:, :, 0])
         rho = np.where(ca, self.alpha * arrays.rho[rows] + np.where(ok, sig, 0.0), rho)
         good = rows[ok]
         self._remember(arrays, good, xn[ok], pn[ok], z[ok], r[ok], arrays.t[good] + dt[ok])

@@ -8,6 +8,7 @@ a feed can be written against it without the estimation code (tests/test_layers.
 
 from .cli import CONNECT_TIMEOUT, fail, open_or_exit, read_file
 from .codec import (
+    MSGPACK_ENCODING,
     REASON_CODES,
     Rejected,
     check_size,
@@ -53,10 +54,10 @@ __all__ = [
     "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "CONNECT_RETRY", "DEFAULT_ENDPOINT", "DEFAULT_NS",
     "ENCODING",
     "MAX_DETECTIONS", "MAX_MEAS_BYTES", "MAX_ROWS", "MAX_SCAN_BYTES", "MAX_TIME",
-    "PROTOCOL_VERSION", "REASON_CODES", "SHOWN", "STATUSES", "Keys", "Measurement",
-    "PlotScan", "Rejected", "add_zenoh_args", "bad_rows", "check_size", "decode_frame",
-    "decode_map", "f64_bin", "f64_list", "free_port", "open_session", "pack", "parse_clock",
-    "parse_full", "parse_measurement", "parse_plots", "patient", "peer_config",
-    "quick_retry", "reason_code", "unpack", "wait_for_tracker", "zenoh_config",
-    "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
+    "MSGPACK_ENCODING", "PROTOCOL_VERSION", "REASON_CODES", "SHOWN", "STATUSES", "Keys",
+    "Measurement", "PlotScan", "Rejected", "add_zenoh_args", "bad_rows", "check_size",
+    "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port", "open_session", "pack",
+    "parse_clock", "parse_full", "parse_measurement", "parse_plots", "patient", "peer_config",
+    "quick_retry", "reason_code", "unpack", "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT",
+    "fail", "open_or_exit", "read_file",
 ]

@@ -10,6 +10,10 @@ import msgpack
 
 from .keys import STATUSES
 
+# the Zenoh encoding of every MessagePack payload (docs/protocol.md, "Encodings"): zenoh has
+# no predefined id for it, so it travels as this MIME string
+MSGPACK_ENCODING = "application/msgpack"
+
 
 class Rejected(ValueError):
     """An input that breaks the contract; the message is the reason a feed's author reads,
