@@ -193,41 +193,68 @@ class TrackService:
         pending: list[Measurement] = []
         seen = (None, -np.inf)  # (arrival stamp, newest t) last given to the clock
         for item in batch:
-            kind = item[0]
-            if kind == "meas":
-                m = self._validate(item[1], item[2])
-                if m is None or not self._admit(m.t, item[3], item[1], m.sensor, pending):
-                    continue
-                if self.realtime:
-                    if item[3] != seen[0] or m.t > seen[1]:  # else it cannot move the offset
-                        self.clock.observe(m.t, item[3])
-                        seen = (item[3], m.t)
-                else:
-                    self._frames_before(m.t, pending)
-                pending.append(m)
-            elif kind == "clock":
-                try:
-                    t = parse_clock(item[2])
-                except Rejected as exc:
-                    self.out.reject(item[1], "clock", str(exc))
-                    continue
-                if not self._admit(t, item[3], item[1], "clock", pending):
-                    continue
-                if len(self.reorder):  # nothing older will come: the held scans go
-                    self._flush(pending)
-                    for _, (key, scan) in self.reorder.advance(t, flush=True):
-                        self._apply_scan(key, scan)
-                if self.realtime:
-                    self.clock.observe(t, item[3])
-                else:
-                    self._frames_before(t, pending)
-            elif kind == "plots":
-                self._flush(pending)  # the labelled ones received before it go first
-                self._take_scan(item[1], item[2], item[3])
-            elif kind in ("tracks", "status", "frame", "display"):
-                self._flush(pending)
-                self._answer(kind, item[1])
+            try:
+                seen = self._take(item, pending, seen)
+            except Exception as exc:  # a fault of ours: report it, keep the batch going
+                self._internal(item, exc, pending)
         self._flush(pending)
+
+    def _internal(self, item: tuple, exc: Exception, pending: list[Measurement]) -> None:
+        """An input the service failed on (a bug, never a bad input): logged with its
+        traceback, reported on errors/ (code `internal`), counted; the measurements
+        waiting are applied (or, if they failed, dropped and reported), a query answered."""
+        log.exception("worker failed on a %s input", item[0])
+        self.count.internal_errors += 1
+        key = item[1] if isinstance(item[1], str) else str(getattr(item[1], "key_expr", ""))
+        self.out.reject(key, "unknown", f"internal error: {type(exc).__name__}: {exc}")
+        try:
+            self._flush(pending)
+        except Exception:
+            log.exception("dropping %d measurements", len(pending))
+            pending.clear()
+        if item[0] in ("tracks", "status", "frame", "display"):
+            try:
+                self._answer(item[0], item[1])
+            except Exception:
+                log.exception("query left unanswered")
+
+    def _take(self, item: tuple, pending: list[Measurement], seen: tuple) -> tuple:
+        """One input of the worker's batch; returns `seen` (see `_process`)."""
+        kind = item[0]
+        if kind == "meas":
+            m = self._validate(item[1], item[2])
+            if m is None or not self._admit(m.t, item[3], item[1], m.sensor, pending):
+                return seen
+            if self.realtime:
+                if item[3] != seen[0] or m.t > seen[1]:  # else it cannot move the offset
+                    self.clock.observe(m.t, item[3])
+                    seen = (item[3], m.t)
+            else:
+                self._frames_before(m.t, pending)
+            pending.append(m)
+        elif kind == "clock":
+            try:
+                t = parse_clock(item[2])
+            except Rejected as exc:
+                self.out.reject(item[1], "clock", str(exc))
+                return seen
+            if not self._admit(t, item[3], item[1], "clock", pending):
+                return seen
+            if len(self.reorder):  # nothing older will come: the held scans go
+                self._flush(pending)
+                for _, (key, scan) in self.reorder.advance(t, flush=True):
+                    self._apply_scan(key, scan)
+            if self.realtime:
+                self.clock.observe(t, item[3])
+            else:
+                self._frames_before(t, pending)
+        elif kind == "plots":
+            self._flush(pending)  # the labelled ones received before it go first
+            self._take_scan(item[1], item[2], item[3])
+        elif kind in ("tracks", "status", "frame", "display"):
+            self._flush(pending)
+            self._answer(kind, item[1])
+        return seen
 
     def _validate(self, key: str, payload: bytes) -> Measurement | None:
         chunks = self.keys.chunks_after(key, "meas")
@@ -255,13 +282,14 @@ class TrackService:
             if len(chunks) != 1:
                 raise Rejected("scan key must be <ns>/plots/<sensor>")
             scan = parse_plots(chunks[0], payload, self.noise)
-            late = self.reorder.late(scan.t, sensor)
-            if late:
-                raise Rejected(late)
         except Rejected as exc:
             self.out.reject(key, sensor, str(exc))
             return
         if not self._admit(scan.t, wall, key, sensor, []):
+            return  # far from the picture's time (before `late`: the worse fault)
+        late = self.reorder.late(scan.t, sensor)
+        if late:
+            self.out.reject(key, sensor, late)
             return
         for _, reason in scan.rejected:
             self.out.reject(key, sensor, reason)
@@ -279,7 +307,8 @@ class TrackService:
             now = None if off is None else wall + off
         else:
             now = self.picture_t
-        reason, jump = self.timeline.admit(t, now, len(self.tracker))
+        # measurements waiting in `pending` count as tracks: they are about to be applied
+        reason, jump = self.timeline.admit(t, now, len(self.tracker) or len(pending))
         if reason is not None:
             self.out.reject(key, sensor, reason)
             return False
@@ -291,8 +320,9 @@ class TrackService:
 
     def _new_timeline(self, t: float, now: float | None, pending: list[Measurement]) -> None:
         """Move the picture to time t: the old timeline's inputs go first, the lockstep
-        clock starts afresh (no frames for the gap), and going back the tracks of the
-        abandoned later timeline are dropped (they would never age out)."""
+        clock starts afresh (no frames for the gap); forward, the tracks stale at t are
+        deleted, backward, the tracks of the abandoned later timeline (they would never
+        age out)."""
         self._flush(pending)
         for _, (k, s) in self.reorder.advance(math.inf, flush=True):
             self._apply_scan(k, s)
@@ -302,6 +332,8 @@ class TrackService:
             self.picture_t = t
         if now is not None and t < now:
             self.out.deleted(self.tracker.drop_newer(t))
+        else:  # the tracks stale at the new time go before its first input
+            self.out.deleted(self.tracker.delete(t))
 
     def _apply_scan(self, key: str, scan: PlotScan) -> None:
         if not self.realtime:
@@ -357,6 +389,7 @@ class TrackService:
             "tracks_deleted": c.tracks_deleted,
             "frames_skipped": getattr(self.clock, "skipped", 0),
             "timeline_jumps": self.timeline.jumps,
+            "internal_errors": c.internal_errors,
             "states_withheld": c.states_withheld,
             "scans_applied": c.scans_applied, "scans_held": len(self.reorder),
             "rejected_by_reason": dict(c.by_reason),

@@ -39,6 +39,7 @@ class Counters:
     frames_missed: int = 0
     tracks_deleted: int = 0
     states_withheld: int = 0
+    internal_errors: int = 0  # inputs the service failed on (a bug; each reported)
     scans_applied: int = 0
     by_reason: dict[str, int] = field(default_factory=dict)  # rejections by reason code
     display_puts: int = 0  # display/<id> messages put (only for tracks someone listens to)

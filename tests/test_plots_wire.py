@@ -450,3 +450,19 @@ def test_random_detections_match_parse_full():
         assert sorted(got) == list(range(len(dets)))
         for i, det in enumerate(dets):
             assert got[i] == labelled({**head, **det}), (head, det)
+
+
+def test_scan_mixing_dimensions_is_tracked_in_two_parts():
+    """A scan of 2-D and 3-D detections: each part with the tracks of its dimension
+    (it crashed the associator and lost the worker's batch once)."""
+    from conftest import make_tracker
+
+    tracker = make_tracker()
+    s = scan({"t": 1.0, "dets": [{"r": 1000.0, "az": 0.5}, {"pos": [1.0, 2.0, 3.0]},
+                                 {"r": 2000.0, "az": 0.1, "el": 0.2}]})
+    outcomes, _ = tracker.track_scan(s)
+    assert [o.reason for o in outcomes] == [None] * 3
+    assert {a.dim: len(a.rows()) for a in tracker.store.layouts.values()} == {2: 1, 3: 2}
+    outcomes, _ = tracker.track_scan(scan({"t": 2.0, "dets": [{"pos": [1.0, 2.0, 3.0]},
+                                                              {"r": 1000.0, "az": 0.5}]}))
+    assert [o.reason for o in outcomes] == [None] * 2 and len(tracker) == 3

@@ -112,9 +112,17 @@ class Tracker:
 
     def track_scan(self, scan: PlotScan) -> tuple[list[Outcome], list[str]]:
         """Apply one unlabelled scan (all its detections at one time): one `step` with
-        the scan associator. Returns each detection's outcome and the tracks deleted."""
+        the scan associator (one per dimension when it mixes 2-D and 3-D detections).
+        Returns each detection's outcome and the tracks deleted."""
         outcomes = [Outcome(m) for m in scan.detections]
-        return outcomes, self.step(outcomes, scan.t, self.scan_associator)
+        dims = {m.dim for m in scan.detections}
+        if len(dims) < 2:
+            return outcomes, self.step(outcomes, scan.t, self.scan_associator)
+        deleted: list[str] = []  # 2-D and 3-D detections in one scan: each with its tracks
+        for dim in sorted(dims):
+            deleted += self.step([o for o in outcomes if o.meas.dim == dim], scan.t,
+                                 self.scan_associator)
+        return outcomes, deleted
 
     def step(self, scan: Sequence[Outcome], now: float | None = None,
              associator: Any = None) -> list[str]:

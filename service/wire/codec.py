@@ -28,6 +28,7 @@ class Rejected(ValueError):
 # contains (checked in order; the first match wins): a short, stable set of codes, so
 # that counting by code stays bounded whatever the inputs (docs/protocol.md §4).
 REASON_CODES: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("internal", ("internal error",)),
     ("too_large", ("payload of ", "more than the limit")),
     ("not_msgpack", ("payload is not valid MessagePack",)),
     ("not_a_map", ("payload must be a MessagePack map", "map keys must be strings")),
