@@ -1,13 +1,13 @@
 """`track-service --state PATH`: the track table kept in a file across restarts.
 
-The worker thread takes a checkpoint (`tracking.checkpoint`: the tracks, the display
-clock, the last `seq` per sensor) every `--state-period` seconds (default 1 s) and hands
-its bytes to a writer thread, which writes them atomically: a temporary file in the same
-directory, flushed and fsync'ed, then `os.replace` over PATH, so PATH always holds one
-whole checkpoint. On SIGTERM/SIGINT the service stops its worker and writes a last one.
-At start the file is read back before the service takes any input; a file that is not a
-checkpoint this service can take is refused with one line on stderr and the service
-starts empty (docs/operations.md).
+The worker thread copies a checkpoint (`tracking.checkpoint.capture`: the tracks, the
+display clock, the last `seq` per sensor) every `--state-period` seconds (default 1 s)
+and hands it to a writer thread, which encodes it and writes it atomically: a temporary
+file in the same directory, flushed and fsync'ed, then `os.replace` over PATH, so PATH
+always holds one whole checkpoint. On SIGTERM/SIGINT the service stops its worker and
+writes a last one. At start the file is read back before the service takes any input; a
+file that is not a checkpoint this service can take is refused with one line on stderr
+and the service starts empty (docs/operations.md).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ class StateFile:
         self.path = Path(path)
         self.period = period
         self.next_due = time.monotonic() + period
-        self.pending: bytes | None = None
+        self.pending: Any = None  # a checkpoint.capture waiting for the writer
         self.cond = threading.Condition()
         self.closed = False
         self.writes = 0
@@ -59,9 +59,9 @@ class StateFile:
             self.closed, self.pending = True, None
             self.cond.notify_all()
         self.writer.join(timeout=10)
-        self.write(data)
+        self.write(checkpoint.encode(data))
 
-    def _hand_over(self, data: bytes) -> None:
+    def _hand_over(self, data: Any) -> None:
         with self.cond:
             self.pending = data  # an older one not yet written is superseded
             self.cond.notify_all()
@@ -75,7 +75,7 @@ class StateFile:
                     return
                 data, self.pending = self.pending, None
             try:
-                self.write(data)
+                self.write(checkpoint.encode(data))  # the archive made here, off the worker
             except OSError as exc:
                 log.error("cannot write the state file %s: %s", self.path, exc)
 
@@ -123,15 +123,16 @@ class StateFile:
                 f"(written {age:.1f} s ago{note})")
 
 
-def capture(svc: TrackService) -> bytes:
-    """The service's checkpoint: its tracker's tracks with the clock and `seq` state."""
+def capture(svc: TrackService) -> Any:
+    """The service's checkpoint (`checkpoint.capture`, on the worker): its tracker's
+    tracks with the clock and `seq` state."""
     clock: dict[str, Any]
     if isinstance(svc.clock, Realtime):
         clock = {"kind": "realtime", "offset": svc.clock.offset}
     else:
         clock = {"kind": "lockstep", "next_n": svc.clock.next_n, "picture_t": svc.picture_t}
-    return checkpoint.dump(svc.tracker, extra={"clock": clock, "last_seq": svc.last_seq,
-                                               "wall": time.time(), "ns": svc.keys.ns})
+    return checkpoint.capture(svc.tracker, extra={"clock": clock, "last_seq": svc.last_seq,
+                                                  "wall": time.time(), "ns": svc.keys.ns})
 
 
 def _restore_clock(svc: TrackService, clock: Any) -> str:

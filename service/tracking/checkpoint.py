@@ -52,23 +52,37 @@ def template(tracker: Tracker, dim: int) -> dict[str, tuple[tuple[int, ...], str
     return {k: (s, getattr(lay, k).dtype.kind) for k, s in lay.shapes.items()}
 
 
-def dump(tracker: Tracker, extra: dict[str, Any] | None = None) -> bytes:
-    """The tracker's tracks (live rows of every layout), the track numbers given per
-    sensor and the last sensor of each labelled track, with the adapter's `extra`
-    (JSON-serialisable), as the bytes of an .npz archive."""
+def capture(tracker: Tracker, extra: dict[str, Any] | None = None
+            ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """A copy of what a checkpoint holds (the header, and the live rows of every layout
+    as arrays), quick enough for the thread that owns the tracker; `encode` makes the
+    bytes of it on any thread. `extra`: the adapter's own JSON-serialisable state."""
     meta = header(tracker)
-    meta.update(numbers=tracker.numbers, last=tracker.associator.last, extra=extra or {},
-                layouts=sorted(tracker.store.layouts))
+    meta.update(numbers=dict(tracker.numbers), last=dict(tracker.associator.last),
+                extra=extra or {}, layouts=sorted(tracker.store.layouts))
     arrays: dict[str, np.ndarray] = {}
     for dim, lay in tracker.store.layouts.items():
         rows, ids = lay.live()
         arrays[f"{dim}/ids"] = np.array(ids, dtype=str)
         for name in lay.shapes:
             if name not in SKIP:
-                arrays[f"{dim}/{name}"] = getattr(lay, name)[rows]
+                arrays[f"{dim}/{name}"] = getattr(lay, name)[rows]  # a copy
+    return json.loads(json.dumps(meta)), arrays
+
+
+def encode(captured: tuple[dict[str, Any], dict[str, np.ndarray]]) -> bytes:
+    """The bytes of an .npz archive of a `capture`."""
+    meta, arrays = captured
     buf = io.BytesIO()
     np.savez(buf, meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **arrays)
     return buf.getvalue()
+
+
+def dump(tracker: Tracker, extra: dict[str, Any] | None = None) -> bytes:
+    """The tracker's tracks (live rows of every layout), the track numbers given per
+    sensor and the last sensor of each labelled track, with the adapter's `extra`
+    (JSON-serialisable), as the bytes of an .npz archive."""
+    return encode(capture(tracker, extra))
 
 
 def load(tracker: Tracker, data: bytes) -> dict[str, Any]:
