@@ -21,7 +21,7 @@ import time
 
 import zenoh
 
-from service.wire import Keys, add_zenoh_args, patient, wait_for_tracker, zenoh_config
+from service.wire import Keys, add_zenoh_args, open_session, wait_for_tracker
 
 from .feed import delivered
 from .progress import add_quiet_arg, bar
@@ -158,8 +158,7 @@ def main(argv: list[str] | None = None) -> None:
         trackers = args.trackers if args.trackers is not None else int(
             holds_inputs(channels, ns))
         target = Keys(remap(ns) if ns else "track")
-        conf = zenoh_config(args)
-        with zenoh.open(conf if args.config else patient(conf)) as session:  # never drop
+        with open_session(args, block=True) as session:  # BLOCK puts wait: never drop
             if trackers and not wait_for_tracker(session, target, trackers):
                 sys.exit(f"track-replay: no tracker alive on '{target.ns}' after 30 s "
                          "(start track-service, or pass --trackers 0)")

@@ -3,17 +3,12 @@
 from __future__ import annotations
 
 import math
-import os
-import subprocess
-import sys
-import threading
 
 import numpy as np
 import pytest
 import zenoh
 from conftest import Collector
 
-from clients.procs import stop
 from service.wire import decode_frame, pack, unpack
 
 pytestmark = pytest.mark.slow
@@ -153,60 +148,3 @@ def test_realtime_frames_follow_wall_clock(service_factory):
     assert np.allclose(ts * 30, n, atol=1e-6)  # display instants are multiples of 1/30
     assert (np.diff(n) >= 1).all()  # never repeated, never out of order
     assert ts[0] >= 999.0
-
-
-CLEAR = "\x1b[H\x1b[2J"  # track-display's home-and-clear before each redraw
-
-
-class Screens:
-    """Reads a pipe as it fills, on a thread (until EOF, then closes it), and splits what
-    came into the screens track-display draws: the text between two clear codes."""
-
-    def __init__(self, fd: int) -> None:
-        self.text = ""
-        self.cond = threading.Condition()
-        threading.Thread(target=self._read, args=(fd,), daemon=True).start()
-
-    def _read(self, fd: int) -> None:
-        with open(fd, "rb", buffering=0) as pipe:
-            while chunk := pipe.read(65536):
-                with self.cond:
-                    self.text += chunk.decode(errors="replace")
-                    self.cond.notify_all()
-
-    def complete(self) -> list[str]:
-        with self.cond:
-            return self.text.split(CLEAR)[1:-1]
-
-    def wait_for(self, pred, timeout: float) -> str | None:
-        """The first complete screen for which pred holds, or None after `timeout` s."""
-        def found() -> str | None:
-            return next((sc for sc in self.complete() if pred(sc)), None)
-
-        with self.cond:
-            self.cond.wait_for(found, timeout)
-            return found()
-
-
-def test_terminal_display_shows_tracks(service_factory):
-    svc, s = service_factory("--clock", "realtime")
-    feed = subprocess.Popen([sys.executable, "-m", "clients.feed", "swarm", "--targets", "5",
-                             "--duration", "30", "--realtime", "-e", svc.endpoint],
-                            stdout=subprocess.DEVNULL)
-    out, into = os.pipe()  # the display's stdout, read while it runs
-    display = subprocess.Popen([sys.executable, "-m", "clients.display", "-e", svc.endpoint],
-                               stdout=into, stderr=subprocess.PIPE, text=True)
-    os.close(into)
-    screens = Screens(out)
-    names = [f"swarm-{i:05d}" for i in range(5)]
-    try:
-        shown = screens.wait_for(lambda sc: "tracks=5" in sc and all(n in sc for n in names),
-                                 timeout=60)
-    finally:
-        err = stop(display)
-        stop(feed)
-    assert shown is not None, (screens.complete()[-1:], err[-3000:])
-    # the table: a title line, the header, then one row per track in id order
-    lines = shown.splitlines()
-    assert lines[0].startswith("track-display  ns=track  t=") and lines[1].startswith("id")
-    assert [line.split()[0] for line in lines[2:]] == names

@@ -1,0 +1,204 @@
+"""What `track-display` shows, without the terminal: the track table (from the `frame`
+key, ages from `tracks/`), sorted, filtered and paged, and the service's health (from
+`status` replies and the liveliness tokens), with the numbers formatted for reading."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from service.wire import STATUSES
+
+# column name -> (title, justify); the sort keys are these names
+COLUMNS = {
+    "id": ("id", "left"), "x": ("x m", "right"), "y": ("y m", "right"),
+    "z": ("z m", "right"), "range": ("range km", "right"), "speed": ("speed m/s", "right"),
+    "heading": ("hdg °", "right"), "sigma": ("sigma m", "right"),
+    "status": ("status", "left"), "age": ("age s", "right"),
+}
+SORTS = tuple(COLUMNS)
+
+
+def fmt_int(v: float) -> str:
+    """A number of metres or a count for reading: thousands grouped, no decimals."""
+    return f"{v:,.0f}" if math.isfinite(v) else "-"
+
+
+def fmt_t(t: float | None) -> str:
+    """Simulation time with millisecond resolution (never 10.466666666666667)."""
+    return "-" if t is None else f"{t:,.3f} s"
+
+
+def fmt_duration(s: float) -> str:
+    s = int(s)
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else \
+        f"{s // 60}:{s % 60:02d}"
+
+
+@dataclass
+class Frame:
+    """One display instant: every track's state, as arrays (rows in the order of ids)."""
+
+    t: float
+    ids: np.ndarray  # of str
+    pos: np.ndarray  # (N, 3)
+    vel: np.ndarray  # (N, 3)
+    sigma: np.ndarray  # (N,)
+    status: np.ndarray  # of str ("-" when the frame has no status bin)
+
+    @classmethod
+    def decode(cls, msg: dict[str, Any]) -> Frame:
+        ids = list(msg["ids"])
+        n = len(ids)
+        pos = np.frombuffer(msg["pos"], "<f8").reshape(n, 3)
+        vel = np.frombuffer(msg["vel"], "<f8").reshape(n, 3)
+        sigma = np.frombuffer(msg["sigma"], "<f8").reshape(n)
+        codes = msg.get("status")
+        names = np.array([*STATUSES, "unknown"])
+        if isinstance(codes, bytes) and len(codes) == n:
+            status = names[np.minimum(np.frombuffer(codes, np.uint8), len(STATUSES))]
+        else:
+            status = np.full(n, "-")
+        return cls(float(msg["t"]), np.array(ids, dtype=str), pos, vel, sigma, status)
+
+
+@dataclass
+class View:
+    """One page of the table."""
+
+    rows: list[dict[str, str]]
+    total: int  # tracks in the frame
+    matched: int  # tracks the filter lets through
+    first: int  # 0-based index of the first row shown among the matched
+    page: int  # 0-based
+    pages: int
+
+
+@dataclass
+class Table:
+    """The track table's state: the latest frame, each track's last update time, and
+    the user's sort, filter and page."""
+
+    sort: str = "id"
+    reverse: bool = False
+    filter: str = ""
+    page: int = 0
+    page_size: int = 40
+    frame: Frame | None = None
+    updated: dict[str, float] = field(default_factory=dict)  # id -> t of its last update
+
+    def on_frame(self, frame: Frame) -> None:
+        if self.frame is None or frame.t >= self.frame.t:
+            self.frame = frame
+        for tid in set(self.updated) - set(frame.ids.tolist()):
+            del self.updated[tid]  # deleted tracks
+
+    def on_update(self, track_id: str, t: float) -> None:
+        if t >= self.updated.get(track_id, -math.inf):
+            self.updated[track_id] = t
+
+    def cycle_sort(self) -> None:
+        self.sort = SORTS[(SORTS.index(self.sort) + 1) % len(SORTS)]
+        self.page = 0
+
+    def set_sort(self, name: str) -> None:
+        if name == self.sort:
+            self.reverse = not self.reverse
+        else:
+            self.sort, self.reverse = name, False
+        self.page = 0
+
+    def set_filter(self, text: str) -> None:
+        self.filter, self.page = text.strip(), 0
+
+    def turn(self, pages: int) -> None:
+        self.page = max(self.page + pages, 0)  # clamped to the last page by view()
+
+    def view(self) -> View:
+        f = self.frame
+        if f is None:
+            return View([], 0, 0, 0, 0, 1)
+        keep = np.arange(len(f.ids))
+        if self.filter:
+            needle = self.filter.lower()
+            keep = np.array([i for i, tid in enumerate(f.ids.tolist())
+                             if needle in tid.lower()], dtype=int)
+        speed = np.linalg.norm(f.vel, axis=1)
+        age = np.array([f.t - self.updated.get(tid, math.nan) for tid in f.ids.tolist()])
+        key = {
+            "id": f.ids, "x": f.pos[:, 0], "y": f.pos[:, 1], "z": f.pos[:, 2],
+            "range": np.linalg.norm(f.pos, axis=1), "speed": speed,
+            "heading": np.degrees(np.arctan2(f.vel[:, 0], f.vel[:, 1])) % 360.0,
+            "sigma": f.sigma, "status": f.status, "age": age,
+        }
+        col = key[self.sort][keep]
+        if col.dtype.kind == "f":  # unknown values (NaN) last either way
+            col = np.where(np.isnan(col), -np.inf if self.reverse else np.inf, col)
+        order = keep[np.argsort(col, kind="stable")]
+        if self.reverse:
+            order = order[::-1]
+        pages = max(1, math.ceil(len(order) / self.page_size))
+        self.page = min(self.page, pages - 1)
+        first = self.page * self.page_size
+        rows = [self._row(f, i, speed[i], key["heading"][i], key["range"][i], age[i])
+                for i in order[first:first + self.page_size].tolist()]
+        return View(rows, len(f.ids), len(order), first, self.page, pages)
+
+    @staticmethod
+    def _row(f: Frame, i: int, speed: float, heading: float, rng: float, age: float
+             ) -> dict[str, str]:
+        x, y, z = f.pos[i]
+        return {"id": str(f.ids[i]), "x": fmt_int(x), "y": fmt_int(y), "z": fmt_int(z),
+                "range": f"{rng / 1000:,.2f}", "speed": f"{speed:,.1f}",
+                "heading": f"{heading:.0f}" if speed > 0 else "-",
+                "sigma": f"{f.sigma[i]:,.1f}", "status": str(f.status[i]),
+                "age": "-" if math.isnan(age) else f"{max(age, 0.0):.1f}"}
+
+
+@dataclass
+class Health:
+    """The service as the display sees it: liveliness tokens, the latest `status`
+    replies (rates from consecutive ones) and the frames arriving."""
+
+    alive: set[str] = field(default_factory=set)  # instance names
+    status: dict[str, Any] | None = None
+    status_wall: float | None = None
+    rejects_per_s: float | None = None
+    frames_per_s: float | None = None
+    frame_walls: list[float] = field(default_factory=list)
+
+    def on_status(self, status: dict[str, Any], wall: float | None = None) -> None:
+        wall = time.monotonic() if wall is None else wall
+        prev, prev_wall = self.status, self.status_wall
+        if prev is not None and prev_wall is not None and wall > prev_wall and \
+                prev.get("instance") == status.get("instance"):
+            dt = wall - prev_wall
+            self.rejects_per_s = max(
+                status.get("meas_rejected", 0) - prev.get("meas_rejected", 0), 0) / dt
+            self.frames_per_s = max(
+                status.get("frames_published", 0) - prev.get("frames_published", 0), 0) / dt
+        self.status, self.status_wall = status, wall
+
+    def line(self, ns: str) -> tuple[str, bool]:
+        """The health line, and whether all is well (a tracker alive)."""
+        if not self.alive:
+            return f"no tracker alive on '{ns}'", False
+        s = self.status or {}
+        names = ", ".join(sorted(self.alive))
+        parts = [f"tracker {names} alive"]
+        if s:
+            parts += [f"{s.get('clock', '?')} {s.get('rate', 0):g} Hz",
+                      f"up {fmt_duration(s.get('uptime_s', 0.0))}",
+                      f"accepted {fmt_int(s.get('meas_accepted', 0))}",
+                      f"rejected {fmt_int(s.get('meas_rejected', 0))}"
+                      + (f" ({self.rejects_per_s:,.1f}/s)" if self.rejects_per_s is not None
+                         else ""),
+                      f"frames {fmt_int(s.get('frames_published', 0))}"
+                      + (f" ({self.frames_per_s:,.1f}/s)" if self.frames_per_s is not None
+                         else ""),
+                      f"queue {fmt_int(s.get('queue', 0))}"]
+        return " · ".join(parts), True
