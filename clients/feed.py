@@ -25,6 +25,7 @@ from service.wire import (
     MSGPACK_ENCODING,
     Keys,
     add_zenoh_args,
+    f64_bin,
     open_session,
     pack,
     wait_for_tracker,
@@ -56,6 +57,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--realtime", action="store_true", help="pace scans by simulation time")
     p.add_argument("--t0", type=float, default=0.0, help="simulation time offset, s")
     p.add_argument("--truth", action="store_true", help="also publish <ns>/truth/<target>")
+    p.add_argument("--batched", action="store_true",
+                   help="send each scan's (swarm: each sector's) measurements as one columnar "
+                        "message on <ns>/scan/<sensor> (contract 1.1) instead of one message "
+                        "per measurement")
     p.add_argument("--trackers", type=int, default=1,
                    help="wait for this many tracker liveliness tokens (0: do not wait)")
     feed_plots.add_args(p)
@@ -104,6 +109,39 @@ def labelled(args: argparse.Namespace, keys: Keys) -> Iterator[Batch]:
         yield t0 + args.t0, out, len(meas)
 
 
+def batched(args: argparse.Namespace, keys: Keys) -> Iterator[Batch]:
+    """The labelled scenario's scans as batched scans: one `<ns>/scan/<sensor>` message
+    each, `t` and the polar values as bins of float64, noise as floats when shared."""
+    key = zenoh.KeyExpr(keys.scan(args.sensor))
+    truth_keys = KeyCache(keys.truth)
+    for t0, meas, truth in scans(args):
+        out = [(truth_keys[target], pack(stamped(state, t0, args.t0)))
+               for target, state in truth] if args.truth else []
+        if meas:
+            out.append((key, pack(columnar([stamped(m, t0, args.t0) for _, m in meas],
+                                           [target for target, _ in meas]))))
+        yield t0 + args.t0, out, len(meas)
+
+
+def columnar(rows: list[dict], ids: list[str]) -> dict:
+    """One batched scan from the messages of its rows (all polar or all Cartesian)."""
+    msg: dict = {"ids": ids, "t": f64_bin([m["t"] for m in rows])}
+    fields = ("r", "az", "el") if "r" in rows[0] else ("pos",)
+    for k in fields:
+        if all(k in m for m in rows):
+            flat = [x for m in rows for x in m[k]] if k == "pos" else [m[k] for m in rows]
+            msg[k] = f64_bin(flat)
+    if "pos" in msg:
+        msg["dim"] = len(rows[0]["pos"])
+    for k in ("sr", "saz", "sel", "sigma", "sensor_pos"):
+        values = [m[k] for m in rows if k in m]
+        if len(values) == len(rows) and all(v == values[0] for v in values):
+            msg[k] = values[0]
+        elif values and len(values) == len(rows) and k != "sensor_pos":
+            msg[k] = f64_bin(values)
+    return msg
+
+
 def plots(args: argparse.Namespace, keys: Keys, sc: plotgen.Scenario) -> Iterator[Batch]:
     """The unlabelled scans of `sc`: truth ({t, pos, vel} in 2-D), then one plots scan."""
     plot_keys, truth_keys = KeyCache(keys.plots), KeyCache(keys.truth)
@@ -124,7 +162,8 @@ def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
         sc = feed_plots.scenario(args)
         batches, period = plots(args, keys, sc), sc.dt
     else:
-        batches, period = labelled(args, keys), scenarios.PERIODS[args.scenario]
+        batches = batched(args, keys) if args.batched else labelled(args, keys)
+        period = scenarios.PERIODS[args.scenario]
     put, enc = session.put, zenoh.Encoding(MSGPACK_ENCODING)
     sent, t_last = 0, args.t0
     wall0 = time.monotonic()

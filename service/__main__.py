@@ -132,6 +132,9 @@ def parser() -> argparse.ArgumentParser:
                    help="measurement key expression(s) this instance tracks (repeatable; "
                         "default <ns>/meas/**): a shard takes its part of the key space, "
                         "e.g. 'track/meas/radar-a/**' or 'track/meas/*/swarm-0$*'")
+    p.add_argument("--scan", action="append", default=[], metavar="KEYEXPR",
+                   help="batched labelled scan key expression(s) this instance takes "
+                        "(repeatable; default <ns>/scan/*): shards partition them by sensor")
     g = p.add_argument_group("unlabelled scans (<ns>/plots/<sensor>)")
     g.add_argument("--plots", action="append", default=[], metavar="KEYEXPR",
                    help="scan key expression(s) this instance tracks (repeatable; default "
@@ -195,6 +198,7 @@ def main(argv: list[str] | None = None) -> None:
                        noise=(args.sr, args.saz, args.sel, args.sigma),
                        per_target_display=not args.no_display_keys,
                        meas_keys=args.meas or None, plot_keys=args.plots or None,
+                       scan_keys=args.scan or None,
                        reorder=args.reorder, max_jump=args.max_jump)
     if args.state:
         svc.state = StateFile(args.state, args.state_period)

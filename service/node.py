@@ -15,6 +15,7 @@ import json
 import logging
 import math
 import queue
+import struct
 import threading
 import time
 from typing import Any
@@ -38,6 +39,7 @@ from .wire import (
     parse_clock,
     parse_measurement,
     parse_plots,
+    parse_scan,
     unpack,
 )
 
@@ -51,6 +53,8 @@ def _meas_time(item: tuple) -> float:
     """A measurement's t for ordering (-inf when unreadable: rejected first)."""
     try:
         t = unpack(item[2]).get("t")
+        if isinstance(t, bytes) and len(t) >= 8:  # a batched scan's times: its first
+            t = struct.unpack_from("<d", t)[0]
         return float(t) if isinstance(t, int | float) and not isinstance(t, bool) else -math.inf
     except (ValueError, AttributeError):
         return -math.inf
@@ -63,7 +67,8 @@ class TrackService:
                  clock: str = defaults.CLOCK, instance: str = "0",
                  noise: tuple[float, float, float, float] = defaults.NOISE,
                  per_target_display: bool = True, meas_keys: list[str] | None = None,
-                 plot_keys: list[str] | None = None, reorder: float = defaults.REORDER,
+                 plot_keys: list[str] | None = None, scan_keys: list[str] | None = None,
+                 reorder: float = defaults.REORDER,
                  max_jump: float = defaults.MAX_JUMP) -> None:
         self.session, self.keys, self.tracker = session, keys, tracker
         rate = tracker.config.display.rate
@@ -105,7 +110,9 @@ class TrackService:
             *(("meas", session.declare_subscriber(k, fifo(CHANNEL)))
               for k in (meas_keys or [keys.space("meas")])),
             *(("plots", session.declare_subscriber(k, fifo(CHANNEL)))
-              for k in (plot_keys or [keys.plots("*")]))]
+              for k in (plot_keys or [keys.plots("*")])),
+            *(("scan", session.declare_subscriber(k, fifo(CHANNEL)))
+              for k in (scan_keys or [keys.scan("*")]))]
         self.subs = [
             *(sub for _, sub in self.meas_subs),
             session.declare_subscriber(keys.clock, direct(clock)),
@@ -248,6 +255,8 @@ class TrackService:
                 self.clock.observe(t, item[3])
             else:
                 self._frames_before(t, pending)
+        elif kind == "scan":
+            self._take_labelled(item[1], item[2], item[3], pending)
         elif kind == "plots":
             self._flush(pending)  # the labelled ones received before it go first
             self._take_scan(item[1], item[2], item[3])
@@ -272,6 +281,39 @@ class TrackService:
                 self.count.meas_lost += m.seq - last - 1
             self.last_seq[m.sensor] = m.seq if last is None else max(last, m.seq)
         return m
+
+    def _take_labelled(self, key: str, payload: bytes, wall: float,
+                       pending: list[Measurement]) -> None:
+        """A batched labelled scan (`scan/<sensor>`): its good rows join the pending
+        measurements exactly as single messages would; each bad row is reported alone."""
+        chunks = self.keys.chunks_after(key, "scan")
+        sensor = chunks[0] if chunks and chunks[0] else "unknown"
+        try:
+            if len(chunks) != 1:
+                raise Rejected("batched scan key must be <ns>/scan/<sensor>")
+            scan = parse_scan(chunks[0], payload, self.noise)
+        except Rejected as exc:
+            self.out.reject(key, sensor, str(exc))
+            return
+        for _, reason in scan.rejected:
+            self.out.reject(key, sensor, reason)
+        rows = scan.measurements
+        if not rows:
+            return
+        times = sorted({m.t for m in rows})
+        # the time policy once per distinct time (reported once; every row counted)
+        refused = {t for t in times if not self._admit(t, wall, key, sensor, pending)}
+        if refused:
+            self.out.count.meas_rejected += sum(m.t in refused for m in rows) - len(refused)
+            rows = [m for m in rows if m.t not in refused]
+            times = [t for t in times if t not in refused]
+            if not rows:
+                return
+        if self.realtime:
+            self.clock.observe(times[-1], wall)
+        else:
+            self._frames_before(times[0], pending)
+        pending.extend(rows)
 
     def _take_scan(self, key: str, payload: bytes, wall: float) -> None:
         """Check an unlabelled scan, report its bad detections, and let it wait in the

@@ -5,7 +5,7 @@ with the counters that `status` reports.
 `frame` is always published; `display/<id>` and `tracks/<id>` only for the tracks that
 some subscriber listens to (`listeners.Listeners`), and the batched `states` key only
 while someone subscribes it. Every put and reply carries the Zenoh encoding
-`application/vnd.msgpack` (`wire.ENCODING`; JSON replies `application/json`)."""
+`application/msgpack` (`wire.MSGPACK_ENCODING`; JSON replies `application/json`)."""
 
 from __future__ import annotations
 
@@ -22,9 +22,9 @@ from .listeners import Listeners
 from .tracking.display import Snapshot
 from .tracking.store import States
 from .tracking.tracker import Outcome
-from .wire import CHUNK, ENCODING, Keys, pack, reason_code
+from .wire import CHUNK, MSGPACK_ENCODING, Keys, pack, reason_code
 
-MSGPACK = zenoh.Encoding(ENCODING)
+MSGPACK = zenoh.Encoding(MSGPACK_ENCODING)
 
 log = logging.getLogger("track-service")
 LOG_EVERY = 10.0  # s: rejected inputs are logged at most once in this period

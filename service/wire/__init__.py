@@ -24,7 +24,6 @@ from .keys import (
     BOUNDS,
     CHUNK,
     DEFAULT_NS,
-    ENCODING,
     MAX_MEAS_BYTES,
     MAX_ROWS,
     MAX_SCAN_BYTES,
@@ -36,6 +35,7 @@ from .keys import (
 )
 from .messages import Measurement, parse_clock, parse_full, parse_measurement
 from .plots import MAX_DETECTIONS, PlotScan, bad_rows, parse_plots
+from .scans import LabelledScan, parse_scan
 from .session import (
     BLOCK_WAIT_US,
     CONNECT_RETRY,
@@ -52,12 +52,11 @@ from .session import (
 
 __all__ = [
     "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "CONNECT_RETRY", "DEFAULT_ENDPOINT", "DEFAULT_NS",
-    "ENCODING",
     "MAX_DETECTIONS", "MAX_MEAS_BYTES", "MAX_ROWS", "MAX_SCAN_BYTES", "MAX_TIME",
     "MSGPACK_ENCODING", "PROTOCOL_VERSION", "REASON_CODES", "SHOWN", "STATUSES", "Keys",
-    "Measurement", "PlotScan", "Rejected", "add_zenoh_args", "bad_rows", "check_size",
-    "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port", "open_session", "pack",
-    "parse_clock", "parse_full", "parse_measurement", "parse_plots", "patient", "peer_config",
-    "quick_retry", "reason_code", "unpack", "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT",
-    "fail", "open_or_exit", "read_file",
+    "LabelledScan", "Measurement", "PlotScan", "Rejected", "add_zenoh_args", "bad_rows",
+    "check_size", "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port",
+    "open_session", "pack", "parse_clock", "parse_full", "parse_measurement", "parse_plots",
+    "parse_scan", "patient", "peer_config", "quick_retry", "reason_code", "unpack",
+    "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
 ]

@@ -10,7 +10,6 @@ DEFAULT_NS = "track"
 CHUNK = re.compile(r"^[A-Za-z0-9_-]+$")  # one key chunk: sensor, target, instance
 STATUSES = ("tentative", "confirmed", "coasting")  # display/<id> status
 SHOWN = ("prediction", "blend", "smoothed")  # display/<id> shown (project extension)
-ENCODING = "application/vnd.msgpack"  # the Zenoh encoding of every MessagePack body (IANA)
 
 # ---------------------------------------------------------------- input limits
 # (docs/protocol.md §4): an input beyond one is rejected with a reason, nothing applied
