@@ -59,6 +59,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a ch
 
 from clients import plotgen  # noqa: E402
 from clients.gospa import Evaluation, evaluate  # noqa: E402
+from clients.progress import bar  # noqa: E402
 from service import defaults  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.tracking.association import SensorModels  # noqa: E402
@@ -199,6 +200,7 @@ TRACKERS: dict[str, tuple[str, Callable[..., Run]]] = {
 def bench(names: list[str], runs: int, c: float, **scenario) -> dict[str, list[tuple]]:
     """Each tracker on `runs` recorded runs of the crossing scenario: (Run, Evaluation)."""
     out: dict[str, list[tuple]] = {n: [] for n in names}
+    progress = bar(total=runs * len(names), desc="tracker runs", unit=" run", leave=False)
     for r in range(runs):
         sc = plotgen.crossing(seed=r, **scenario)
         scans = list(sc)
@@ -211,7 +213,9 @@ def bench(names: list[str], runs: int, c: float, **scenario) -> dict[str, list[t
             t0 = time.perf_counter()
             run = fn(kind, sc, scans)
             out[name].append((run, evaluate(run.scans, c=c)))
-            print(f"  run {r}: {name:<24} {time.perf_counter() - t0:6.1f} s", flush=True)
+            progress.write(f"  run {r}: {name:<24} {time.perf_counter() - t0:6.1f} s")
+            progress.update(1)
+    progress.close()
     return out
 
 

@@ -76,6 +76,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout
 
 from clients.procs import stop  # noqa: E402
+from clients.progress import bar  # noqa: E402
 from service.wire import Keys, free_port, unpack, wait_for_tracker  # noqa: E402
 
 CLK = os.sysconf("SC_CLK_TCK")
@@ -720,6 +721,8 @@ def main(argv: list[str] | None = None) -> None:
         log(table(results))
         log(memory_report(r, args.memory_warmup))
     else:
+        progress = bar(total=len(args.sizes) * len(args.modes), desc="service runs",
+                       unit=" run", leave=False)
         for n in args.sizes:
             for mode in args.modes:
                 if args.idle_wait:
@@ -727,6 +730,8 @@ def main(argv: list[str] | None = None) -> None:
                 r = run_one(n, mode == "display", args, args.duration, args.warmup, log)
                 results.append(r)
                 log(f"# N={n} {mode}: {r.get('verdict', r.get('error'))}")
+                progress.update(1)
+        progress.close()
         log(table(results))
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=str))

@@ -52,6 +52,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
+from clients.progress import bar  # noqa: E402
 from service.estimation import filters, kalman, models  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.estimation.measurements import MeasurementBatch  # noqa: E402
@@ -314,6 +315,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"# Stone Soup {version('stonesoup')}")
 
     rows = []
+    progress = bar(total=len(args.sizes), desc="sizes", unit=" N", leave=False)
     for n in args.sizes:
         o = bench_ours(n, args.reps, args.seed)
         m = min(n, max(args.subset, CHECK))
@@ -323,8 +325,10 @@ def main(argv: list[str] | None = None) -> None:
             same_posterior(name, x, p, o["xn"][:CHECK], o["pn"][:CHECK])
             peer_us[name] = us(best, m)
         rows.append((o, m, peer_us))
-        print(f"# N={n}: done ({', '.join(f'{k} timed on {m}' for k in peer_us) or 'ours'})",
-              flush=True)
+        timed = ", ".join(f"{k} timed on {m}" for k in peer_us) or "ours"
+        progress.write(f"# N={n}: done ({timed})", file=sys.stdout)
+        progress.update(1)
+    progress.close()
     agree = ", ".join(["ours", "ours by parts", "Tracker.track", *(k for k, _ in peers)])
     print(f"# posteriors of the first {CHECK} targets agree to {RTOL:g} relative: {agree}")
 

@@ -22,6 +22,7 @@ import numpy as np
 from . import evaluate_plots, metrics, scenarios
 from .collect import Collected, run_through_service
 from .intercept_report import summary_line
+from .progress import add_quiet_arg, bar
 
 START = {"display": 3.0, "radar3d": 20.0, "maneuver": 20.0}  # s: after initiation
 # service options per scenario: scenario C's target has no process noise, only two
@@ -314,12 +315,15 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--json", action="store_true", help="print the reports as JSON")
     p.add_argument("--plot", metavar="DIR", help="write PNG figures here")
     evaluate_plots.add_args(p)
+    add_quiet_arg(p)
     args = p.parse_args(argv)
     if args.scenario in evaluate_plots.SCENARIOS:
         return evaluate_plots.run(args)
     args.runs = 100 if args.runs is None else args.runs
     filters = args.filter or (["ca"] if args.scenario == "display" else ["cv"])
     reports, collected = {}, {}
+    progress = bar(total=4 * args.display_variants + (not args.display_variants) * len(filters),
+                   desc="service runs", unit=" run", quiet=args.quiet)
     if args.display_variants:
         variants = {"prediction": [], "blend 0.35 s": ["--blend", "0.35"],
                     "blend 2.4 m/s": ["--blend-speed", "2.4"], "lag 1 s": ["--lag", "1"]}
@@ -329,6 +333,7 @@ def main(argv: list[str] | None = None) -> None:
                 ["--filter", filters[0], "--no-display-keys", *extra], args.connect, args.ns)
             reports[label] = evaluate(args.scenario, args.runs, args.seed, collected[label])
             reports[label]["interception"] = {}
+            progress.update(1)
         filters = []
         if args.plot:
             plot_display(collected, args.plot)
@@ -341,6 +346,8 @@ def main(argv: list[str] | None = None) -> None:
         collected[name] = got
         reports[name] = evaluate(args.scenario, args.runs, args.seed, got)
         reports[name]["interception"] = got.interception
+        progress.update(1)
+    progress.close()
     if args.json:
         print(json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "per_scan"}
                           for k, v in reports.items()}, indent=1))

@@ -32,6 +32,7 @@ import numpy as np
 
 from . import feed, feed_plots, gospa, plotgen
 from .collect import Shown, run_plots_through_service
+from .progress import bar
 
 SCENARIOS = feed_plots.SCENARIOS
 Rows = list[tuple[float, dict[str, np.ndarray], dict[str, np.ndarray]]]
@@ -216,6 +217,8 @@ def run(args: argparse.Namespace) -> None:
                          "labelled scenarios")
     n_runs = 10 if args.runs is None else args.runs
     results: dict[str, list[Run]] = {}
+    progress = bar(total=n_runs * len(configs(args)), desc="service runs", unit=" run",
+                   quiet=getattr(args, "quiet", False))
     for label, opts in configs(args):
         results[label] = []
         for r in range(n_runs):
@@ -225,6 +228,8 @@ def run(args: argparse.Namespace) -> None:
             shown = run_plots_through_service(argv, ["--rate", f"{rate:g}", *opts,
                                                      *args.service_arg])
             results[label].append(score(sc, shown, args.c, args.seed + r))
+            progress.update(1)
+    progress.close()
     sums = {k: summary(v, args.confirm_within) for k, v in results.items()}
     no_tracks = math.sqrt(args.targets * args.c**2 / gospa.ALPHA)
     if args.json:
