@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import signal
 import sys
 import threading
 
 from . import __version__
 from .wire import DEFAULT_ENDPOINT
+from .wire.cli import open_or_exit, read_file
+
+PROG = "track-router"
 
 
 def parser() -> argparse.ArgumentParser:
@@ -51,34 +53,30 @@ def router_config(args: argparse.Namespace):  # -> zenoh.Config
     return conf
 
 
-def one_line(exc: BaseException) -> str:
-    """Zenoh's error text on one line, without the Rust source location."""
-    text = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", str(exc))
-    return " ".join(text.replace("|", " ").replace("-->", " ").split())
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
-    import zenoh
-
-    try:
-        conf = router_config(args)
-    except (zenoh.ZError, OSError, ValueError) as exc:
-        raise SystemExit(f"track-router: cannot read config {args.config}: "
-                         f"{one_line(exc)}") from None
-    try:
-        session = zenoh.open(conf)
-    except zenoh.ZError as exc:
-        raise SystemExit(f"track-router: cannot start: {one_line(exc)}") from None
+    if args.config:
+        read_file(args.config, "the Zenoh configuration", prog=PROG)
+    session = open_or_exit(lambda: router_config(args), retry=0.0, prog=PROG,
+                           what=f" {args.config}" if args.config else "")
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    listen = json.loads(conf.get_json("listen/endpoints"))
-    print(f"track-router {__version__}: router {session.info.zid()} listening on "
-          f"{', '.join(map(str, listen))}", flush=True)
+    listen = json.loads(router_config(args).get_json("listen/endpoints"))
+    print(f"{PROG} {__version__}: router {session.info.zid()} listening on "
+          f"{', '.join(map(str, listen))} (zenoh {zenoh_version()})", flush=True)
     done.wait()
     session.close()
     sys.exit(0)
+
+
+def zenoh_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("eclipse-zenoh")
+    except PackageNotFoundError:
+        return "?"
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 from . import defaults
 from .tracking import checkpoint
 from .tracking.clock import Lockstep, Realtime
+from .wire.cli import fail
 
 if TYPE_CHECKING:
     from .node import TrackService
@@ -93,19 +94,18 @@ class StateFile:
     def restore(self, svc: TrackService) -> str:
         """Read the file into the service (before it starts); the line to print. A file
         that cannot be read or a place that cannot be written is an operator's mistake:
-        SystemExit with one line. A file that is not a checkpoint this service can take
+        one line and exit 2 (`wire.cli.fail`). A file that is not a checkpoint this service can take
         is set aside as PATH.refused, and the service starts empty."""
         where = self.path.parent
         if self.path.is_dir() or not where.is_dir() or not os.access(where, os.W_OK):
-            raise SystemExit(f"track-service: cannot write the state file {self.path} "
-                             "(not a file in a writable directory)")
+            fail(f"cannot write the state file {self.path} (not a file in a writable "
+                 "directory)")
         try:
             data = self.path.read_bytes()
         except FileNotFoundError:
             return f"state file {self.path} not there yet: starting empty"
         except OSError as exc:
-            raise SystemExit(f"track-service: cannot read the state file {self.path}: "
-                             f"{exc.strerror}") from None
+            fail(f"cannot read the state file {self.path}: {exc.strerror}")
         try:
             meta = checkpoint.load(svc.tracker, data)
         except checkpoint.CheckpointError as exc:

@@ -46,13 +46,17 @@ def test_router_refuses_a_taken_port_and_a_bad_file_in_one_line(tmp_path):
         assert second.returncode != 0 and time.monotonic() - t0 < 30
         assert "Traceback" not in second.stderr
         lines = second.stderr.strip().splitlines()
-        assert lines[-1].startswith("track-router: cannot start"), second.stderr
+        assert len(lines) == 1 and lines[0].startswith("track-router: cannot listen on"), \
+            second.stderr
+        assert second.returncode == 2
     finally:
         first.stop()
     bad = tmp_path / "bad.json5"
     bad.write_text("{ mode: ")
     out = run_router("-c", str(bad))
     assert out.returncode != 0 and "Traceback" not in out.stderr
-    assert out.stderr.strip().splitlines()[-1].startswith("track-router: cannot read config")
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
+    assert out.stderr.startswith("track-router: cannot load the Zenoh configuration"), out.stderr
     missing = run_router("-c", str(tmp_path / "none.json5"))
-    assert missing.returncode != 0 and "Traceback" not in missing.stderr
+    assert missing.returncode == 2 and "Traceback" not in missing.stderr
+    assert missing.stderr.startswith("track-router: cannot read the Zenoh configuration")

@@ -106,7 +106,7 @@ def load(tracker: Tracker, data: bytes) -> dict[str, Any]:
     store = tracker.store
     for dim, (ids, cols) in tables.items():
         lay = store.layout(dim)
-        rows = np.array([store.add(i, dim)[1] for i in ids], dtype=int)
+        rows = store.add_many(ids, dim)[1]
         for name, values in cols.items():
             getattr(lay, name)[rows] = values
         tracker.display.initiate(lay, rows)
