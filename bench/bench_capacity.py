@@ -188,6 +188,14 @@ def direct(fn: Any) -> zenoh.handlers.Callback:
     return zenoh.handlers.Callback(fn, indirect=False)
 
 
+def service_flags(args: argparse.Namespace, display: bool = False) -> list[str]:
+    """The service's options of a run: none (the defaults a new user gets: IMM, display/
+    keys for whoever subscribes) or the tuned set (--filter cv --no-display-keys)."""
+    if args.tuned:
+        return ["--filter", "cv"] + ([] if display else ["--no-display-keys"])
+    return ["--filter", args.filter] if args.filter else []
+
+
 # ---------------------------------------------------------------- one run
 class Observer:
     """Subscribers and samplers of one run; everything stamped with time.time()."""
@@ -309,10 +317,11 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
     pattern, n_sample = sample_suffix(n, args.sample)
     dpattern, _ = sample_suffix(n, args.display_sample)
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    svc_cmd = [sys.executable, "-m", "service", "--clock", "realtime", "--filter", args.filter,
-               "-l", endpoint, "--ns", ns] + ([] if display else ["--no-display-keys"])
+    svc_cmd = [sys.executable, "-m", "service", "--clock", "realtime", "-l", endpoint,
+               "--ns", ns, *service_flags(args, display)]
     feed_cmd = [sys.executable, "-m", "clients.feed", "swarm", "--targets", str(n),
-                "--realtime", "--duration", str(duration), "-e", endpoint, "--ns", ns]
+                "--realtime", "--duration", str(duration), "-e", endpoint, "--ns", ns,
+                "--sectors", str(args.sectors)] + (["--batched"] if args.batched else [])
     svc = feed = session = obs = sampler = poller = None
     svc_log = tempfile.TemporaryFile(mode="w+")
     feed_log = tempfile.TemporaryFile(mode="w+")
@@ -673,7 +682,22 @@ def main(argv: list[str] | None = None) -> None:
                    help="frame: --no-display-keys; display: per-target display/ keys too")
     p.add_argument("--duration", type=float, default=60.0, help="feed duration per run, s")
     p.add_argument("--warmup", type=float, default=6.0, help="s after scan 0 not measured")
-    p.add_argument("--filter", default="cv")
+    p.add_argument("--filter", default=None,
+                   help="the service's --filter (default: none given, the service's IMM)")
+    p.add_argument("--tuned", action="store_true",
+                   help="the tuned flags: --filter cv and, in mode frame, --no-display-keys")
+    p.add_argument("--sectors", type=int, default=32,
+                   help="feed reports per radar turn: 32 (sector reporting) or 1 (each "
+                        "second's measurements in one burst)")
+    p.add_argument("--batched", action="store_true",
+                   help="the feed sends each sector as one batched scan (scan/<sensor>)")
+    p.add_argument("--throughput", type=int, default=0, metavar="N",
+                   help="instead of the sweep: measurements per second answered when a feed "
+                        "of N targets sends as fast as it can, for the echo floor "
+                        "(bench/echo.py) and the service with no flags and tuned, same run")
+    p.add_argument("--encode", type=int, nargs="*", default=None, metavar="N",
+                   help="instead of the sweep: time of the frame (snapshot + encoding) at N "
+                        "tracks (default 10,000 and 100,000)")
     p.add_argument("--sample", type=int, default=1000,
                    help="at most this many targets' tracks/ and meas/ keys subscribed")
     p.add_argument("--display-sample", type=int, default=10,
@@ -709,6 +733,16 @@ def main(argv: list[str] | None = None) -> None:
     results = []
     if args.declare_scaling:
         declare_scaling(args.declare_scaling, max(1, args.declare_scaling // 8), log)
+        return
+    if args.throughput:
+        from throughput import throughput  # bench/throughput.py
+
+        throughput(args, log)
+        return
+    if args.encode is not None:
+        from throughput import frame_cost  # bench/throughput.py
+
+        frame_cost(args.encode or [10_000, 100_000], log)
         return
     if args.minutes:
         d = args.minutes * 60

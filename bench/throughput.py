@@ -1,0 +1,141 @@
+"""Parts of the capacity benchmark (bench/bench_capacity.py): throughput against the echo
+floor, and the cost of a frame.
+
+`throughput`: for each contender a fresh process on a free loopback port (the echo floor,
+bench/echo.py; the service with no flags; the service tuned), a feed of N swarm targets
+as fast as it can (`track-feed swarm --duration D`, no --realtime, each second's
+measurements in one burst: --sectors 1), and this process subscribing `<ns>/tracks/**`
+(so that the service puts every reply: it puts `tracks/<id>` only for subscribers) and
+counting the replies in a callback. Rate = replies / (last - first arrival); every
+measurement must be answered. The contenders run one after the other in the same run,
+and the ratio to the echo floor is printed. With --batched the feed sends scans
+(`scan/<sensor>`, one per second of 10,000 rows), which the echo does not read: the
+batched line is the service alone.
+
+`frame_cost`: the worker's time to publish one frame at N tracks, in this process: the
+tracker's snapshot (prediction of every track to the instant) and `pack_frame`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from clients.procs import stop  # noqa: E402
+from service.wire import Keys, free_port, peer_config, wait_for_tracker  # noqa: E402
+
+
+class Replies:
+    """Counts `tracks/` replies on Zenoh's receive thread: count, first and last arrival."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+        self.n, self.first, self.last = 0, None, None
+        self.lock = threading.Lock()
+        self.sub = session.declare_subscriber(
+            keys.tracks("**"), zenoh.handlers.Callback(self._on, indirect=False))
+
+    def _on(self, sample: Any) -> None:
+        now = time.monotonic()
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        with self.lock:
+            self.n += 1
+            self.first = now if self.first is None else self.first
+            self.last = now
+
+
+def one(cmd: list[str], n: int, scans: int, batched: bool, log: Any) -> dict[str, Any]:
+    """Start `cmd` (a tracker on ENDPOINT/NS), flood it, count its replies."""
+    ns = f"thr{os.getpid()}{time.monotonic_ns() % 100000}"
+    keys, endpoint = Keys(ns), f"tcp/127.0.0.1:{free_port()}"
+    cmd = [c.replace("ENDPOINT", endpoint).replace("NS", ns) for c in cmd]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    session = zenoh.open(peer_config(endpoint))
+    try:
+        if not wait_for_tracker(session, keys, 1, timeout=60):
+            raise RuntimeError(f"{cmd} did not come up: {stop(proc)[-500:]}")
+        replies = Replies(session, keys)
+        time.sleep(0.5)
+        feed = [sys.executable, "-m", "clients.feed", "swarm", "--targets", str(n),
+                "--duration", str(scans - 1), "--sectors", "1", "-e", endpoint, "--ns", ns]
+        t0 = time.monotonic()
+        done = subprocess.run(feed + (["--batched"] if batched else []), cwd=ROOT,
+                              capture_output=True, text=True, timeout=600)
+        sent_s = time.monotonic() - t0
+        want = n * scans
+        end = time.monotonic() + 60
+        while replies.n < want and time.monotonic() < end:
+            time.sleep(0.05)
+        span = (replies.last or 0) - (replies.first or 0)
+        return {"answered": replies.n, "sent": want, "rate": replies.n / span if span else 0,
+                "feed_s": sent_s, "feed_rc": done.returncode}
+    finally:
+        session.close()
+        stop(proc)
+
+
+def throughput(args: argparse.Namespace, log: Any) -> None:
+    n, scans = args.throughput, max(3, int(args.duration))
+    py = sys.executable
+    service = [py, "-m", "service", "--clock", "realtime", "-l", "ENDPOINT", "--ns", "NS"]
+    runs = [("echo floor (bench/echo.py)", [py, "bench/echo.py", "-l", "ENDPOINT", "--ns",
+                                             "NS"], False),
+            ("service, no flags", service, False),
+            ("service, --filter cv --no-display-keys", service + ["--filter", "cv",
+                                                                  "--no-display-keys"], False),
+            ("service, no flags, batched scans", service, True)]
+    log(f"throughput: swarm of {n} targets, {scans} scans of {n} as fast as the feed can "
+        f"(--sectors 1); replies on tracks/** counted here")
+    log(f"{'contender':<44} {'answered':>9} {'of':>9} {'per s':>8} {'x echo':>7}")
+    floor = None
+    for name, cmd, batched in runs:
+        r = one(cmd, n, scans, batched, log)
+        floor = r["rate"] if floor is None else floor
+        log(f"{name:<44} {r['answered']:>9} {r['sent']:>9} {r['rate']:>8.0f} "
+            f"{r['rate'] / floor:>7.2f}")
+
+
+def frame_cost(sizes: list[int], log: Any, reps: int = 20) -> None:
+    """Snapshot + pack_frame at N tracks (the per-frame work of the worker)."""
+    from service.encode import pack_frame
+    from service.tracking.tracker import Tracker
+    from service.wire import Measurement, pack
+
+    log("frame cost: snapshot (every track predicted to the instant) + pack_frame, "
+        f"median of {reps}, ms per frame")
+    log(f"{'N':>8} {'snapshot':>9} {'encode':>8} {'total':>8} {'% of 33 ms':>10}")
+    for n in sizes:
+        tracker = Tracker()
+        rng = np.random.default_rng(0)
+        ms = [Measurement("r", f"swarm-{i:06d}", 0.0, 3, True,
+                          (float(r), float(a), 0.1), (20.0, 0.003, 0.003), (0.0, 0.0, 0.0),
+                          None) for i, (r, a) in enumerate(zip(rng.uniform(5e3, 8e4, n),
+                                                              rng.uniform(-3, 3, n),
+                                                              strict=True))]
+        tracker.track(ms)
+        snap_t, enc_t = [], []
+        ids = pack(tracker.snapshot(0.5, detail=False).ids)  # packed once while no track
+        for k in range(reps):                                 # comes or goes (as the service)
+            t = 0.5 + k / 30
+            t0 = time.perf_counter()
+            snap = tracker.snapshot(t, detail=False)
+            t1 = time.perf_counter()
+            pack_frame(t, ids, snap.pos, snap.vel, snap.sigma, snap.codes)
+            t2 = time.perf_counter()
+            snap_t.append(t1 - t0)
+            enc_t.append(t2 - t1)
+        a, b = np.median(snap_t) * 1e3, np.median(enc_t) * 1e3
+        log(f"{n:>8} {a:>9.2f} {b:>8.2f} {a + b:>8.2f} {(a + b) / (1e3 / 30) * 100:>10.1f}")
