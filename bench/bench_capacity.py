@@ -695,6 +695,9 @@ def main(argv: list[str] | None = None) -> None:
                    help="instead of the sweep: measurements per second answered when a feed "
                         "of N targets sends as fast as it can, for the echo floor "
                         "(bench/echo.py) and the service with no flags and tuned, same run")
+    p.add_argument("--scaleout", type=int, default=0, metavar="N",
+                   help="instead of the sweep: the --throughput flood through a router, one "
+                        "service against two shards (bench/throughput.py)")
     p.add_argument("--encode", type=int, nargs="*", default=None, metavar="N",
                    help="instead of the sweep: time of the frame (snapshot + encoding) at N "
                         "tracks (default 10,000 and 100,000)")
@@ -738,6 +741,11 @@ def main(argv: list[str] | None = None) -> None:
         from throughput import throughput  # bench/throughput.py
 
         throughput(args, log)
+        return
+    if args.scaleout:
+        from throughput import scaleout  # bench/throughput.py
+
+        scaleout(args, log)
         return
     if args.encode is not None:
         from throughput import frame_cost  # bench/throughput.py

@@ -139,3 +139,56 @@ def frame_cost(sizes: list[int], log: Any, reps: int = 20) -> None:
             enc_t.append(t2 - t1)
         a, b = np.median(snap_t) * 1e3, np.median(enc_t) * 1e3
         log(f"{n:>8} {a:>9.2f} {b:>8.2f} {a + b:>8.2f} {(a + b) / (1e3 / 30) * 100:>10.1f}")
+
+
+def scaleout(args: argparse.Namespace, log: Any) -> None:
+    """One service against two shards behind a router (the wheel's `track-router`), each
+    shard taking the ids ending in even or odd digits (`--meas '<ns>/meas/*/$*0'` ...,
+    deploy/README.md); the same flood as `throughput`, replies counted at an observer
+    that is a client of the router."""
+    n, scans = args.scaleout, max(3, int(args.duration))
+    py = sys.executable
+    log(f"scale-out: swarm of {n} targets, {scans} scans as fast as the feed can, through "
+        "a router; replies on tracks/** counted here")
+    log(f"{'deployment':<40} {'answered':>9} {'of':>9} {'per s':>8} {'x one':>6}")
+    base = None
+    for shards in (1, 2):
+        ns = f"sco{os.getpid()}{shards}"
+        keys, endpoint = Keys(ns), f"tcp/127.0.0.1:{free_port()}"
+        procs = [subprocess.Popen([py, "-m", "service.router", "-l", endpoint], cwd=ROOT,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+        session = None
+        try:
+            time.sleep(1.0)
+            for k in range(shards):
+                part = [] if shards == 1 else [
+                    a for d in range(k, 10, 2) for a in ("--meas", f"{ns}/meas/*/$*{d}")]
+                procs.append(subprocess.Popen(
+                    [py, "-m", "service", "--clock", "realtime", "--mode", "client", "-e",
+                     endpoint, "--ns", ns, "--instance", f"shard{k}", *part], cwd=ROOT,
+                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            conf = zenoh.Config()
+            conf.insert_json5("mode", '"client"')
+            conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+            session = zenoh.open(conf)
+            if not wait_for_tracker(session, keys, shards, timeout=60):
+                raise RuntimeError("shards did not come up")
+            replies = Replies(session, keys)
+            time.sleep(0.5)
+            subprocess.run([py, "-m", "clients.feed", "swarm", "--targets", str(n),
+                            "--duration", str(scans - 1), "--sectors", "1", "--mode", "client",
+                            "-e", endpoint, "--ns", ns, "--trackers", str(shards)],
+                           cwd=ROOT, capture_output=True, text=True, timeout=600)
+            end = time.monotonic() + 60
+            while replies.n < n * scans and time.monotonic() < end:
+                time.sleep(0.05)
+            span = (replies.last or 0) - (replies.first or 0)
+            rate = replies.n / span if span else 0.0
+            base = rate if base is None else base
+            name = "one service" if shards == 1 else "two shards (even / odd last digit)"
+            log(f"{name:<40} {replies.n:>9} {n * scans:>9} {rate:>8.0f} {rate / base:>6.2f}")
+        finally:
+            if session is not None:
+                session.close()
+            for proc in reversed(procs):
+                stop(proc)
