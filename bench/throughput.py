@@ -141,6 +141,23 @@ def frame_cost(sizes: list[int], log: Any, reps: int = 20) -> None:
         log(f"{n:>8} {a:>9.2f} {b:>8.2f} {a + b:>8.2f} {(a + b) / (1e3 / 30) * 100:>10.1f}")
 
 
+def client_of(endpoint: str, timeout: float = 30.0) -> zenoh.Session:
+    """A client session of the router at `endpoint` (multicast scouting off), retried
+    while the router is starting."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError:
+            if time.monotonic() > end:
+                raise
+            time.sleep(0.5)
+
+
 def scaleout(args: argparse.Namespace, log: Any) -> None:
     """One service against two shards behind a router (the wheel's `track-router`), each
     shard taking the ids ending in even or odd digits (`--meas '<ns>/meas/*/$*0'` ...,
@@ -159,7 +176,7 @@ def scaleout(args: argparse.Namespace, log: Any) -> None:
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
         session = None
         try:
-            time.sleep(1.0)
+            session = client_of(endpoint)  # the router is up
             for k in range(shards):
                 part = [] if shards == 1 else [
                     a for d in range(k, 10, 2) for a in ("--meas", f"{ns}/meas/*/$*{d}")]
@@ -167,10 +184,6 @@ def scaleout(args: argparse.Namespace, log: Any) -> None:
                     [py, "-m", "service", "--clock", "realtime", "--mode", "client", "-e",
                      endpoint, "--ns", ns, "--instance", f"shard{k}", *part], cwd=ROOT,
                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-            conf = zenoh.Config()
-            conf.insert_json5("mode", '"client"')
-            conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
-            session = zenoh.open(conf)
             if not wait_for_tracker(session, keys, shards, timeout=60):
                 raise RuntimeError("shards did not come up")
             replies = Replies(session, keys)
