@@ -304,7 +304,10 @@ class TrackService:
         # the time policy once per distinct time (reported once; every row counted)
         refused = {t for t in times if not self._admit(t, wall, key, sensor, pending)}
         if refused:
-            self.out.count.meas_rejected += sum(m.t in refused for m in rows) - len(refused)
+            extra = sum(m.t in refused for m in rows) - len(refused)
+            self.out.count.meas_rejected += extra
+            by = self.out.count.by_reason  # counted by code like the one reported
+            by["time_far"] = by.get("time_far", 0) + extra
             rows = [m for m in rows if m.t not in refused]
             times = [t for t in times if t not in refused]
             if not rows:

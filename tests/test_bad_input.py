@@ -111,3 +111,13 @@ def test_every_code_documented():
     doc = open("docs/protocol.md", encoding="utf-8").read()
     for code, _ in REASON_CODES:
         assert f"`{code}`" in doc, code
+
+
+def test_codes_of_batched_scan_rows():
+    assert reason_code("row 3 (tgt-7): field 'r' must be >= 0.0, got -1.0") == "out_of_range"
+    assert reason_code("row 0 (a): field 't' is not finite or out of bounds (nan)") \
+        == "time_out_of_range"
+    assert reason_code("bin 't' has 9 bytes, not 2 float64 (one per id)") == "bad_type"
+    assert reason_code("bin 'r' has 3 rows, 'ids' 2") == "bad_type"
+    assert reason_code("batched scan needs 'ids', a list of target ids (strings)") \
+        == "missing_field"

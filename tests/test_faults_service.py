@@ -205,8 +205,10 @@ def test_realtime_frames_survive_time_faults(service_factory):
     assert codes.count("time_far") == 1 + 2 * 9, codes
     frames = np.array(w.frames)
     walls = frames[:, 1]
-    bins = np.histogram(walls, bins=np.arange(walls[0], walls[-1], 0.5))[0]
-    assert bins.min() >= 5, bins  # 15 a half second at 30 Hz; never stopped
+    # never stopped: 30 Hz, and no gap of a second even on a loaded machine (before the
+    # time policy, one t = 1e300 stopped them for good)
+    assert np.diff(walls).max() < 1.0, np.diff(walls).max()
+    assert len(walls) > 10 * (walls[-1] - walls[0]), len(walls)
     late = frames[walls > walls[-1] - 1.0, 0]
     assert (abs(late - (base + time.time() - w0)) < 5.0).all()  # back on the base timeline
     ids = {tid for tid, kind, _ in w.tracks if kind == "DELETE"}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import struct
 from collections.abc import Sequence
 from typing import Any
@@ -33,13 +34,14 @@ REASON_CODES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("not_msgpack", ("payload is not valid MessagePack",)),
     ("not_a_map", ("payload must be a MessagePack map", "map keys must be strings")),
     ("bad_key", ("key must be <ns>/", "chunk '")),
-    ("time_out_of_range", ("outside the plausible range",)),
+    ("time_out_of_range", ("outside the plausible range", "or out of bounds")),
     ("time_far", ("from the picture's time",)),
     ("not_finite", ("is not finite",)),
     ("out_of_range", ("must be >= ", "must be <= ", "must be in [")),
     ("bad_type", ("must be a number", "must be a list", "must be an integer",
                   "must be a bin", "must be a map", "must have 1 or", "must be 2 or 3",
-                  "not a multiple of 8", "not rows of", "is not ", "unequal lengths")),
+                  "not a multiple of 8", "not rows of", "is not ", "unequal lengths",
+                  "bytes, not", "rows, 'ids'")),
     ("missing_field", ("missing required field", "needs", "exactly one of", "either",
                        "send one form")),
     ("duplicate", ("duplicate",)),
@@ -49,11 +51,13 @@ REASON_CODES: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 
 
+_ROW = re.compile(r"^(?:detection \d+|row \d+ \([^)]*\)): ")
+
+
 def reason_code(reason: str) -> str:
-    """The code of a rejection reason (a scan's `detection <i>: ` prefix ignored);
-    `other` for a reason no entry of REASON_CODES names."""
-    if reason.startswith("detection "):
-        reason = reason.split(": ", 1)[-1]
+    """The code of a rejection reason (a scan's `detection <i>: ` or `row <i> (<id>): `
+    prefix ignored); `other` for a reason no entry of REASON_CODES names."""
+    reason = _ROW.sub("", reason, count=1)
     for code, words in REASON_CODES:
         if any(w in reason for w in words):
             return code
