@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from . import evaluate_plots, metrics, scenarios
+from . import evaluate_defaults, evaluate_plots, metrics, scenarios
 from .collect import Collected, run_through_service
 from .intercept_report import summary_line
 from .progress import add_quiet_arg, bar
@@ -133,6 +133,10 @@ def evaluate(scenario: str, runs: int, seed: int, got: Collected) -> dict[str, A
                      "pos_bound": None if bound_p is None else bound_p.tolist()},
         "display": display_quality(scenario, ts, truth, got, start, windows(scenario, ts)),
     }
+    # per window, each run's mean squared position error (Monte Carlo intervals)
+    report["per_run"] = {r["window"]: np.nanmean(
+        sq_pos[:, (ts >= r["t0"]) & (ts < r["t1"])], axis=1).tolist()
+        for r in [*report["windows"], report["overall"]]}
     return report
 
 
@@ -291,12 +295,17 @@ def plot_display(collected: dict[str, Collected], outdir: str,
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
-    p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *evaluate_plots.SCENARIOS],
+    p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *evaluate_plots.SCENARIOS,
+                                        "defaults"],
                    help="crossing, multisensor: unlabelled scans and GOSPA "
-                        "(clients/evaluate_plots.py)")
+                        "(clients/evaluate_plots.py); defaults: A, B and C with the "
+                        "service's defaults beside the best filter of each "
+                        "(clients/evaluate_defaults.py)")
     p.add_argument("--runs", type=int, default=None,
                    help="Monte Carlo runs (default 100; crossing, multisensor: 10)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--runs-c", type=int, default=20,
+                   help="defaults: Monte Carlo runs of scenario C (--runs: of B, default 100)")
     p.add_argument("--filter", action="append", default=[],
                    help="service filter(s) to compare (repeatable; default cv, ca for display, "
                         "the service's for crossing and multisensor)")
@@ -319,6 +328,8 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     if args.scenario in evaluate_plots.SCENARIOS:
         return evaluate_plots.run(args)
+    if args.scenario == "defaults":
+        return evaluate_defaults.run(args)
     args.runs = 100 if args.runs is None else args.runs
     filters = args.filter or (["ca"] if args.scenario == "display" else ["cv"])
     reports, collected = {}, {}
@@ -349,7 +360,7 @@ def main(argv: list[str] | None = None) -> None:
         progress.update(1)
     progress.close()
     if args.json:
-        print(json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "per_scan"}
+        print(json.dumps({k: {kk: vv for kk, vv in v.items() if kk not in ("per_scan", "per_run")}
                           for k, v in reports.items()}, indent=1))
     else:
         print("\n\n".join(table(r, k) for k, r in reports.items()))

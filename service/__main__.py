@@ -81,24 +81,26 @@ def parser() -> argparse.ArgumentParser:
                    help="display clock (default %(default)s)")
     p.add_argument("--rate", type=float, default=defaults.RATE, help="display rate, Hz")
     p.add_argument("--filter", choices=FILTERS, default=defaults.FILTER,
-                   help="imm (default): IMM of CV, CA and two coordinated turns on converted "
-                        "measurements; cv: CMKF, nearly-constant velocity; ca: CMKF, nearly-"
-                        "constant acceleration; ekf: EKF on polar measurements, CV (baseline); "
-                        "vdf: variable-dimension CV/CA (scenario C's method)")
+                   help="imm (default): IMM of a quiet CV, a nominal CV (--q) and a CA mode "
+                        "on converted measurements; cv: CMKF, nearly-constant velocity; ca: "
+                        "CMKF, nearly-constant acceleration; ekf: EKF on polar measurements, "
+                        "CV (baseline); vdf: variable-dimension CV/CA (scenario C's method)")
     p.add_argument("--imm-ct-q", type=float, default=defaults.IMM_CT_Q,
-                   help="IMM: turn models' noise as a multiple of --q (CV: --q m/s^2, CA: "
-                        "--q m/s^3)")
+                   help="IMM: the turn modes' noise as a multiple of --q (with --imm-turn)")
     p.add_argument("--imm-turn", type=float, default=defaults.IMM_TURN_DEG,
-                   help="IMM turn rate, deg/s")
+                   help="IMM: add coordinated-turn modes at +- this rate, deg/s (default 0: "
+                        "none)")
     p.add_argument("--imm-sojourn", type=float, default=defaults.IMM_SOJOURN,
-                   help="IMM mean time in one mode, s (staying probability exp(-dt/sojourn))")
+                   help="IMM: mean time in the quiet and in the nominal mode, s (staying "
+                        "probability exp(-dt/sojourn); default %(default)s)")
     p.add_argument("--vdf-detect", type=float, default=defaults.VDF_DETECT,
                    help="VDF detection threshold")
     p.add_argument("--vdf-settle", type=float, default=defaults.VDF_SETTLE,
                    help="VDF return threshold")
     p.add_argument("--q", type=float, default=None,
-                   help=f"process noise std per axis: m/s^2 for cv and imm (default "
-                        f"{defaults.Q_CV}), m/s^3 for ca (default {defaults.Q_CA})")
+                   help=f"process noise std per axis: m/s^2 for cv and the imm's nominal "
+                        f"mode (default {defaults.Q_CV}), m/s^3 for ca (default "
+                        f"{defaults.Q_CA})")
     p.add_argument("--init-speed", type=float, default=defaults.INIT_SPEED,
                    help="prior velocity std at initiation, m/s")
     p.add_argument("--init-accel", type=float, default=defaults.INIT_ACCEL,

@@ -19,11 +19,17 @@ LISTENERS_REFRESH = 0.1  # s: how often a realtime service re-reads who subscrib
 
 # ---------------------------------------------------------------- filters
 FILTER = "imm"  # imm, cv, ca, ekf, vdf
-Q_CV = 1.0  # m/s^2: white acceleration std per axis (CV, and the IMM's modes' unit)
+Q_CV = 1.0  # m/s^2: white acceleration std per axis (CV, and the IMM's nominal mode)
 Q_CA = 0.5  # m/s^3: white jerk std per axis (CA)
-IMM_CT_Q = 3.0  # IMM turn models' noise as a multiple of the CV/CA noise
-IMM_TURN_DEG = 1.8  # deg/s: the IMM's coordinated-turn rates are +- this
-IMM_SOJOURN = 200.0  # s: mean time in one IMM mode (staying probability exp(-dt / sojourn))
+# The default IMM (docs/accuracy.md, "The default filter"): a quiet CV mode, a nominal CV
+# mode (Q_CV, or --q) and a CA manoeuvre mode, chained quiet <-> nominal <-> CA
+IMM_QUIET_Q = 0.003  # m/s^2: the quiet mode's white acceleration std per axis
+IMM_CA_Q = 0.1  # m/s^3: the CA mode's white jerk std per axis
+IMM_SOJOURN = 600.0  # s: mean time in the quiet and in the nominal mode
+IMM_MANOEUVRE_SOJOURN = 10.0  # s: mean time in the CA (and any turn) mode
+IMM_INITIAL = (0.1, 0.6, 0.3)  # a new track's probabilities: quiet, nominal, manoeuvre
+IMM_CT_Q = 3.0  # optional turn modes' noise as a multiple of the nominal mode's
+IMM_TURN_DEG = 0.0  # deg/s: > 0 adds coordinated-turn modes at +- this (0: none)
 VDF_DETECT = 35.0  # VDF manoeuvre detection threshold (fading NIS sum)
 VDF_SETTLE = 13.0  # VDF return-to-CV threshold (fading acceleration significance)
 

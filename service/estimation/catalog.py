@@ -8,7 +8,7 @@ from typing import Any
 
 from .. import defaults
 from .filters import SingleModelFilter
-from .imm import IMM, standard_modes
+from .imm import ModeSet
 from .vdf import VDF
 
 FILTERS = ("imm", "cv", "ca", "ekf", "vdf")
@@ -16,7 +16,8 @@ FILTERS = ("imm", "cv", "ca", "ekf", "vdf")
 
 @dataclass(frozen=True)
 class FilterSpec:
-    """`name`: imm (CV, CA and two coordinated turns on converted measurements), cv and
+    """`name`: imm (quiet CV, nominal CV and CA on converted measurements: `imm.ModeSet`;
+    `q` sets the nominal mode's noise, `imm_turn` > 0 adds two coordinated turns), cv and
     ca (single-model CMKFs), ekf (CV with the linearised polar update: the baseline of
     scenario B) or vdf (the variable-dimension filter of scenario C). `q`: the white noise
     std per axis (m/s^2 for cv, ekf and the imm's unit, m/s^3 for ca); None: the
@@ -37,8 +38,9 @@ class FilterSpec:
             raise ValueError(f"unknown filter {self.name!r}; one of {', '.join(FILTERS)}")
         if self.name == "imm":
             q = defaults.Q_CV if self.q is None else self.q
-            return IMM(standard_modes(q, self.imm_ct_q, self.imm_turn), self.imm_sojourn), \
-                q, "cmkf"
+            modes = ModeSet(q=q, sojourn=self.imm_sojourn, ct_q=self.imm_ct_q,
+                            turn_deg=self.imm_turn)
+            return modes.imm(), q, "cmkf"
         if self.name == "vdf":
             return VDF(detect=self.vdf_detect, settle=self.vdf_settle), 0.0, "cmkf"
         if self.name == "ca":

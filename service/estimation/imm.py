@@ -13,12 +13,49 @@ from . import kalman, models
 from .batch import einsum
 from .filters import Convert, Result, moments, predict
 
+Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct"), q, omega (rad/s)
 
-def standard_modes(q: float = defaults.Q_CV, ct_q: float = defaults.IMM_CT_Q,
-                   turn_deg: float = defaults.IMM_TURN_DEG) -> tuple[tuple, ...]:
-    """The service's IMM modes (name, kind, q, omega): CV and CA with white noise `q`
-    (m/s^2 for CV, m/s^3 for CA) and coordinated turns at +- `turn_deg` deg/s with
-    `ct_q` x q."""
+
+@dataclass(frozen=True)
+class ModeSet:
+    """The service's IMM design: a quiet CV mode (white acceleration `quiet_q`, m/s^2),
+    a nominal CV mode (`q`) and a CA manoeuvre mode (white jerk `ca_q`, m/s^3), plus, with
+    `turn_deg` > 0, coordinated turns at +- `turn_deg` deg/s with `ct_q` x q. The chain
+    quiet <-> nominal <-> manoeuvre modes is the only way between them (`leave`): the
+    quiet and nominal modes last `sojourn` s on average, the manoeuvre modes
+    `manoeuvre_sojourn` s; a new track starts with the probabilities `initial` (quiet,
+    nominal, manoeuvre modes together). docs/accuracy.md gives the reasons."""
+
+    q: float = defaults.Q_CV
+    quiet_q: float = defaults.IMM_QUIET_Q
+    ca_q: float = defaults.IMM_CA_Q
+    sojourn: float = defaults.IMM_SOJOURN
+    manoeuvre_sojourn: float = defaults.IMM_MANOEUVRE_SOJOURN
+    initial: tuple[float, float, float] = defaults.IMM_INITIAL
+    ct_q: float = defaults.IMM_CT_Q
+    turn_deg: float = defaults.IMM_TURN_DEG
+
+    def imm(self) -> IMM:
+        modes: list[Mode] = [("quiet", "cv", self.quiet_q, 0.0), ("cv", "cv", self.q, 0.0),
+                             ("ca", "ca", self.ca_q, 0.0)]
+        if self.turn_deg > 0:
+            w = float(np.radians(self.turn_deg))
+            modes += [("ct+", "ct", self.ct_q * self.q, w), ("ct-", "ct", self.ct_q * self.q, -w)]
+        m = len(modes)
+        leave = np.zeros((m, m))
+        leave[0, 1] = leave[1, 0] = 1.0
+        leave[1, 2:] = leave[2:, 1] = 1.0
+        quiet, nominal, manoeuvre = self.initial
+        initial = (quiet, nominal, *[manoeuvre / (m - 2)] * (m - 2))
+        sojourn = (self.sojourn, self.sojourn, *[self.manoeuvre_sojourn] * (m - 2))
+        return IMM(tuple(modes), sojourn, tuple(map(tuple, leave.tolist())), initial)
+
+
+def standard_modes(q: float = defaults.Q_CV, ct_q: float = 3.0, turn_deg: float = 1.8
+                   ) -> tuple[Mode, ...]:
+    """The modes of the IMM the service used by default until issue 14 (name, kind, q,
+    omega): CV and CA with white noise `q` (m/s^2 for CV, m/s^3 for CA) and coordinated
+    turns at +- `turn_deg` deg/s with `ct_q` x q (sojourn 200 s, evenly left)."""
     w = np.radians(turn_deg)
     return (("cv", "cv", q, 0.0), ("ca", "ca", q, 0.0),
             ("ct+", "ct", ct_q * q, w), ("ct-", "ct", ct_q * q, -w))
@@ -47,14 +84,27 @@ class IMM:
     """Interacting multiple model filter (Blom & Bar-Shalom 1988; Bar-Shalom, Li &
     Kirubarajan 2001, sec. 11.6.6) on converted measurements, vectorised over rows.
 
-    `modes` are (name, kind, q, omega) in a padded order-3 state. Mode switching is a
-    Markov chain whose staying probability over a step dt is exp(-dt / sojourn), the rest
-    spread evenly, so irregular scan intervals are handled.
+    `modes` are (name, kind, q, omega) in a padded order-3 state: CV and CT modes hold
+    the acceleration at zero. Mode switching is a continuous-time Markov chain: mode i
+    is left at the rate 1 / sojourn_i (staying probability exp(-dt / sojourn_i) over a
+    step dt, so irregular scan intervals are handled) for the other modes in proportion
+    to `leave` (a row per mode; None: evenly). `initial`: the mode probabilities of a new
+    track (None: evenly).
+
+    Mixing into a mode with an acceleration (CA) takes, for a mode without one, that
+    mode's own acceleration estimate and covariance in place of the zero padding (the
+    unbiased mixing of Granström, Willett & Bar-Shalom, IEEE TAES 51(4), 2015), so
+    quiet modes do not pull the manoeuvre mode's acceleration toward zero. Each mode's
+    converted measurement covariance is averaged over that mode's own prediction (the
+    model-conditioned R), and its likelihood uses it.
     """
 
-    modes: Sequence[tuple[str, str, float, float]] = field(
-        default_factory=lambda: standard_modes())
-    sojourn: float = defaults.IMM_SOJOURN
+    modes: Sequence[Mode] = field(default_factory=lambda: standard_modes())
+    sojourn: float | Sequence[float] = 200.0
+    leave: Sequence[Sequence[float]] | None = None
+    initial: Sequence[float] | None = None
+    unbiased_mixing: bool = True  # False: zero padding (the ablation of docs/accuracy.md)
+    mode_conversion: bool = True  # False: one R, at the mixture's prediction (ablation)
     order: int = 3
 
     @property
@@ -67,38 +117,65 @@ class IMM:
     def initiate(self, arrays: Any, rows: np.ndarray) -> None:
         arrays.mode_x[rows] = arrays.x[rows, None]
         arrays.mode_p[rows] = arrays.p[rows, None]
-        arrays.mode_prob[rows] = 1.0 / len(self.modes)
+        m = len(self.modes)
+        mu = np.full(m, 1.0 / m) if self.initial is None else np.asarray(self.initial, float)
+        arrays.mode_prob[rows] = mu / mu.sum()
 
     def transition(self, dt: np.ndarray) -> np.ndarray:
+        """pi[n, i, j] = P(mode j at the next update | mode i now) over steps dt (N,)."""
         m = len(self.modes)
-        stay = np.exp(-np.abs(dt) / self.sojourn)
-        pi = np.repeat(((1 - stay) / (m - 1))[:, None, None], m, 1).repeat(m, 2)
+        tau = np.broadcast_to(np.asarray(self.sojourn, dtype=float), (m,))
+        stay = np.exp(-np.abs(np.asarray(dt, dtype=float))[:, None] / tau)  # (N, m)
+        dest = np.ones((m, m)) if self.leave is None else np.array(self.leave, dtype=float)
+        dest[np.arange(m), np.arange(m)] = 0.0
+        dest /= np.maximum(dest.sum(1, keepdims=True), 1e-300)
+        pi = (1 - stay)[:, :, None] * dest
         idx = np.arange(m)
-        pi[:, idx, idx] = stay[:, None]
+        pi[:, idx, idx] = stay
         return pi
+
+    def mix(self, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray, pi: np.ndarray, dim: int
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predicted mode probabilities c (N, M) and the mixed initial conditions
+        x0 (N, M, n), P0 (N, M, n, n) of every mode."""
+        c = einsum("nij,ni->nj", pi, mu)  # predicted mode probabilities
+        w = pi * mu[:, :, None] / np.maximum(c[:, None, :], 1e-300)  # mixing mu_{i|j}
+        xs = np.repeat(mx[:, :, None], len(self.modes), 2)  # (N, i, j, n): x_i for mode j
+        ps = np.repeat(mp[:, :, None], len(self.modes), 2)
+        acc = slice(2 * dim, 3 * dim)
+        has = [kind == "ca" for _, kind, _, _ in self.modes]
+        for j, hj in enumerate(has):
+            for i, hi in enumerate(has):
+                if hj and not hi and self.unbiased_mixing:  # pad i with j's acceleration
+                    xs[:, i, j, acc] = mx[:, j, acc]
+                    ps[:, i, j, acc, :] = 0.0
+                    ps[:, i, j, :, acc] = 0.0
+                    ps[:, i, j, acc, acc] = mp[:, j, acc, acc]
+        x0 = einsum("nij,nijx->njx", w, xs)
+        d = xs - x0[:, None]
+        p0 = einsum("nij,nijxy->njxy", w, ps + d[..., :, None] * d[..., None, :])
+        return c, x0, p0
 
     def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
-        pi = self.transition(dt)  # pi[n, i, j] = P(mode j next | mode i now)
-        c = einsum("nij,ni->nj", pi, mu)  # predicted mode probabilities
-        w = pi * mu[:, :, None] / np.maximum(c[:, None, :], 1e-300)  # mixing mu_{i|j}
-        x0 = einsum("nij,nix->njx", w, mx)
-        d = mx[:, :, None, :] - x0[:, None, :, :]  # (N, i, j, n)
-        p0 = einsum("nij,nijxy->njxy", w, mp[:, :, None] + d[..., :, None] * d[..., None, :])
-        xps, pps = [], []
+        c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
+        preds = []
         for j, (_, kind, q, omega) in enumerate(self.modes):
             f, qm = models.motion(kind, dt, self.order, arrays.dim, q, omega)
-            xp, pp = predict(x0[:, j], p0[:, j], f, qm)
-            xps.append(xp)
-            pps.append(pp)
-        xp, pp = np.stack(xps, 1), np.stack(pps, 1)
-        xbar, pbar = moments(xp, pp, c)
-        conv = convert(xbar, pbar)  # one conversion, at the mixture's prediction
-        outs = [kalman.update_full(xp[:, j], pp[:, j], *conv) for j in range(len(self.modes))]
-        xu = np.stack([o[0] for o in outs], 1)
-        pu = np.stack([o[1] for o in outs], 1)
-        loglik = np.stack([o[4] for o in outs], 1)
-        ok = np.all([o[3] for o in outs], 0)
+            preds.append(predict(x0[:, j], p0[:, j], f, qm))
+        if not self.mode_conversion:
+            z, r = convert(*moments(np.stack([x for x, _ in preds], 1),
+                                    np.stack([p for _, p in preds], 1), c))[:2]
+        outs, rs = [], []
+        for xp, pp in preds:
+            if self.mode_conversion:
+                z, r = convert(xp, pp)[:2]  # R averaged over this mode's prediction
+            outs.append((xp, pp, kalman.update_full(xp, pp, z, r)))
+            rs.append(r)
+        xu = np.stack([o[2][0] for o in outs], 1)
+        pu = np.stack([o[2][1] for o in outs], 1)
+        loglik = np.stack([o[2][4] for o in outs], 1)
+        ok = np.all([o[2][3] for o in outs], 0)
         logw = np.log(np.maximum(c, 1e-300)) + loglik
         logw -= logw.max(1, keepdims=True)
         mu_new = np.exp(logw)
@@ -108,7 +185,11 @@ class IMM:
         arrays.mode_x[good], arrays.mode_p[good] = xu[ok], pu[ok]
         arrays.mode_prob[good] = mu_new[ok]
         x, p = moments(xu, pu, np.where(np.isfinite(mu_new), mu_new, 0.0))
-        _, _, nis, _ = kalman.update(xbar, pbar, *conv)  # NIS of the mixture prediction
+        # NIS of the mixture's prediction, with R averaged over it: sum_j c_j R_j
+        xbar, pbar = moments(np.stack([o[0] for o in outs], 1),
+                             np.stack([o[1] for o in outs], 1), c)
+        rbar = einsum("nj,jnab->nab", c, np.stack(rs))
+        _, _, nis, _ = kalman.update(xbar, pbar, z, rbar)
         return x, p, nis, ok
 
     def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:

@@ -1,0 +1,170 @@
+"""How the default IMM was chosen (docs/accuracy.md, "The default filter"): candidate
+designs run in-process (the tracker of the service, without Zenoh: the same figures as
+`track-eval` through the service) on scenarios A (one run), B (100 runs) and C (20 runs),
+seed 0, against the targets of issue 14.
+
+    python bench/imm_design.py                 # every candidate (~2 min)
+    python bench/imm_design.py default old     # some of them
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from clients import metrics, scenarios  # noqa: E402
+from service.estimation.catalog import FilterSpec  # noqa: E402
+from service.estimation.imm import IMM, ModeSet, standard_modes  # noqa: E402
+from service.tracking.display import DisplayState  # noqa: E402
+from service.tracking.store import TrackStore  # noqa: E402
+from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from service.wire import Measurement  # noqa: E402
+
+
+def variant(**changes: object) -> IMM:
+    base = ModeSet().imm()
+    return IMM(**{**{k: getattr(base, k) for k in ("modes", "sojourn", "leave", "initial")},
+                  **changes})
+
+
+CANDIDATES = {
+    "default": lambda: ModeSet().imm(),
+    "old": lambda: IMM(standard_modes(), 200.0, unbiased_mixing=False, mode_conversion=False),
+    "zero-padding": lambda: variant(unbiased_mixing=False),
+    "mixture-R": lambda: variant(mode_conversion=False),
+    "even-start": lambda: variant(initial=None),
+    "even-leave": lambda: variant(leave=None),
+    "no-quiet": lambda: IMM((("cv", "cv", 1.0, 0.0), ("ca", "ca", 0.1, 0.0)), (3000.0, 10.0),
+                            initial=(0.7, 0.3)),
+    "no-nominal": lambda: IMM((("quiet", "cv", 0.003, 0.0), ("ca", "ca", 0.1, 0.0)),
+                              (3000.0, 10.0), initial=(0.7, 0.3)),
+    "quiet-0.03": lambda: ModeSet(quiet_q=0.03).imm(),
+    "ca-0.3": lambda: ModeSet(ca_q=0.3).imm(),
+    "ca-sojourn-30": lambda: ModeSet(manoeuvre_sojourn=30.0).imm(),
+}
+BEST = {"display": "ca", "radar3d": "cv", "maneuver": "vdf"}
+
+
+def tracker(updater: IMM | None, spec: FilterSpec | None = None) -> Tracker:
+    """The service's tracker with the filter `spec`, or with `updater` in its place."""
+    if updater is None:
+        return Tracker(TrackerConfig(filter=spec or FilterSpec()))
+    tr = Tracker()
+    tr.updater = updater
+    tr.store = TrackStore(updater.order, updater.fields)
+    tr.display = DisplayState(tr.config.display, 1.0)
+    return tr
+
+
+def measurement(t: float, name: str, m: dict) -> Measurement:
+    if "pos" in m:
+        d = len(m["pos"])
+        return Measurement("s", name, t, d, False, tuple(m["pos"]), (m["sigma"],) * d,
+                           (0.0, 0.0, 0.0), None)
+    return Measurement("s", name, t, 3, True, (m["r"], m["az"], m["el"]),
+                       (m["sr"], m["saz"], m["sel"]), (0.0, 0.0, 0.0), None)
+
+
+def run(scenario: str, runs: int, tr: Tracker) -> dict:
+    dim = 2 if scenario == "maneuver" else 3
+    ts, est, cov, tru, frames, quiet, mu = [], [], [], [], [], [], []
+    for t, meas, truth in scenarios.SCENARIOS[scenario](runs=runs, seed=0):
+        tr.track([measurement(t, n, m) for n, m in meas])
+        arrays = tr.store.layout(dim)
+        rows = np.array([tr.store.where[n][1] for n, _ in meas])
+        ts.append(t)
+        est.append(arrays.x[rows, :2 * dim])
+        cov.append(arrays.p[rows, :2 * dim, :2 * dim])
+        tru.append([s["pos"][:dim] + s["vel"][:dim] for _, s in truth])
+        if hasattr(arrays, "mode_x"):  # an IMM: its first mode's own estimate, and mu
+            quiet.append((arrays.mode_x[rows, 0, :2 * dim], arrays.mode_p[rows, 0, :2 * dim,
+                                                                            :2 * dim]))
+            mu.append(arrays.mode_prob[rows].mean(0))
+        if scenario == "display":  # 30 Hz frames predicted from this scan
+            frames += [(t + j / 30, tr.snapshot(t + j / 30, detail=False).pos[0])
+                       for j in range(30)]
+    ts = np.array(ts)
+    err = np.array(est).swapaxes(0, 1) - np.array(tru).swapaxes(0, 1)
+    p = np.array(cov).swapaxes(0, 1)
+    nees = np.einsum("rki,rkij,rkj->rk", err, np.linalg.pinv(p, hermitian=True), err)
+    sq = (err[..., :dim] ** 2).sum(-1)
+    if scenario == "display":
+        t_f = np.array([f[0] for f in frames])
+        sel = (t_f >= 3) & (t_f <= 56)
+        e = np.array([f[1] for f in frames])[sel] - scenarios.FlightA().state(t_f[sel])[0]
+        return {"frame RMS": float(np.sqrt(np.mean((e ** 2).sum(1))))}
+    if scenario == "radar3d":
+        bound = metrics.scenario_b_bound(runs, 0)[0]
+        sel = ts >= 20
+        wins = [np.mean(nees[:, (ts >= a) & (ts < a + 20)]) for a in range(20, 200, 20)]
+        return {"RMSE/CRB": np.sqrt(sq[:, sel].mean() / np.mean(bound[sel] ** 2)),
+                "NEES": nees[:, sel].mean(), "max window NEES": max(wins)}
+    out = {}
+    if quiet:  # scenario C's straight leg: the first mode alone, and the probabilities
+        sel = (ts >= 20) & (ts < 380)
+        xq = np.array([q[0] for q in quiet]).swapaxes(0, 1) - np.array(tru).swapaxes(0, 1)
+        pq = np.array([q[1] for q in quiet]).swapaxes(0, 1)
+        out["mode-1 NEES"] = float(np.einsum("rki,rkij,rkj->rk", xq, np.linalg.inv(pq),
+                                             xq)[:, sel].mean())
+        out["mu"] = np.array(mu)[sel].mean(0)
+    for name, a, b in scenarios.ManeuverC.phases:
+        sel = (ts >= max(a, 20)) & (ts < b)
+        out[f"{name} RMSE"] = float(np.sqrt(sq[:, sel].mean()))
+        out[f"{name} NEES"] = float(nees[:, sel].mean())
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("names", nargs="*", help=f"candidates (default all): {', '.join(CANDIDATES)}")
+    args = p.parse_args()
+    runs = {"display": 1, "radar3d": 100, "maneuver": 20}
+    best = {sc: run(sc, n, tracker(None, FilterSpec(BEST[sc]))) for sc, n in runs.items()}
+    a_lim, c_lim = 1.2 * best["display"]["frame RMS"], best["maneuver"]
+    lo_b, hi_b = metrics.chi2_interval(6, 100)
+    lo_c, hi_c = metrics.chi2_interval(4, 20)
+    print(f"targets: A frame RMS <= {a_lim:.4f} m (1.2 x ca); B RMSE/CRB <= 1.05, NEES in "
+          f"[{lo_b:.2f}, {hi_b:.2f}], windows < 9; C straight RMSE <= "
+          f"{1.25 * c_lim['straight RMSE']:.1f} m (1.25 x vdf), turns < vdf's "
+          f"({c_lim['slow turn RMSE']:.1f}, {c_lim['fast turn RMSE']:.1f} m), NEES in "
+          f"[{lo_c:.2f}, {hi_c:.2f}]")
+    head = ("candidate", "A RMS", "B ratio", "B NEES", "B win", "C str", "C slow", "C fast",
+            "NEES str", "slow", "fast", "str-2", "missed")
+    print("".join(f"{h:>9}" if i else f"{h:<15}" for i, h in enumerate(head)))
+    explain = []
+    for name in args.names or CANDIDATES:
+        t0 = time.monotonic()
+        a, b, c = (run(sc, n, tracker(CANDIDATES[name]())) for sc, n in runs.items())
+        missed = sum([a["frame RMS"] > a_lim, b["RMSE/CRB"] > 1.05,
+                      not lo_b <= b["NEES"] <= hi_b, b["max window NEES"] >= 9,
+                      c["straight RMSE"] > 1.25 * c_lim["straight RMSE"],
+                      c["slow turn RMSE"] >= c_lim["slow turn RMSE"],
+                      c["fast turn RMSE"] >= c_lim["fast turn RMSE"],
+                      *[not lo_c <= c[f"{k} NEES"] <= hi_c
+                        for k in ("straight", "slow turn", "fast turn", "straight-2")]])
+        vals = (a["frame RMS"], b["RMSE/CRB"], b["NEES"], b["max window NEES"],
+                c["straight RMSE"], c["slow turn RMSE"], c["fast turn RMSE"],
+                c["straight NEES"], c["slow turn NEES"], c["fast turn NEES"],
+                c["straight-2 NEES"])
+        print(f"{name:<15}" + "".join(f"{v:>9.4f}" if i == 0 else f"{v:>9.3f}" if i < 2
+                                      else f"{v:>9.2f}" if v < 1e4 else f"{v:>9.2g}"
+                                      for i, v in enumerate(vals))
+              + f"{missed:>9}  ({time.monotonic() - t0:.0f} s)", flush=True)
+        if "mu" in c:
+            explain.append(f"{name:<15} C straight leg: mode probabilities "
+                           + ", ".join(f"{m[0]} {p:.3f}" for m, p in
+                                       zip(CANDIDATES[name]().modes, c["mu"], strict=True))
+                           + f"; NEES of its first mode ({CANDIDATES[name]().modes[0][0]}) "
+                           f"alone {c['mode-1 NEES']:.2f}, of the mixture "
+                           f"{c['straight NEES']:.2f}")
+    print("\n".join(explain))
+
+
+if __name__ == "__main__":
+    main()
