@@ -1,38 +1,66 @@
 """`track-demo`: service, feed and terminal display together on loopback (no router).
 
 Starts `track-service --clock realtime` listening on a loopback port, a real-time feed
-of a scenario, and the terminal display; Ctrl-C stops all three.
+of a scenario, and the terminal display; Ctrl-C stops all three. `--web`: the live map
+in a browser (`track-web` on http://127.0.0.1:8080/, `--port`) instead of the terminal
+display.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import subprocess
 import sys
+import webbrowser
 
 from service.wire import free_port
 
 from .procs import stop
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="track-demo", description=__doc__)
     p.add_argument("--scenario", default="swarm",
-                   choices=("swarm", "display", "radar3d", "maneuver"))
+                   choices=("swarm", "display", "radar3d", "maneuver", "crossing",
+                            "multisensor"))
     p.add_argument("--targets", type=int, default=12, help="swarm size")
     p.add_argument("--duration", type=float, default=600.0, help="swarm: simulated seconds")
     p.add_argument("--runs", type=int, default=5, help="copies of the other scenarios")
+    p.add_argument("--web", action="store_true",
+                   help="show the live map in a browser (track-web) instead of the terminal")
+    p.add_argument("--port", type=int, default=8080, help="track-web's port with --web")
     args = p.parse_args(argv)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     py = sys.executable
     service = subprocess.Popen([py, "-m", "service", "-l", endpoint, "--clock", "realtime",
                                 "--blend", "1"])
-    feed_args = ["--targets", str(args.targets), "--duration", str(args.duration)] \
-        if args.scenario == "swarm" else ["--runs", str(args.runs)]
+    signal.signal(signal.SIGTERM, _interrupt)  # stop the children on SIGTERM too
+    feed_args = {"swarm": ["--targets", str(args.targets), "--duration", str(args.duration)],
+                 "crossing": [], "multisensor": ["--radars", "3"]}.get(
+                     args.scenario, ["--runs", str(args.runs)])
     feed = subprocess.Popen([py, "-m", "clients.feed", args.scenario, "--realtime",
                              "-e", endpoint, *feed_args], stdout=subprocess.DEVNULL)
     try:
-        subprocess.run([py, "-m", "clients.display", "-e", endpoint], check=False)
+        if args.web:
+            web = subprocess.Popen([py, "-m", "clients.web", "-e", endpoint,
+                                    "--port", str(args.port)])
+            url = f"http://127.0.0.1:{args.port}/"
+            print(f"track-demo: the live map is on {url} (Ctrl-C stops the demo)", flush=True)
+            if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") \
+                    or sys.platform in ("darwin", "win32"):  # never a text browser here
+                webbrowser.open(url)
+            try:
+                web.wait()
+            finally:
+                stop(web, timeout=10)
+        else:
+            subprocess.run([py, "-m", "clients.display", "-e", endpoint], check=False)
     except KeyboardInterrupt:
         pass
     finally:
