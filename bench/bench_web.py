@@ -2,7 +2,9 @@
 
     python bench/bench_web.py                          # 1,000 and 10,000 tracks, both sources
     python bench/bench_web.py --sizes 10000 --source frames --seconds 20
-    python bench/bench_web.py --sizes 300 --source service --screenshot docs/figures/track_web.png
+    python bench/bench_web.py --source service --sizes 20 --warmup 60 \
+        --feed "multisensor --radars 3 --realtime" --service "--filter imm" \
+        --screenshot docs/figures/track_web.png
 
 For each N and source this starts `track-web` (a separate process, loopback, free ports),
 opens its page in Debian's chromium driven by Playwright (never a browser download:
@@ -16,8 +18,9 @@ Sources of the `<ns>/frame` key at 30 Hz:
 - `frames`: this process publishes frames in the contract's format (N tracks on straight
   lines, all three statuses) from a Zenoh peer on loopback: the page alone is measured;
 - `service`: `python -m service --clock realtime --filter cv --no-display-keys` fed by
-  `python -m clients.feed swarm --targets N --realtime`: the whole chain, sharing the
-  cores with the service (0.6 of a core at 10,000 targets, docs/performance.md).
+  `python -m clients.feed swarm --targets N --realtime` (or `--feed`): the whole chain,
+  sharing the cores with the service (0.6 of a core at 10,000 targets,
+  docs/performance.md).
 
 The machine's load average is printed with the figures: other processes on the cores
 lower them.
@@ -135,8 +138,8 @@ def measure(page, port: int, n: int, seconds: float, warmup: float) -> dict:
 
 
 def select_a_track(page, endpoint: str, port: int) -> None:
-    """Click the track nearest the middle of the picture (found from a frame received
-    here) after centring the view on it; then follow all tracks again."""
+    """Click the confirmed track nearest the middle of the picture (found from a frame
+    received here) after centring the view on it; then follow all tracks again."""
     session = zenoh.open(peer_config(endpoint))
     got: list[dict] = []
     sub = session.declare_subscriber(Keys().frame, lambda s: got.append(
@@ -148,14 +151,21 @@ def select_a_track(page, endpoint: str, port: int) -> None:
     session.close()
     msg = got[-1]
     pos = np.frombuffer(msg["pos"], "<f8").reshape(-1, 3)
-    i = int(np.argmin(np.hypot(*(pos[:, :2] - pos[:, :2].mean(0)).T)))
-    page.goto(f"http://127.0.0.1:{port}/#{pos[i, 0]:.1f},{pos[i, 1]:.1f},20")
-    page.wait_for_timeout(1500)
+    confirmed = np.frombuffer(msg["status"], np.uint8) == 1 if "status" in msg \
+        else np.ones(len(pos), bool)
+    dist = np.hypot(*(pos[:, :2] - pos[:, :2].mean(0)).T)
+    i = int(np.argmin(np.where(confirmed, dist, np.inf)))
+    # 200 m a pixel: a track moves a few pixels while the page is told where to look
+    page.goto(f"http://127.0.0.1:{port}/#{pos[i, 0]:.1f},{pos[i, 1]:.1f},200")
+    page.wait_for_timeout(500)
     box = page.locator("#map").bounding_box()
     page.mouse.click(box["width"] / 2, box["height"] / 2)
-    page.wait_for_function("document.getElementById('detail-body').textContent"
-                           ".includes('updates') || document.getElementById('detail-body')"
-                           ".textContent.includes('no track')", timeout=10000)
+    try:
+        page.wait_for_function("document.getElementById('detail-body').textContent"
+                               ".includes('updates')", timeout=10000)
+    except Exception:
+        print("bench_web: no details:", texts(page, "detail-id", "detail-body"), file=sys.stderr)
+        raise
     page.keyboard.press("f")
     page.wait_for_timeout(2500)
 
@@ -169,11 +179,11 @@ def run(n: int, source: str, args: argparse.Namespace, playwright) -> dict:
             publisher = FramePublisher(endpoint, n)
         else:
             procs.append(subprocess.Popen([PY, "-m", "service", "--clock", "realtime",
-                                           "--filter", "cv", "--no-display-keys",
+                                           *args.service.split(), "--no-display-keys",
                                            "--instance", "bench-web", "-l", endpoint]))
             procs.append(subprocess.Popen(
-                [PY, "-m", "clients.feed", "swarm", "--targets", str(n), "--realtime",
-                 "--duration", "3600", "-e", endpoint], stdout=subprocess.DEVNULL))
+                [PY, "-m", "clients.feed", *args.feed.format(n=n).split(), "-e", endpoint],
+                stdout=subprocess.DEVNULL))
         procs.append(subprocess.Popen([PY, "-m", "clients.web", "-e", endpoint, "--port",
                                        str(port)], stderr=subprocess.DEVNULL))
         wait_http(f"http://127.0.0.1:{port}/api/health")
@@ -205,6 +215,10 @@ def main() -> None:
     p.add_argument("--warmup", type=float, default=3.0, help="s after the count is reached")
     p.add_argument("--screenshot", help="save a PNG of the page (last run) with a track "
                    "selected")
+    p.add_argument("--feed", default="swarm --targets {n} --realtime --duration 3600",
+                   help="track-feed arguments of the service source ({n}: the size)")
+    p.add_argument("--service", default="--filter cv",
+                   help="more track-service options of the service source")
     args = p.parse_args()
     from playwright.sync_api import sync_playwright
 

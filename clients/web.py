@@ -27,7 +27,7 @@ from typing import Any
 import zenoh
 from aiohttp import WSMsgType, web
 
-from service.wire import CHUNK, Keys, add_zenoh_args, open_session
+from service.wire import CHUNK, Keys, add_zenoh_args, fail, open_session
 
 from .web_frames import FrameHub
 from .web_link import Link
@@ -225,7 +225,8 @@ def main(argv: list[str] | None = None) -> None:
     try:
         asyncio.run(serve(args))
     except OSError as exc:
-        sys.exit(f"track-web: cannot serve on {args.host}:{args.port}: {exc}")
+        fail(f"cannot serve on {args.host}:{args.port}: {exc.strerror or exc} (another "
+             "program on that port? choose another with --port)", "track-web")
 
 
 if __name__ == "__main__":

@@ -46,11 +46,21 @@ class Link:
         self.services: list[dict[str, Any]] = []
         self.last_rejected: dict[str, tuple[float, int]] = {}  # instance: (wall, count)
         self.stopping = threading.Event()
+        self.frames = 0  # frames received by the subscription
         meas_prefix = f"{keys.ns}/meas/"
         plots_prefix = f"{keys.ns}/plots/"
 
         def frame(sample: zenoh.Sample) -> None:
+            self.frames += 1
             on_frame(sample.payload.to_bytes())
+
+        def catch_up() -> None:
+            """The latest instant at once (a paused lockstep picture may have no next
+            one for long): the service answers get <ns>/frame; a frame that came by the
+            subscription meanwhile is newer."""
+            for reply in session.get(keys.frame, target=zenoh.QueryTarget.ALL, timeout=5):
+                if reply.ok is not None and not self.frames:
+                    on_frame(reply.ok.payload.to_bytes())
 
         def measurement(sample: zenoh.Sample) -> None:
             key = str(sample.key_expr)
@@ -68,6 +78,7 @@ class Link:
         self.poller = threading.Thread(target=self._poll, name="track-web-status",
                                        daemon=True)
         self.poller.start()
+        threading.Thread(target=catch_up, name="track-web-catch-up", daemon=True).start()
 
     def close(self) -> None:
         self.stopping.set()

@@ -23,7 +23,8 @@ RULES: dict[str, tuple[set[str], set[str]]] = {
                                        "service.defaults"}),
     "service.tracking": ({"numpy", "scipy"}, {"service.tracking", "service.estimation",
                                               "service.wire", "service.defaults"}),
-    "clients": ({"numpy", "scipy", "zenoh", "msgpack", "matplotlib", "mcap", "rich", "tqdm"},
+    "clients": ({"numpy", "scipy", "zenoh", "msgpack", "matplotlib", "mcap", "rich", "tqdm",
+                 "aiohttp"},
                 {"service.wire", "clients"}),
 }
 

@@ -276,6 +276,14 @@ def test_page_draws_the_services_tracks_and_shows_a_clicked_track(service_factor
         assert np.allclose(enu_of(lat, lon, alt, origin), pos[i], atol=0.5)
         page.screenshot(path=str(tmp_path / "track-web-selected.png"))
         print(f"\ntrack-web screenshots: {tmp_path}")
+
+        # a track-web started now, with the picture paused, has it at once (get frame)
+        late = WebProc(svc.endpoint)
+        try:
+            page.goto(late.url + "/")
+            assert poll(lambda: page_text(page, "track-count") == str(tracks))
+        finally:
+            late.stop()
     finally:
         sub.undeclare()
         err = web.stop()

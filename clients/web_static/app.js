@@ -113,6 +113,7 @@ function fitToData() {
   const take = (x, y) => { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); };
   if (f) for (let i = 0; i < f.n; i++) take(f.pos[3 * i], f.pos[3 * i + 1]);
   for (const s of state.overlay.sensors) take(s.pos[0], s.pos[1]);
+  for (const ic of f ? f.interceptors : []) take(ic.pos[0], ic.pos[1]);
   if (x0 <= x1) view.fit(x0 - 500, y0 - 500, x1 + 500, y1 + 500);
 }
 
