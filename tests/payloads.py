@@ -51,6 +51,7 @@ class Sent:
     ok: int = 0  # measurements or detections applied
     codes: list[str | None] = field(default_factory=list)  # one per rejection
     target: str | None = None  # labelled and applied: tracks/<target> must follow
+    targets: list[str] = field(default_factory=list)  # the same, for a batched scan
 
     @property
     def bad(self) -> int:
@@ -307,6 +308,40 @@ def scan(draw: Any, t: float) -> list[Sent]:
     else:
         del msg["dets"]
     return [Sent(key, pack(msg), codes=[code])]
+
+
+# ---------------------------------------------------------------- batched labelled scans
+@st.composite
+def batched(draw: Any, t: float) -> list[Sent]:
+    """One `scan/` message of fresh targets from a fresh sensor: polar rows, some bad
+    (each refused alone, `row <i> (<id>): ...`), or a scan broken as a whole."""
+    sensor = fresh("fzs")
+    key = f"track/scan/{sensor}"
+    n = draw(st.integers(0, 10))
+    ids = [fresh("fzr-") for _ in range(n)]
+    r = draw(st.lists(finite(0.0, 1e5), min_size=n, max_size=n))
+    az = draw(st.lists(finite(-3.0, 3.0), min_size=n, max_size=n))
+    bad = sorted(draw(st.lists(st.integers(0, n - 1), max_size=3, unique=True))) if n else []
+    codes: list[str | None] = []
+    for i in bad:
+        how = draw(st.sampled_from(["r", "az_nan", "az_range"]))
+        r[i], az[i] = ((-draw(finite(1e-6, 1e6)), az[i]) if how == "r" else
+                       (r[i], math.nan) if how == "az_nan" else (r[i], 7.0))
+        codes.append("not_finite" if how == "az_nan" else "out_of_range")
+    msg: dict[str, Any] = {"t": t + draw(finite(0.0, 0.49)), "ids": ids, "r": f64_bin(r),
+                           "az": f64_bin(az)}
+    if n and draw(st.integers(0, 4)) == 0:  # broken as a whole
+        how = draw(st.sampled_from(["ids", "unequal", "time"]))
+        if how == "ids":
+            msg["ids"] = draw(st.one_of(st.none(), st.text(max_size=3)))
+        elif how == "unequal":
+            msg["az"] = f64_bin([*az, 0.0])
+        else:
+            msg["t"] = 1e300
+        code = {"ids": "missing_field", "unequal": "bad_type", "time": "time_out_of_range"}
+        return [Sent(key, pack(msg), codes=[code[how]])]
+    return [Sent(key, pack(msg), ok=n - len(bad), codes=codes,
+                 targets=[x for i, x in enumerate(ids) if i not in bad])]
 
 
 # ---------------------------------------------------------------- clock

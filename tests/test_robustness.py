@@ -2,8 +2,9 @@
 real Zenoh on loopback, lockstep clock), beside a good feed (docs/robustness.md).
 
 Each example is one second of simulation time: the good feed's four measurements, up to
-eight generated messages (tests/payloads.py: labelled measurements, scans, clock
-messages, each valid or broken in one way), a clock message, a `status` query. Checked
+eight generated messages (tests/payloads.py: labelled measurements, unlabelled scans,
+batched labelled scans, clock messages, each valid or broken in one way), a clock
+message, a `status` query. Checked
 after every example: `meas_accepted` grew by exactly the measurements and detections the
 contract says are valid, `meas_rejected` by exactly the others, `rejected_by_reason`
 sums to `meas_rejected` with no code `other`, every rejection came on `errors/` with the
@@ -31,7 +32,7 @@ import zenoh
 from conftest import client_session
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-from payloads import KEYS, Sent, clock, labelled, scan
+from payloads import KEYS, Sent, batched, clock, labelled, scan
 
 from clients.procs import stop
 from service.__main__ import parser, tracker_config
@@ -122,9 +123,11 @@ class Run:
         t = self.t
         sents: list[Sent] = []
         for j in range(data.draw(st.integers(1, 8), label="messages")):
-            kind = data.draw(st.sampled_from(["labelled"] * 5 + ["scan"] * 2 + ["clock"]))
+            kind = data.draw(st.sampled_from(["labelled"] * 5 + ["scan"] * 2 + ["batched",
+                                                                                "clock"]))
             sents += data.draw(labelled(t) if kind == "labelled" else
-                               scan(t + 0.5 + 0.01 * j) if kind == "scan" else clock(t))
+                               scan(t + 0.5 + 0.01 * j) if kind == "scan" else
+                               batched(t) if kind == "batched" else clock(t))
         before = self.status()
         good = []
         for tid, (p0, v) in GOOD.items():
@@ -147,7 +150,8 @@ class Run:
         reasons = after["rejected_by_reason"]
         assert "other" not in reasons and sum(reasons.values()) == after["meas_rejected"]
         keys = {s.key for s in sents}
-        targets = {s.target for s in sents if s.target}
+        targets = {s.target for s in sents if s.target} | {x for s in sents
+                                                            for x in s.targets}
         got = self.listen
         assert got.wait(lambda: all(len(got.errors[k]) >= len(self.expected[k])
                                     for k in keys) and targets <= got.tracked), \
