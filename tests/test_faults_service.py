@@ -89,8 +89,9 @@ def test_absurd_far_duplicate_and_late_times_lockstep(service_factory):
     assert st["frames_published"] == 9 * 30 and st["frames_skipped"] == 0
     assert st["timeline_jumps"] == 0 and st["rejected_by_reason"] == {
         "time_out_of_range": 1, "time_far": 1, "duplicate": 1, "out_of_sequence": 1}
-    last = [b for tid, kind, b in w.tracks if kind == "PUT"][-1]
-    assert last["updates"] == 10 and abs(last["vel"][0] - 10.0) < 0.5
+    assert w.wait(lambda: [b for _, kind, b in w.tracks if kind == "PUT"][-1]["updates"] == 10)
+    last = [b for _, kind, b in w.tracks if kind == "PUT"][-1]
+    assert abs(last["vel"][0] - 10.0) < 0.5
 
 
 def test_jumps_of_hours_lockstep(service_factory):
@@ -120,8 +121,11 @@ def test_jumps_of_hours_lockstep(service_factory):
     assert w.wait(lambda: ("b", "DELETE", None) in w.tracks)
     assert st["tracks"] == 1  # "c"
     assert w.wait(lambda: any(100.0 <= t < 112.0 for t, _ in w.frames))
-    states = [b for tid, kind, b in w.tracks if tid == "c" and kind == "PUT"]
-    assert states[-1]["updates"] == 3 and np.isfinite(states[-1]["P"]).all()
+    def c_states() -> list[dict]:
+        return [b for tid, kind, b in w.tracks if tid == "c" and kind == "PUT"]
+
+    assert w.wait(lambda: len(c_states()) == 3)  # the tenth and the two after it
+    assert c_states()[-1]["updates"] == 3 and np.isfinite(c_states()[-1]["P"]).all()
 
 
 def test_a_feed_ahead_cannot_stall_lockstep(service_factory):
@@ -211,6 +215,7 @@ def test_realtime_frames_survive_time_faults(service_factory):
     assert len(walls) > 10 * (walls[-1] - walls[0]), len(walls)
     late = frames[walls > walls[-1] - 1.0, 0]
     assert (abs(late - (base + time.time() - w0)) < 5.0).all()  # back on the base timeline
-    ids = {tid for tid, kind, _ in w.tracks if kind == "DELETE"}
-    assert {"p0", "h0"} <= ids  # each abandoned timeline's tracks deleted
+    # each abandoned timeline's tracks deleted
+    assert w.wait(lambda: {"p0", "h0"} <= {tid for tid, kind, _ in w.tracks
+                                           if kind == "DELETE"})
     assert st["tracks"] == 3
