@@ -541,20 +541,3 @@ def test_long_range_agrees_to_the_rounding_of_the_textbook_covariance(dim):
     assert_close(pn, pr, "P")
     assert_close(nis, nisr, "NIS")
 
-
-def test_imm_mixing_matches_reference():
-    from service.estimation import imm
-
-    rng = np.random.default_rng(7)
-    n_rows, m, n = 40, 4, 9
-    base = rng.uniform(-8e4, 8e4, (n_rows, 1, n))  # far from the origin, modes close
-    x = base + rng.normal(0, 50, (n_rows, m, n))
-    a = rng.normal(0, 1, (n_rows, m, n, n))
-    p = a @ np.swapaxes(a, -1, -2) * 100 + np.eye(n) * 1e-3
-    w = rng.uniform(0.01, 1, (n_rows, m, m))
-    w /= w.sum(1, keepdims=True)  # the weights of each j sum to 1
-    x0, p0 = imm.mix(x, p, w)
-    rx, rp = reference.imm_mix(x, p, w)
-    np.testing.assert_allclose(x0, rx, rtol=1e-12)
-    assert np.abs(p0 - rp).max() <= 1e-9 * np.abs(rp).max()
-    assert rel_error(np.diagonal(p0, 0, -2, -1), np.diagonal(rp, 0, -2, -1)).max() < 1e-9

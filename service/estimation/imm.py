@@ -61,24 +61,6 @@ def standard_modes(q: float = defaults.Q_CV, ct_q: float = 3.0, turn_deg: float 
             ("ct+", "ct", ct_q * q, w), ("ct-", "ct", ct_q * q, -w))
 
 
-def mix(x: np.ndarray, p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The IMM's mixing step: x0_j = sum_i w_ij x_i and
-    P0_j = sum_i w_ij (P_i + (x_i - x0_j)(x_i - x0_j)') for x (N, M, n), P (N, M, n, n),
-    w (N, M, M) (Bar-Shalom, Li & Kirubarajan 2001, sec. 11.6.6, step 1).
-
-    Evaluated as sum_i w_ij (P_i + y_i y_i') - y0_j y0_j' on the states relative to mode
-    0 (y_i = x_i - x_0, y0_j = x0_j - x_0; the weights of each j sum to 1): no
-    (N, M, M, n, n) temporary (100 MB at 10,000 rows of the 4-mode order-3 IMM, 1.1 s of
-    an update), and the differences are small, so the subtraction keeps its digits
-    (`reference.imm_mix` is the textbook form; tests/test_reference.py)."""
-    ref = x[:, :1]
-    y = x - ref
-    y0 = np.einsum("nij,nix->njx", w, y)
-    second = p + y[..., :, None] * y[..., None, :]
-    p0 = np.einsum("nij,nixy->njxy", w, second) - y0[..., :, None] * y0[..., None, :]
-    return y0 + ref, p0
-
-
 @dataclass(frozen=True)
 class IMM:
     """Interacting multiple model filter (Blom & Bar-Shalom 1988; Bar-Shalom, Li &

@@ -171,16 +171,3 @@ def ldl_inverse(s: np.ndarray, floor: float = 0.0) -> tuple[np.ndarray, np.ndarr
     s = s + floor * np.eye(s.shape[-1])
     return np.linalg.inv(s), np.linalg.det(s)
 
-
-def imm_mix(x: np.ndarray, p: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The IMM's mixing step as the textbook writes it, row by row and mode by mode:
-    x0_j = sum_i w_ij x_i, P0_j = sum_i w_ij (P_i + (x_i - x0_j)(x_i - x0_j)')."""
-    n_rows, m, n = x.shape
-    x0, p0 = np.zeros((n_rows, m, n)), np.zeros((n_rows, m, n, n))
-    for r in range(n_rows):
-        for j in range(m):
-            x0[r, j] = sum(w[r, i, j] * x[r, i] for i in range(m))
-            for i in range(m):
-                d = x[r, i] - x0[r, j]
-                p0[r, j] += w[r, i, j] * (p[r, i] + np.outer(d, d))
-    return x0, p0
