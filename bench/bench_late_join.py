@@ -2,9 +2,11 @@
 
 A service holds N tracks (a swarm feed); then, several times, a new client session joins
 and times how long until it has every track: by subscription alone (`display/**`, or
-`frame`), or by subscription plus the query of the latest instant (`get display/**`,
-`get frame`; docs/operations.md). Realtime: frames go on at 30 Hz; lockstep: the feed
-has finished and the picture is paused, so a subscription alone gets nothing.
+`frame`), by subscription plus the query of the latest instant (`get display/**`,
+`get frame`; docs/operations.md), or by the query alone (without the subscription's
+stream competing for this process's Python thread). Realtime: frames go on at 30 Hz;
+lockstep: the feed has finished and the picture is paused, so a subscription alone gets
+nothing.
 
     python bench/bench_late_join.py --targets 1000 --joins 5
 """
@@ -24,6 +26,8 @@ import zenoh
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from clients.procs import stop  # noqa: E402
 from service.wire import Keys, decode_frame, free_port, peer_config, unpack  # noqa: E402
+
+HOWS = ("display", "display+get", "get display", "frame", "frame+get", "get frame")
 
 
 def wait_tracks(session: zenoh.Session, keys: Keys, n: int, timeout: float = 120) -> None:
@@ -59,7 +63,13 @@ def join(endpoint: str, keys: Keys, n: int, how: str, limit: float) -> float | N
             add({r["id"] for r in rows})
 
     try:
-        if how.startswith("display"):
+        if how.startswith("get "):  # the query alone, no subscription
+            key = keys.space("display") if how == "get display" else keys.frame
+            on = on_display if how == "get display" else on_frame
+            for r in s.get(key, timeout=10):
+                if r.ok is not None:
+                    on(r.ok)
+        elif how.startswith("display"):
             s.declare_subscriber(keys.space("display"), on_display)
             if how.endswith("+get"):
                 for r in s.get(keys.space("display"), timeout=10):
@@ -97,7 +107,7 @@ def run(clock: str, targets: int, joins: int) -> dict[str, list[float | None]]:
             feed.wait(timeout=300)
         wait_tracks(s, keys, targets)
         out: dict[str, list[float | None]] = {}
-        for how in ("display", "display+get", "frame", "frame+get"):
+        for how in HOWS:
             out[how] = [join(endpoint, keys, targets, how, 3.0) for _ in range(joins)]
         return out
     finally:
@@ -115,11 +125,12 @@ def main() -> None:
     args = p.parse_args()
     print(f"time to the first complete picture of {args.targets} tracks, median of "
           f"{args.joins} joins (ms; '-' = not within 3 s)")
-    print(f"{'clock':<10}{'display/**':>12}{'+ get':>10}{'frame':>10}{'+ get':>10}")
+    print(f"{'clock':<10}{'display/**':>12}{'+ get':>10}{'get only':>10}{'frame':>10}"
+          f"{'+ get':>10}{'get only':>10}")
     for clock in ("realtime", "lockstep"):
         res = run(clock, args.targets, args.joins)
         cells = []
-        for how in ("display", "display+get", "frame", "frame+get"):
+        for how in HOWS:
             got = [v for v in res[how] if v is not None]
             cells.append(f"{statistics.median(got) * 1e3:.0f}" if len(got) == len(res[how])
                          else f"- ({len(got)}/{len(res[how])})")
