@@ -69,12 +69,15 @@ def test_restart_brings_every_track_back_before_any_measurement(tmp_path):
         time.sleep(1.0)  # the gap to predict
         spawn = time.monotonic()
         svc = service(endpoint, keys, state)
+        assert wait_for_tracker(session, keys, 1, timeout=30)
+        alive = time.monotonic() - spawn
         assert frames.wait_for(lambda _: frames_with(frames, names, spawn), 30), \
             "the picture did not come back"
         back = frames_with(frames, names, spawn)[0][0] - spawn
         print(f"\nrestart: all {TARGETS} tracks back in the frames {back:.3f} s after the "
-              f"new process was started (imports and session included), no measurement; "
-              f"service down {spawn - down:.1f} s")
+              f"new process was started (its liveliness token after {alive:.3f} s: "
+              f"interpreter, imports, session), no measurement; service down "
+              f"{spawn - down:.1f} s")
         after = {b["id"]: b for b in get_all(session, keys.space("tracks"))}
         assert after == before  # filtered states exactly as saved, each at its own t
         shown = [b for t, _, k, b in display.snapshot() if k == "PUT" and t >= spawn]
