@@ -26,14 +26,26 @@ function pixel(hex) {
 
 /** Pixels of one frame: lines, squares and circles written into an ImageData. */
 export class Raster {
-  constructor() { this.w = 0; this.h = 0; this.image = null; this.px = null; this.t0 = 0; this.t1 = 1; }
-  begin(ctx, w, h, color) {
+  constructor() {
+    this.w = 0; this.h = 0; this.image = null; this.px = null; this.t0 = 0; this.t1 = 1;
+    this.base = null; this.baseKey = '';
+  }
+  /** Start a picture on the base layer (background, grid, trail history) kept for `key`;
+   *  `drawBase` makes it again when the key changed. Returns whether it did. */
+  begin(ctx, w, h, key, drawBase) {
     if (w !== this.w || h !== this.h) {
       this.w = w; this.h = h;
       this.image = ctx.createImageData(w, h);
       this.px = new Uint32Array(this.image.data.buffer);
+      this.base = new Uint32Array(w * h); this.baseKey = '';
     }
-    this.px.fill(color);
+    if (key !== this.baseKey) {
+      drawBase();
+      this.base.set(this.px); this.baseKey = key;
+      return true;
+    }
+    this.px.set(this.base);
+    return false;
   }
   end(ctx) { ctx.putImageData(this.image, 0, 0); }
   hline(y, c) { if (y >= 0 && y < this.h) this.px.fill(c, y * this.w, (y + 1) * this.w); }
@@ -133,6 +145,7 @@ export class Trails {
     this.head = new Uint16Array(0);
     this.slotOf = new Map(); this.free = []; this.rowSlot = new Int32Array(0);
     this.lastIndex = -Infinity; this.lastT = -Infinity;
+    this.version = 0; // changes whenever the history to draw changes
   }
   grow(cap) {
     const xy = new Float32Array(cap * this.points * 2), count = new Uint16Array(cap);
@@ -152,15 +165,15 @@ export class Trails {
       kept.set(ids[i], s); rowSlot[i] = s;
     }
     for (const s of this.slotOf.values()) this.free.push(s);
-    this.slotOf = kept; this.rowSlot = rowSlot;
+    this.slotOf = kept; this.rowSlot = rowSlot; this.version++;
   }
-  clear() { this.count.fill(0); this.lastIndex = -Infinity; }
+  clear() { this.count.fill(0); this.lastIndex = -Infinity; this.version++; }
   sample(frame) {
     if (frame.t < this.lastT) this.clear(); // the clock went back: a new run
     this.lastT = frame.t;
     const index = Math.floor(frame.t / this.step);
     if (index === this.lastIndex) return;
-    this.lastIndex = index;
+    this.lastIndex = index; this.version++;
     const { pos, n } = frame, K = this.points;
     for (let i = 0; i < n; i++) {
       const s = this.rowSlot[i], at = (s * K + this.head[s]) * 2;
@@ -178,14 +191,22 @@ function deviceMap(view) {
 }
 
 export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
-  const k = view.dpr;
-  raster.begin(ctx, Math.round(view.width * k), Math.round(view.height * k), pixel(BACKGROUND));
-  const step = niceBelow(view.mpp * 160);
-  drawGrid(raster, view, step);
+  const k = view.dpr, step = niceBelow(view.mpp * 160);
   const visible = frame ? markVisible(view, frame) : null;
+  const m = deviceMap(view);
+  // the background, grid and trail history change only every trail sample or view change:
+  // kept as a base layer, copied under each frame (10,000 trails of 16 points each are
+  // 150,000 line segments, the largest part of a draw)
+  const history = options.trails && frame;
+  const key = `${view.width},${view.height},${k},${view.cx},${view.cy},${view.mpp},` +
+    `${history ? trails.version : -1}`;
+  raster.begin(ctx, Math.round(view.width * k), Math.round(view.height * k), key, () => {
+    raster.px.fill(pixel(BACKGROUND));
+    drawGrid(raster, view, step);
+    if (history) drawTrails(raster, m, frame, trails, visible);
+  });
   if (frame) {
-    const m = deviceMap(view);
-    if (options.trails) drawTrails(raster, m, frame, trails, visible);
+    if (options.trails) drawTrailHeads(raster, m, frame, trails, visible);
     drawSigma(raster, m, frame, visible);
     drawVectors(raster, m, frame, visible);
     drawDots(raster, m, Math.round(DOT * k), frame, visible);
@@ -243,8 +264,9 @@ function drawGridText(ctx, view, step) {
   ctx.textAlign = 'left';
 }
 
+/** The sampled history of every track (the base layer). */
 function drawTrails(raster, m, frame, trails, rows) {
-  const { xy, count, head, points: K } = trails, pos = frame.pos, c = pixel(TRAIL);
+  const { xy, count, head, points: K } = trails, c = pixel(TRAIL);
   const { a, bx, by } = m;
   for (let r = 0; r < rows.length; r++) {
     const i = rows[r], s = trails.rowSlot[i], n = count[s];
@@ -257,7 +279,19 @@ function drawTrails(raster, m, frame, trails, rows) {
       raster.line(x, y, nx, ny, c);
       x = nx; y = ny;
     }
-    raster.line(x, y, pos[3 * i] * a + bx, by - pos[3 * i + 1] * a, c);
+  }
+}
+
+/** From each track's newest sample to where it is now (every frame). */
+function drawTrailHeads(raster, m, frame, trails, rows) {
+  const { xy, count, head, points: K } = trails, pos = frame.pos, c = pixel(TRAIL);
+  const { a, bx, by } = m;
+  for (let r = 0; r < rows.length; r++) {
+    const i = rows[r], s = trails.rowSlot[i];
+    if (!count[s]) continue;
+    const at = (s * K + (head[s] + K - 1) % K) * 2;
+    raster.line(xy[at] * a + bx, by - xy[at + 1] * a, pos[3 * i] * a + bx,
+                by - pos[3 * i + 1] * a, c);
   }
 }
 
