@@ -45,15 +45,17 @@ def log(msg: str) -> None:
 
 
 class Service:
-    def __init__(self, ns: str) -> None:
+    def __init__(self, ns: str, logdir: str) -> None:
         self.ns, self.endpoint = ns, f"tcp/127.0.0.1:{free_port()}"
-        self.proc = subprocess.Popen([PY, "-m", "service", "--clock", "lockstep",
-                                      "--no-display-keys", "-l", self.endpoint, "--ns", ns],
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                     text=True)
+        self.log = os.path.join(logdir, f"service-{ns}.log")
+        with open(self.log, "w") as log_file:  # a pipe nobody reads would fill and block it
+            self.proc = subprocess.Popen([PY, "-m", "service", "--clock", "lockstep",
+                                          "--no-display-keys", "-l", self.endpoint, "--ns",
+                                          ns], stdout=log_file, stderr=subprocess.STDOUT)
         self.session = zenoh.open(peer_config(self.endpoint))
         if not wait_for_tracker(self.session, Keys(ns), 1, timeout=60):
-            sys.exit(f"service {ns} did not start: {stop(self.proc)[-2000:]}")
+            stop(self.proc)
+            sys.exit(f"service {ns} did not start: see {self.log}")
 
     def status(self) -> dict:
         for reply in self.session.get(f"{self.ns}/status", timeout=30):
@@ -95,7 +97,7 @@ def feed(svc: Service, args: argparse.Namespace) -> tuple[int, float]:
                           "--ns", svc.ns],
                          capture_output=True, text=True, timeout=7200)
     if out.returncode != 0:
-        sys.exit(f"feed failed: {out.stderr}")
+        sys.exit(f"feed failed: {out.stderr} (service log: {svc.log})")
     return int(out.stdout.split(": ")[2].split()[0]), time.monotonic() - start
 
 
@@ -128,7 +130,7 @@ def main(argv: list[str] | None = None) -> None:
     log(f"swarm of {args.targets} targets over {args.duration:g} s simulated, lockstep; "
         f"files in {tmp}")
 
-    svc = Service("track")
+    svc = Service("track", tmp)
     try:
         rec = recorder(svc, first, "track/meas/**", "track/clock", "track/tracks/**")
         sent, t_feed = feed(svc, args)
@@ -157,7 +159,7 @@ def main(argv: list[str] | None = None) -> None:
     log(f"   file {size:,.1f} MB, {sum(kinds.values()):,} samples, read back in {t_read:.1f} s "
         f"({sum(kinds.values()) / t_read:,.0f} samples/s)")
 
-    svc2 = Service("replay")
+    svc2 = Service("replay", tmp)
     try:
         rec2 = recorder(svc2, second, "replay/tracks/**")
         t0 = time.monotonic()
@@ -183,7 +185,7 @@ def main(argv: list[str] | None = None) -> None:
         failures.append("replayed tracks/ differ")
 
     if not args.no_baseline:
-        svc3 = Service("base")
+        svc3 = Service("base", tmp)
         try:
             _, t_base = feed(svc3, args)
         finally:

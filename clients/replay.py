@@ -10,7 +10,7 @@ service behaves as `track-feed` does: it waits for the service's liveliness toke
 publishes with congestion control BLOCK (a busy service holds the replay back; nothing
 is dropped), and waits at the end until the service has confirmed receipt. A whole
 session (`tracks/`, `display/`, `frame` too) can be replayed for displays, with no
-service running.
+service running. `--plot OUT.png` draws the recording instead (clients/recording_plot.py).
 """
 
 from __future__ import annotations
@@ -47,6 +47,9 @@ def parser() -> argparse.ArgumentParser:
                       help="replay X times as fast as recorded (default 1)")
     pace.add_argument("--fast", action="store_true",
                       help="as fast as the receivers take the samples")
+    p.add_argument("--plot", metavar="OUT.png",
+                   help="draw the recording (tracks seen from above, samples per second by "
+                        "key; --only and --feed apply) to this PNG instead of replaying it")
     p.add_argument("--trackers", type=int, default=None, metavar="N",
                    help="wait for N trackers of the target namespace before replaying and "
                         "for their receipt at the end (default: 1 when the replay holds "
@@ -154,6 +157,12 @@ def main(argv: list[str] | None = None) -> None:
         channels = select(rec, args.only, args.feed)
         if not channels:
             raise SystemExit("track-replay: nothing to replay (no recorded key matches)")
+        if args.plot:
+            from .recording_plot import plot
+
+            plot(args.file, args.plot, set(channels))
+            print(f"track-replay: {args.plot} drawn from {args.file}", flush=True)
+            return
         ns = rec.namespace
         trackers = args.trackers if args.trackers is not None else int(
             holds_inputs(channels, ns))

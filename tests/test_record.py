@@ -256,3 +256,31 @@ def test_replay_refuses_a_file_that_is_not_a_recording(tmp_path):
                          capture_output=True, text=True, timeout=60)
     assert out.returncode != 0 and "cannot read" in out.stderr
 
+
+
+def test_plot_draws_the_confirmed_tracks_and_the_rates(tmp_path):
+    """--plot: paths from the frames, never-confirmed tracks counted and left out."""
+    from clients.recording_plot import paths, rates
+
+    path = tmp_path / "r.mcap"
+    with open(path, "wb") as out:
+        w = RecordingWriter(out, "track", ["track/**"], scene_hz=0)
+        for k in range(40):
+            body = unpack(frame(k / 30, ["a", "clutter"], [k, 0, 0, 5, 5, 0], [1, 0, 0] * 2,
+                                [1.0, 1.0]))
+            body["status"] = bytes([1 if k >= 20 else 0, 0])  # "a" confirmed from k = 20
+            w.write("track/frame", "put", MP, pack(body), 10**9 * k, None)
+            w.write("track/meas/r/a", "put", MP, pack({"t": k / 30}), 10**9 * k + 1, None)
+        w.finish(80)
+    with open(path, "rb") as f:
+        rec = Recording(f)
+        trails, tentative = paths(rec, set(rec.channels))
+        _, per_kind = rates(rec, set(rec.channels))
+    assert set(trails) == {"a", "clutter"} and len(trails["a"]) == 4  # every 10th frame
+    assert tentative == {"clutter"}
+    assert per_kind["meas"].sum() == 40 and per_kind["frame"].sum() == 40
+    png = tmp_path / "r.png"
+    out = subprocess.run([sys.executable, "-m", "clients.replay", str(path), "--plot",
+                          str(png)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
