@@ -70,7 +70,7 @@ class Service:
 
 def recorder(svc: Service, path: str, *keyexprs: str) -> subprocess.Popen:
     proc = subprocess.Popen([PY, "-m", "clients.record", "-o", path, "--mode", "client",
-                             "-e", svc.endpoint, "--ns", svc.ns, "--idle", "5", "--quiet",
+                             "-e", svc.endpoint, "--ns", svc.ns, "--idle", "20", "--quiet",
                              *keyexprs], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     line = proc.stderr.readline()
@@ -94,7 +94,7 @@ def feed(svc: Service, args: argparse.Namespace) -> tuple[int, float]:
     start = time.monotonic()
     out = subprocess.run([PY, "-m", "clients.feed", "swarm", "--targets", str(args.targets),
                           "--duration", str(args.duration), "-e", svc.endpoint,
-                          "--ns", svc.ns],
+                          "--ns", svc.ns, "--receipt-timeout", "7200"],
                          capture_output=True, text=True, timeout=7200)
     if out.returncode != 0:
         sys.exit(f"feed failed: {out.stderr} (service log: {svc.log})")
@@ -164,7 +164,8 @@ def main(argv: list[str] | None = None) -> None:
         rec2 = recorder(svc2, second, "replay/tracks/**")
         t0 = time.monotonic()
         out = subprocess.run([PY, "-m", "clients.replay", first, "--feed", "--remap",
-                              "track=replay", "--fast", "-e", svc2.endpoint],
+                              "track=replay", "--fast", "-e", svc2.endpoint,
+                              "--receipt-timeout", "7200"],
                              stdout=subprocess.PIPE, text=True, timeout=7200)
         t_replay = time.monotonic() - t0
         if out.returncode != 0:

@@ -63,6 +63,9 @@ def parser() -> argparse.ArgumentParser:
                         "per measurement")
     p.add_argument("--trackers", type=int, default=1,
                    help="wait for this many tracker liveliness tokens (0: do not wait)")
+    p.add_argument("--receipt-timeout", type=float, default=BLOCK_WAIT_US / 1e6,
+                   metavar="S", help="how long to wait at the end for the trackers to confirm "
+                   "receipt (a status answer, behind everything queued; default %(default)g)")
     feed_plots.add_args(p)
     add_zenoh_args(p)
     return p
@@ -204,7 +207,8 @@ def main(argv: list[str] | None = None) -> None:
             return
         print(f"track-feed: {args.scenario}: {n} measurements in "
               f"{time.monotonic() - start:.2f} s", flush=True)
-        if args.trackers and not delivered(session, Keys(args.ns), args.trackers):
+        if args.trackers and not delivered(session, Keys(args.ns), args.trackers,
+                                           args.receipt_timeout):
             sys.exit(f"track-feed: fewer than {args.trackers} tracker(s) confirmed receipt")
     finally:
         session.close()

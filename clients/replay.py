@@ -21,7 +21,7 @@ import time
 
 import zenoh
 
-from service.wire import Keys, add_zenoh_args, open_session, wait_for_tracker
+from service.wire import BLOCK_WAIT_US, Keys, add_zenoh_args, open_session, wait_for_tracker
 
 from .feed import delivered
 from .progress import add_quiet_arg, bar
@@ -54,6 +54,9 @@ def parser() -> argparse.ArgumentParser:
                    help="wait for N trackers of the target namespace before replaying and "
                         "for their receipt at the end (default: 1 when the replay holds "
                         "service inputs, else 0)")
+    p.add_argument("--receipt-timeout", type=float, default=BLOCK_WAIT_US / 1e6, metavar="S",
+                   help="how long to wait at the end for the trackers to confirm receipt "
+                        "(default %(default)g)")
     add_quiet_arg(p)
     add_zenoh_args(p, ns=False)
     return p
@@ -179,7 +182,7 @@ def main(argv: list[str] | None = None) -> None:
                 return
             print(f"track-replay: {n} samples on {len(channels)} channels in "
                   f"{time.monotonic() - start:.2f} s", flush=True)
-            if trackers and not delivered(session, target, trackers):
+            if trackers and not delivered(session, target, trackers, args.receipt_timeout):
                 sys.exit(f"track-replay: fewer than {trackers} tracker(s) confirmed receipt")
 
 
