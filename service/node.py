@@ -282,18 +282,26 @@ class TrackService:
             self.last_seq[m.sensor] = m.seq if last is None else max(last, m.seq)
         return m
 
+    def _parsed(self, key: str, kind: str, what: str, parse: Any, payload: bytes
+                ) -> tuple[str, Any]:
+        """The sensor of a `<ns>/<kind>/<sensor>` key and its payload parsed by `parse`,
+        or the sensor and None once a rejection is reported."""
+        chunks = self.keys.chunks_after(key, kind)
+        sensor = chunks[0] if chunks and chunks[0] else "unknown"
+        try:
+            if len(chunks) != 1:
+                raise Rejected(f"{what} key must be <ns>/{kind}/<sensor>")
+            return sensor, parse(chunks[0], payload, self.noise)
+        except Rejected as exc:
+            self.out.reject(key, sensor, str(exc))
+            return sensor, None
+
     def _take_labelled(self, key: str, payload: bytes, wall: float,
                        pending: list[Measurement]) -> None:
         """A batched labelled scan (`scan/<sensor>`): its good rows join the pending
         measurements exactly as single messages would; each bad row is reported alone."""
-        chunks = self.keys.chunks_after(key, "scan")
-        sensor = chunks[0] if chunks and chunks[0] else "unknown"
-        try:
-            if len(chunks) != 1:
-                raise Rejected("batched scan key must be <ns>/scan/<sensor>")
-            scan = parse_scan(chunks[0], payload, self.noise)
-        except Rejected as exc:
-            self.out.reject(key, sensor, str(exc))
+        sensor, scan = self._parsed(key, "scan", "batched scan", parse_scan, payload)
+        if scan is None:
             return
         for _, reason in scan.rejected:
             self.out.reject(key, sensor, reason)
@@ -321,14 +329,8 @@ class TrackService:
     def _take_scan(self, key: str, payload: bytes, wall: float) -> None:
         """Check an unlabelled scan, report its bad detections, and let it wait in the
         reorder buffer; apply the scans it releases."""
-        chunks = self.keys.chunks_after(key, "plots")
-        sensor = chunks[0] if chunks and chunks[0] else "unknown"
-        try:
-            if len(chunks) != 1:
-                raise Rejected("scan key must be <ns>/plots/<sensor>")
-            scan = parse_plots(chunks[0], payload, self.noise)
-        except Rejected as exc:
-            self.out.reject(key, sensor, str(exc))
+        sensor, scan = self._parsed(key, "plots", "scan", parse_plots, payload)
+        if scan is None:
             return
         if not self._admit(scan.t, wall, key, sensor, []):
             return  # far from the picture's time (before `late`: the worse fault)
