@@ -102,15 +102,16 @@ def feed(svc: Service, args: argparse.Namespace) -> tuple[int, float]:
 
 
 def contents(path: str, ns: str) -> tuple[Counter, dict[str, list]]:
-    """Samples per kind of key, and each track's tracks/ samples (kind, payload)."""
+    """Puts per kind of key (deletes as "<kind> deletes"), and each track's tracks/
+    samples (kind, payload)."""
     kinds: Counter = Counter()
     tracks: dict[str, list] = defaultdict(list)
     with open(path, "rb") as f:
         rec = Recording(f)
         for ch, s in rec.samples(set(rec.channels)):
             what = ch.key.split("/")[1]
-            kinds[what] += 1
-            if what == "tracks":
+            kinds[what if s.kind == "put" else what + " deletes"] += 1
+            if what == "tracks":  # puts and deletes, in order
                 tracks[ch.key.split("/", 1)[1]].append((s.kind, s.payload))
     return kinds, tracks
 
@@ -156,6 +157,9 @@ def main(argv: list[str] | None = None) -> None:
         if not ok:
             failures.append(what)
     size = os.path.getsize(first) / 1e6
+    log(f"   tracks deleted (announced on tracks/): {kinds['tracks deletes']:,}; service "
+        f"status: rejected {status.get('meas_rejected', 0):,} "
+        f"{status.get('rejected_by_reason', {})}, lost (seq gaps) {status.get('meas_lost', 0):,}")
     log(f"   file {size:,.1f} MB, {sum(kinds.values()):,} samples, read back in {t_read:.1f} s "
         f"({sum(kinds.values()) / t_read:,.0f} samples/s)")
 
@@ -180,7 +184,8 @@ def main(argv: list[str] | None = None) -> None:
     same = sum(1 for k, msgs in tracks1.items() if tracks2.get(k) == msgs)
     msgs_same = sum(len(m) for k, m in tracks1.items() if tracks2.get(k) == m)
     log(f"   tracks byte-identical: {same:,} of {len(tracks1):,} tracks "
-        f"({msgs_same:,} of {kinds['tracks']:,} messages); replayed service accepted "
+        f"({msgs_same:,} of {kinds['tracks'] + kinds['tracks deletes']:,} messages); "
+        "replayed service accepted "
         f"{status2['meas_accepted']:,}")
     if same != len(tracks1) or tracks2.keys() != tracks1.keys():
         failures.append("replayed tracks/ differ")
