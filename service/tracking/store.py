@@ -161,10 +161,6 @@ class TrackStore:
             self.layouts[dim] = TrackArrays(dim, self.order, self.extra)
         return self.layouts[dim]
 
-    def add(self, track_id: str, dim: int) -> tuple[TrackArrays, int]:
-        arrays = self.layout(dim)
-        return arrays, int(self.add_many([track_id], dim)[1][0])
-
     def add_many(self, track_ids: Sequence[str], dim: int) -> tuple[TrackArrays, np.ndarray]:
         """New tracks of one dimension: their layout and rows."""
         arrays = self.layout(dim)
