@@ -9,9 +9,10 @@ from typing import Any
 import numpy as np
 
 from .. import defaults
-from . import kalman, models
+from . import imm_soa, kalman, models
 from .batch import einsum
 from .filters import Convert, Result, moments, predict
+from .ucm import CMKFConversion
 
 Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct"), q, omega (rad/s)
 
@@ -139,6 +140,8 @@ class IMM:
         return c, x0, p0
 
     def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
+        if isinstance(convert, CMKFConversion) and imm_soa.applies(self):
+            return imm_soa.step(self, arrays, rows, dt, convert.batch)  # the same, batch-last
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
         preds = []

@@ -1,0 +1,221 @@
+"""The IMM's update on batch-last arrays: the filter core (`filters.cmkf_step`'s
+prediction, conversion and Joseph update) run once per mode, with the mixing and the
+mode probabilities as element-wise passes over the rows.
+
+The same filter as `imm.IMM.update` (Blom & Bar-Shalom 1988; Bar-Shalom, Li &
+Kirubarajan 2001, sec. 11.6.6, with the unbiased mixing of Granstrom, Willett &
+Bar-Shalom, IEEE TAES 51(4), 2015 and each mode's R averaged over its own prediction),
+which stays the reference it is tested against (tests/test_imm_soa.py). What makes it
+fast:
+
+- A CV mode in the padded order-3 state holds the acceleration at zero: its transition
+  zeroes the acceleration column, so its prediction, conversion and update are the
+  order-2 filter core on (position, velocity) alone; its acceleration and the
+  covariance's acceleration rows stay exactly zero (H = [I 0 0]: the gain's
+  acceleration rows are P[acc, pos] S^-1 = 0). Mixing into a CV mode therefore needs
+  only the (position, velocity) part of the mixture.
+- Every array is batch-last ((n, N), (n, n, N)): the mixing sums over the M modes are M
+  element-wise passes, the kernels those of the single-model core, and a row's result
+  does not depend on how many rows share the call (tests/test_batch_invariance.py).
+
+It applies to IMMs of CV and CA modes on converted (CMKF) measurements with the default
+options (`applies`); any other IMM (turn modes, ablations) runs `IMM.update`'s own code.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from . import kalman, models, scratch
+from .measurements import MeasurementBatch
+from .ucm import cmkf_soa
+
+Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def applies(imm: Any) -> bool:
+    """Whether `step` computes this IMM's update."""
+    return (imm.order == 3 and imm.unbiased_mixing and imm.mode_conversion
+            and all(kind in ("cv", "ca") for _, kind, _, _ in imm.modes))
+
+
+def step(imm: Any, arrays: Any, rows: np.ndarray, dt: np.ndarray,
+         batch: MeasurementBatch) -> Result:
+    """`IMM.update` of `rows` of `arrays` over their own dt with the measurements of
+    `batch` (converted by the CMKF): writes the modes' posteriors and probabilities of the
+    rows whose result is finite and returns the combined x (N, n), P (N, n, n), the NIS
+    of the mixture's prediction and the mask of finite rows (as `IMM.update`)."""
+    n_rows, n = len(rows), arrays.n
+    dt = np.broadcast_to(np.asarray(dt, dtype=float), (n_rows,))
+    xn, pn = np.empty((n_rows, n)), np.empty((n_rows, n, n))
+    nis, ok = np.empty(n_rows), np.empty(n_rows, dtype=bool)
+    pi_all = imm.transition(dt)  # (N, M, M)
+    for lo, hi in scratch.chunks(n_rows):
+        r = rows[lo:hi]
+        xu, pu, mu, x, p, nis[lo:hi], ok[lo:hi] = _chunk(
+            imm, arrays.dim, scratch.to_soa(arrays.mode_x[r], "imm.mx"),
+            scratch.to_soa(arrays.mode_p[r], "imm.mp"),
+            scratch.to_soa(arrays.mode_prob[r], "imm.mu"),
+            scratch.to_soa(pi_all[lo:hi], "imm.pi"), dt[lo:hi], batch.rows(lo, hi))
+        np.copyto(xn[lo:hi].T, x)
+        np.copyto(pn[lo:hi].transpose(1, 2, 0), p)
+        # the modes of the finite rows (the others keep their prior, as `IMM.update`)
+        keep = ok[lo:hi]
+        sel = slice(None) if keep.all() else keep
+        good = r[sel]
+        arrays.mode_x[good] = np.moveaxis(xu, -1, 0)[sel]
+        arrays.mode_p[good] = np.moveaxis(pu, -1, 0)[sel]
+        arrays.mode_prob[good] = mu.T[sel]
+    return xn, pn, nis, ok
+
+
+def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,
+           pi: np.ndarray, dt: np.ndarray, batch: MeasurementBatch) -> tuple:
+    """One chunk, batch axis last: mx (M, n, k), mp (M, n, n, k), mu (M, k), pi (M, M, k).
+    Returns the modes' posteriors xu (M, n, k), pu (M, n, n, k), probabilities (M, k), the
+    combined x (n, k), P (n, n, k), NIS (k,) and the mask of finite rows."""
+    m, n, k = mx.shape
+    kinds = [kind for _, kind, _, _ in imm.modes]
+    acc = slice(2 * d, 3 * d)
+    # predicted mode probabilities c_j = sum_i pi_ij mu_i, mixing weights pi_ij mu_i / c_j
+    c = scratch.buffer("imm.c", (m,), k)
+    w = scratch.buffer("imm.w", (m, m), k)
+    np.multiply(pi, mu[:, None], out=w)  # pi_ij mu_i
+    for j in range(m):
+        np.copyto(c[j], w[0, j])
+        for i in range(1, m):
+            c[j] += w[i, j]
+    w /= np.maximum(c, 1e-300)[None]
+    xu = scratch.buffer("imm.xu", (m, n), k)
+    pu = scratch.buffer("imm.pu", (m, n, n), k)
+    xpos = scratch.buffer("imm.xpos", (m, d), k)  # each mode's predicted position
+    ppos = scratch.buffer("imm.ppos", (m, d, d), k)  # ... and its covariance
+    rs = scratch.buffer("imm.r", (m, d, d), k)
+    lik = scratch.buffer("imm.lik", (m,), k)
+    ok = np.ones(k, dtype=bool)
+    z = scratch.buffer("imm.z", (d,), k)
+    nis_j, det_j = scratch.buffer("imm.nis", (), k), scratch.buffer("imm.det", (), k)
+    for j, (_, kind, q, _) in enumerate(imm.modes):
+        ca = kind == "ca"
+        s = n if ca else 2 * d  # a CV mode's filter runs on (position, velocity)
+        x0, p0 = _mixed(mx, mp, w, j, s, acc, [ca and kd != "ca" for kd in kinds])
+        models.predict_soa(x0, p0, dt, 3 if ca else 2, d, q)
+        np.copyto(xpos[j], x0[:d])
+        np.copyto(ppos[j], p0[:d, :d])
+        cmkf_soa(batch, x0[:d], p0[:d, :d], z, rs[j])  # R averaged over this prediction
+        pout = pu[j, :s, :s]
+        if s == n:
+            kalman.update_soa(x0, p0, z, rs[j], pout, nis_j, det_j)
+        else:
+            po = scratch.buffer("imm.po", (s, s), k)
+            kalman.update_soa(x0, p0, z, rs[j], po, nis_j, det_j)
+            np.copyto(pout, po)
+        np.copyto(xu[j, :s], x0)
+        if s < n:  # a CV mode: no acceleration, none in its covariance
+            xu[j, s:] = 0.0
+            pu[j, s:] = 0.0
+            pu[j, :s, s:] = 0.0
+        ok &= kalman.finite(x0, pout, nis_j, d)
+        lik[j] = kalman.loglik(nis_j, det_j, d)
+    # mode probabilities: c_j times the likelihood, normalised (logs, largest first)
+    with np.errstate(invalid="ignore"):  # a non-finite row is flagged below
+        logw = np.log(np.maximum(c, 1e-300)) + lik
+        logw -= logw.max(0)
+        mu_new = np.exp(logw)
+        mu_new /= mu_new.sum(0)
+    ok &= np.isfinite(mu_new).all(0)
+    x, p = _moments(xu, pu, np.where(np.isfinite(mu_new), mu_new, 0.0), "imm.comb")
+    nis = _mixture_nis(xpos, ppos, rs, c, z)
+    return xu, pu, mu_new, x, p, nis, ok
+
+
+def _mixed(mx: np.ndarray, mp: np.ndarray, w: np.ndarray, j: int, s: int, acc: slice,
+           padded: list[bool]) -> tuple[np.ndarray, np.ndarray]:
+    """The mixed initial condition of mode j, its first s components: x0 = sum_i w_ij x_i,
+    P0 = sum_i w_ij (P_i + (x_i - x0)(x_i - x0)'), where for a padded pair (i without an
+    acceleration mixed into j with one) x_i's acceleration is j's and P_i's acceleration
+    block is j's, its cross terms zero (Granstrom et al. 2015)."""
+    m, n, k = mx.shape
+    x0 = scratch.buffer(f"imm.x0.{s}", (s,), k)
+    p0 = scratch.buffer(f"imm.p0.{s}", (s, s), k)
+    xi = scratch.buffer(f"imm.xi.{s}", (s,), k)
+    pi_ = scratch.buffer(f"imm.pi.{s}", (s, s), k)
+    dv = scratch.buffer(f"imm.dv.{s}", (s,), k)
+    tmp = scratch.buffer(f"imm.tmp.{s}", (s, s), k)
+
+    def source(i: int) -> tuple[np.ndarray, np.ndarray]:
+        if not padded[i]:
+            return mx[i, :s], mp[i, :s, :s]
+        np.copyto(xi, mx[i, :s])
+        xi[acc] = mx[j, acc]
+        np.copyto(pi_, mp[i, :s, :s])
+        pi_[acc] = 0.0
+        pi_[:, acc] = 0.0
+        pi_[acc, acc] = mp[j, acc, acc]
+        return xi, pi_
+
+    np.multiply(source(0)[0], w[0, j], out=x0)
+    for i in range(1, m):
+        x0 += np.multiply(source(i)[0], w[i, j], out=dv)
+    p0.fill(0.0)
+    for i in range(m):
+        xs, ps = source(i)
+        _spread(p0, xs, ps, x0, w[i, j], dv, tmp)
+    _mirror(p0)
+    return x0, p0
+
+
+def _moments(x: np.ndarray, p: np.ndarray, w: np.ndarray, name: str
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (n, k) and covariance (n, n, k) of the mixtures x (M, n, k), P (M, n, n, k)
+    with weights w (M, k) (`filters.moments`, batch axis last)."""
+    m, n, k = x.shape
+    mean = scratch.buffer(name + ".x", (n,), k)
+    cov = scratch.buffer(name + ".p", (n, n), k)
+    dv = scratch.buffer(name + ".dv", (n,), k)
+    tmp = scratch.buffer(name + ".tmp", (n, n), k)
+    np.multiply(x[0], w[0], out=mean)
+    for j in range(1, m):
+        mean += np.multiply(x[j], w[j], out=dv)
+    cov.fill(0.0)
+    for j in range(m):
+        _spread(cov, x[j], p[j], mean, w[j], dv, tmp)
+    _mirror(cov)
+    return mean, cov
+
+
+def _spread(acc: np.ndarray, x: np.ndarray, p: np.ndarray, mean: np.ndarray,
+            w: np.ndarray, dv: np.ndarray, tmp: np.ndarray) -> None:
+    """acc += w (P + (x - mean)(x - mean)'), upper triangle only (row by row), batch
+    axis last; every entry gets the same operations whatever the number of rows."""
+    np.subtract(x, mean, out=dv)
+    for a in range(len(dv)):
+        t = tmp[a, a:]
+        np.multiply(dv[a:], dv[a], out=t)
+        t += p[a, a:]
+        t *= w
+        acc[a, a:] += t
+
+
+def _mirror(a: np.ndarray) -> None:
+    """Copy the upper triangle of a (s, s, k) into its lower one."""
+    for i in range(len(a) - 1):
+        a[i + 1:, i] = a[i, i + 1:]
+
+
+def _mixture_nis(xpos: np.ndarray, ppos: np.ndarray, rs: np.ndarray, c: np.ndarray,
+                 z: np.ndarray) -> np.ndarray:
+    """NIS of z against the mixture of the modes' predicted positions (weights c), with
+    R averaged the same way: sum_j c_j R_j (as `IMM.update`)."""
+    d, k = z.shape
+    mean, cov = _moments(xpos, ppos, c, "imm.nis")
+    rbar = scratch.buffer("imm.rbar", (d, d), k)
+    np.multiply(rs[0], c[0], out=rbar)
+    for j in range(1, len(rs)):
+        rbar += rs[j] * c[j]
+    nis, det = np.empty(k), np.empty(k)
+    xs = mean.copy()
+    kalman.update_soa(xs, cov, z, rbar, scratch.buffer("imm.nis.po", (d, d), k), nis, det)
+    return nis

@@ -1,0 +1,74 @@
+"""The IMM's batch-last update (`estimation.imm_soa`) against the IMM's own textbook code
+(`IMM.update` with a conversion that is not a `CMKFConversion`, the path any other
+conversion takes): same posteriors, mode probabilities, NIS and finiteness mask."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from service.estimation import imm_soa
+from service.estimation.catalog import FilterSpec
+from service.estimation.measurements import MeasurementBatch
+from service.estimation.ucm import CMKFConversion
+from service.tracking.tracker import Tracker, TrackerConfig
+from service.wire import Measurement
+
+
+def measurements(n: int, t: float, dim: int, rng: np.random.Generator) -> list[Measurement]:
+    out = []
+    for i in range(n):
+        r, az = 2e3 + 1e3 * i + 30 * t + rng.normal(0, 20), 0.3 * i + 0.002 * t * t
+        if i % 3 == 2:  # a Cartesian one now and then
+            pos = (r * np.sin(az), r * np.cos(az), 500.0)[:dim]
+            out.append(Measurement("s", f"x{i}", t + 0.01 * i, dim, False, pos,
+                                   (15.0,) * dim, (0.0, 0.0, 0.0), None))
+        else:
+            vals = (r, az, 0.05)[:dim]
+            out.append(Measurement("s", f"x{i}", t + 0.01 * i, dim, True, vals,
+                                   (20.0, 0.004, 0.004)[:dim], (10.0, -5.0, 0.0), None))
+    return out
+
+
+def close(a: np.ndarray, b: np.ndarray, rel: float) -> bool:
+    """Equal to `rel` of the largest entry of each row (covariances mix metres and m/s^2)."""
+    a, b = a.reshape(len(a), -1), b.reshape(len(b), -1)
+    scale = np.maximum(np.abs(b).max(1, keepdims=True), 1e-300)
+    return bool((np.abs(a - b) <= rel * scale).all())
+
+
+@pytest.mark.parametrize("dim", [3, 2])
+def test_batch_last_imm_is_the_textbook_imm(dim):
+    rng = np.random.default_rng(5)
+    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm")))
+    imm = tracker.updater
+    assert imm_soa.applies(imm)
+    for t in range(5):  # tracks with a history: modes apart, probabilities moved
+        tracker.track(measurements(40, float(t), dim, rng))
+    arrays = tracker.store.layout(dim)
+    rows = arrays.live()[0]
+    arrays.mode_p[rows[7], 1, 0, 0] = np.nan  # a row whose update cannot be finite
+    batch = MeasurementBatch.of(measurements(40, 5.5, dim, rng), dim)
+    dt = batch.t - arrays.t[rows]
+    ref_arrays = copy.deepcopy(arrays)
+    conversion = CMKFConversion(batch)
+    fast = imm.update(arrays, rows, dt, conversion)
+    ref = imm.update(ref_arrays, rows, dt, lambda xp, pp: conversion(xp, pp))
+    assert (fast[3] == ref[3]).all() and fast[3].sum() == len(rows) - 1
+    ok = fast[3]
+    for a, b, rel in zip(fast[:3], ref[:3], (1e-10, 1e-9, 1e-9), strict=True):
+        assert close(a[ok], b[ok], rel)
+    for name in ("mode_x", "mode_p", "mode_prob"):
+        assert close(getattr(arrays, name)[rows[ok]], getattr(ref_arrays, name)[rows[ok]],
+                     1e-9), name
+        assert np.array_equal(getattr(arrays, name)[rows[7]],  # the bad row kept its prior
+                              getattr(ref_arrays, name)[rows[7]], equal_nan=True)
+    p = fast[1][ok]
+    assert (p == p.transpose(0, 2, 1)).all()  # exactly symmetric
+
+
+def test_turn_modes_take_the_textbook_code():
+    imm = FilterSpec("imm", imm_turn=2.0).build()[0]
+    assert not imm_soa.applies(imm)
