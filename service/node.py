@@ -24,7 +24,9 @@ import numpy as np
 import zenoh
 
 from . import __version__, defaults
+from .estimation.measurements import MeasurementBatch
 from .outputs import MSGPACK, Publisher
+from .tracking.bulk import track_columns
 from .tracking.clock import Lockstep, Realtime
 from .tracking.reorder import ReorderBuffer
 from .tracking.timeline import Timeline
@@ -39,7 +41,7 @@ from .wire import (
     parse_clock,
     parse_measurement,
     parse_plots,
-    parse_scan,
+    parse_scan_columns,
     unpack,
 )
 
@@ -298,33 +300,59 @@ class TrackService:
 
     def _take_labelled(self, key: str, payload: bytes, wall: float,
                        pending: list[Measurement]) -> None:
-        """A batched labelled scan (`scan/<sensor>`): its good rows join the pending
-        measurements exactly as single messages would; each bad row is reported alone."""
-        sensor, scan = self._parsed(key, "scan", "batched scan", parse_scan, payload)
+        """A batched labelled scan (`scan/<sensor>`): its rows mean what single messages
+        would (each bad row reported alone, the time policy per row's time) and are
+        applied in one pass over the columns (`tracking.bulk`), after the measurements
+        received before it."""
+        sensor, scan = self._parsed(key, "scan", "batched scan", parse_scan_columns, payload)
         if scan is None:
             return
         for _, reason in scan.rejected:
             self.out.reject(key, sensor, reason)
-        rows = scan.measurements
-        if not rows:
+        if not scan.good:
             return
-        times = sorted({m.t for m in rows})
-        # the time policy once per distinct time (reported once; every row counted)
-        refused = {t for t in times if not self._admit(t, wall, key, sensor, pending)}
-        if refused:
-            extra = sum(m.t in refused for m in rows) - len(refused)
-            self.out.count.meas_rejected += extra
-            by = self.out.count.by_reason  # counted by code like the one reported
-            by["time_far"] = by.get("time_far", 0) + extra
-            rows = [m for m in rows if m.t not in refused]
-            times = [t for t in times if t not in refused]
-            if not rows:
+        batch = MeasurementBatch.of_scan(scan)
+        ids = scan.ids
+        keep = self._admit_rows(batch.t, wall, key, sensor, pending)
+        if keep is not None:
+            if not keep.any():
                 return
+            batch = batch.take(np.flatnonzero(keep))
+            ids = [i for i, k in zip(ids, keep.tolist(), strict=True) if k]
         if self.realtime:
-            self.clock.observe(times[-1], wall)
+            self.clock.observe(float(batch.t.max()), wall)
         else:
-            self._frames_before(times[0], pending)
-        pending.extend(rows)
+            self._frames_before(float(batch.t.min()), pending)
+        self._flush(pending)
+        outcome = track_columns(self.tracker, ids, sensor, batch, self.out.wants_states)
+        self.out.deleted(outcome.deleted)
+        self.out.batch(sensor, ids, outcome)
+
+    def _admit_rows(self, t: np.ndarray, wall: float, key: str, sensor: str,
+                    pending: list[Measurement]) -> np.ndarray | None:
+        """The time policy for the rows of a batched scan, times t: None when every row
+        is taken (all within --max-jump of the picture's time: one admission for all),
+        else the mask of the rows taken (the policy once per distinct time, in time
+        order, as single messages; a refusal reported once per time, every row counted)."""
+        lo, hi = float(t.min()), float(t.max())
+        if self.realtime:
+            off = self.clock.offset
+            now = None if off is None else wall + off
+        else:
+            now = self.picture_t
+        if now is not None and max(abs(lo - now), abs(hi - now)) <= self.timeline.max_jump:
+            self._admit(hi, wall, key, sensor, pending)  # taken: the picture moves to hi
+            return None
+        times = np.unique(t)
+        refused = [x for x in times.tolist() if not self._admit(x, wall, key, sensor, pending)]
+        if not refused:
+            return None
+        keep = ~np.isin(t, refused)
+        extra = int((~keep).sum()) - len(refused)
+        self.out.count.meas_rejected += extra
+        by = self.out.count.by_reason  # counted by code like the one reported
+        by["time_far"] = by.get("time_far", 0) + extra
+        return keep
 
     def _take_scan(self, key: str, payload: bytes, wall: float) -> None:
         """Check an unlabelled scan, report its bad detections, and let it wait in the

@@ -19,6 +19,7 @@ import zenoh
 from . import defaults
 from .encode import pack_displays, pack_frame, pack_states, pack_tracks
 from .listeners import Listeners
+from .tracking.bulk import BatchOutcome
 from .tracking.display import Snapshot
 from .tracking.store import States
 from .tracking.tracker import Outcome
@@ -112,16 +113,36 @@ class Publisher:
             self.count.meas_accepted += 1
             if out.states is not None:
                 blocks.setdefault(id(out.states), out.states)
+        self.put_states(list(blocks.values()))
+
+    @property
+    def wants_states(self) -> bool:
+        """Whether anyone listens to `tracks/` or `states` (else no block of states is
+        needed)."""
+        return not self.track_listeners.none or self.pub_states.matching_status.matching
+
+    def batch(self, sensor: str, ids: list[str], outcome: BatchOutcome) -> None:
+        """Count and report the outcome of a batched scan's rows (`ids`: the rows' target
+        ids; a rejection is reported on the row's own `meas/` key, as for a single
+        message) and put the states of the tracks it updated."""
+        for row, reason in outcome.rejected:
+            self.reject(self.keys.meas(sensor, ids[row]), sensor, reason)
+        self.count.meas_accepted += outcome.accepted
+        self.put_states(outcome.states)
+
+    def put_states(self, blocks: list[States]) -> None:
+        """The `states` messages of blocks of tracks, and their `tracks/<id>` for the
+        tracks someone listens to."""
         if not blocks:
             return
         if self.pub_states.matching_status.matching:
-            for st in blocks.values():
+            for st in blocks:
                 self.pub_states.put(pack_states(st))
         listeners = self.track_listeners
         if listeners.none:
             return  # nobody listens to tracks/: nothing to encode
         put, keys, block = self.session.put, self._keys, self.block
-        for st in blocks.values():
+        for st in blocks:
             if not listeners.everything:
                 pick = [i for i, k in enumerate(st.ids) if listeners.wants(k)]
                 if not pick:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..wire import Measurement
+    from ..wire import Measurement, ScanColumns
 
 
 @dataclass
@@ -44,6 +44,30 @@ class MeasurementBatch:
         return cls(np.fromiter(map(attrgetter("t"), meas), float, n),
                    np.fromiter(map(attrgetter("polar"), meas), bool, n),
                    column("values", dim), column("sigmas", dim), column("sensor_pos", 3))
+
+    @classmethod
+    def of_scan(cls, scan: ScanColumns) -> MeasurementBatch:
+        """Columns of the good rows of a checked batched scan (`wire.parse_scan_columns`),
+        in order: the same as `of` on the scan's records (tests/test_scan_batch.py)."""
+        n, good = scan.n, np.asarray(scan.good, dtype=np.intp)
+        every = len(good) == n
+
+        def column(v: list[float] | float) -> np.ndarray:
+            a = np.asarray(v, dtype=float) if isinstance(v, list) else np.full(n, float(v))
+            return a if every else a[good]
+
+        k, d = len(good), scan.dim
+        values, sigmas = np.empty((k, d), order="F"), np.empty((k, d), order="F")
+        for i in range(d):
+            values[:, i], sigmas[:, i] = column(scan.values[i]), column(scan.sigmas[i])
+        origin = np.empty((k, 3))
+        origin[:] = scan.sensor_pos
+        polar = np.full(k, scan.polar)
+        for row, rec in scan.fixed.items():  # rows the full check accepted as they are
+            j = int(np.searchsorted(good, row))
+            values[j], sigmas[j], origin[j], polar[j] = (rec.values, rec.sigmas,
+                                                         rec.sensor_pos, rec.polar)
+        return cls(column(scan.t), polar, values, sigmas, origin)
 
     def __len__(self) -> int:
         return len(self.t)

@@ -84,17 +84,50 @@ class LabelAssociator:
     def scans(self, meas: Sequence[Measurement]) -> list[list[int]]:
         """Split a batch into scans in which each target appears at most once, keeping
         order: a target measured twice in a batch is updated twice, in turn."""
-        out: list[list[int]] = []
-        pending = list(range(len(meas)))
-        while pending:
-            seen: set[str] = set()
-            now, later = [], []
-            for i in pending:
-                (later if meas[i].target in seen else now).append(i)
-                seen.add(meas[i].target)
-            out.append(now)
-            pending = later
-        return out
+        return split_repeats([m.target for m in meas])
+
+    def associate_columns(self, store: TrackStore, ids: Sequence[str], sensor: str,
+                          t: np.ndarray, dim: int
+                          ) -> tuple[np.ndarray, np.ndarray, list[int], dict[int, str]]:
+        """`associate` for one sensor's measurements of dimension `dim` given as columns
+        (ids, times t), each target at most once: the indices of the measurements that
+        update a track and those tracks' rows (in `store.layout(dim)`), the indices of the
+        new targets and the rejected ones with their reasons (the same as `associate`'s)."""
+        where, last = store.where, self.last
+        arrays = store.layouts.get(dim)
+        upd: list[int] = []
+        rows: list[int] = []
+        new: list[int] = []
+        rejected: dict[int, str] = {}
+        for i, hit in enumerate(map(where.get, ids)):
+            if hit is None:
+                new.append(i)
+            elif hit[0] is arrays:
+                upd.append(i)
+                rows.append(hit[1])
+            else:
+                rejected[i] = f"{dim}-D measurement for a {hit[0].dim}-D track"
+        ui, ri = np.array(upd, dtype=np.intp), np.array(rows, dtype=np.intp)
+        if len(ri):
+            tt, mt = arrays.t[ri], t[ui]  # type: ignore[union-attr]
+            late = mt < tt - TIME_TOL
+            near = ~late & (mt <= tt + TIME_TOL)
+            if late.any() or near.any():
+                for j in np.flatnonzero(late | near).tolist():
+                    i = upd[j]
+                    if late[j]:
+                        rejected[i] = (f"out of sequence: t={mt[j]:.6f} is before the track's "
+                                       f"last update at t={tt[j]:.6f}")
+                    elif last.get(ids[i]) == sensor:
+                        rejected[i] = (f"duplicate: sensor {sensor} already measured this "
+                                       f"target at t={mt[j]:.6f}")
+                keep = np.array([i not in rejected for i in upd], dtype=bool)
+                ui, ri = ui[keep], ri[keep]
+        for i in ui.tolist():
+            last[ids[i]] = sensor
+        for i in new:
+            last[ids[i]] = sensor
+        return ui, ri, new, rejected
 
     def associate(self, store: TrackStore, scan: Sequence[Measurement],
                   now: float | None = None) -> Hypotheses:
@@ -120,3 +153,21 @@ class LabelAssociator:
                 hyp.tracks.setdefault(m.dim, []).append(m.target)
                 last[m.target] = m.sensor
         return hyp
+
+
+def split_repeats(keys: Sequence[str]) -> list[list[int]]:
+    """Indices of `keys` split into runs in which each key appears at most once, in order:
+    the first occurrence of every key, then the second ones, and so on."""
+    if len(set(keys)) == len(keys):
+        return [list(range(len(keys)))] if len(keys) else []
+    out: list[list[int]] = []
+    pending = list(range(len(keys)))
+    while pending:
+        seen: set[str] = set()
+        now, later = [], []
+        for i in pending:
+            (later if keys[i] in seen else now).append(i)
+            seen.add(keys[i])
+        out.append(now)
+        pending = later
+    return out

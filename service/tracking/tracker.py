@@ -154,18 +154,30 @@ class Tracker:
         store = self.store
         arrays = store.layout(dim)
         rows = np.array([store.where[k][1] for k in tracks], dtype=int)
+        good, ok, nis = self.update_rows(arrays, rows, batch)
+        self._settle(scan, arrays, good, [(None, float(v)) if k else
+                                          ("update gave a non-finite state", np.nan)
+                                          for k, v in zip(ok, nis, strict=True)])
+
+    def update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predict and update `rows` of `arrays` with `batch` (row i with measurement i):
+        the rows updated (those whose result is finite), the mask of them and every NIS."""
         t = batch.t
         conversion = EKFConversion(batch) if self.conversion == "ekf" else \
             CMKFConversion(batch)  # the filter core converts a CMKF batch in its kernel
         xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows], conversion)
-        good = rows[ok]
-        self.display.update(arrays, good, t[ok], xn[ok], pn[ok])
-        arrays.x[good], arrays.p[good], arrays.nis[good] = xn[ok], pn[ok], nis[ok]
-        arrays.t[good] = t[ok]
+        every = bool(ok.all())
+        good = rows if every else rows[ok]
+        if not every:
+            xn, pn, nis_ok, t = xn[ok], pn[ok], nis[ok], t[ok]
+        else:
+            nis_ok = nis
+        self.display.update(arrays, good, t, xn, pn)
+        arrays.x[good], arrays.p[good], arrays.nis[good] = xn, pn, nis_ok
+        arrays.t[good] = t
         arrays.updates[good] += 1
-        self._settle(scan, arrays, good, [(None, float(v)) if k else
-                                          ("update gave a non-finite state", np.nan)
-                                          for k, v in zip(ok, nis, strict=True)])
+        return good, ok, nis
 
     def update_weighted(self, w: WeightedUpdate, scan: Sequence[Outcome], t: float) -> None:
         """Update tracks each with the equivalent measurement of its weighted detections

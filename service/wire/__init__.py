@@ -35,7 +35,7 @@ from .keys import (
 )
 from .messages import Measurement, parse_clock, parse_full, parse_measurement
 from .plots import MAX_DETECTIONS, PlotScan, bad_rows, parse_plots
-from .scans import LabelledScan, parse_scan
+from .scans import LabelledScan, ScanColumns, parse_scan, parse_scan_columns
 from .session import (
     BLOCK_WAIT_US,
     CONNECT_RETRY,
@@ -57,6 +57,7 @@ __all__ = [
     "LabelledScan", "Measurement", "PlotScan", "Rejected", "add_zenoh_args", "bad_rows",
     "check_size", "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port",
     "open_session", "pack", "parse_clock", "parse_full", "parse_measurement", "parse_plots",
-    "parse_scan", "patient", "peer_config", "quick_retry", "reason_code", "unpack",
+    "parse_scan", "parse_scan_columns", "ScanColumns", "patient", "peer_config", "quick_retry",
+    "reason_code", "unpack",
     "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
 ]

@@ -174,6 +174,56 @@ class _Scan:
     # ------------------------------------------------------------ columnar: bins
     def columns(self) -> tuple[list[Measurement | str], set[int]]:
         """Each row's record or reason, and the indices of those the full check saw."""
+        polar, width, n, cols = self.bins()
+        if polar:
+            names = ("r", "az", "el") if "el" in cols else ("r", "az")
+            vals = list(zip(*(cols[k] for k in names), strict=True))
+            noise = [cols[k] if k in cols else [self.eff[k]] * n for k in NOISE[:len(names)]]
+            sigs = list(zip(*noise, strict=True))
+        else:
+            vals = list(zip(*[iter(cols["pos"])] * width, strict=True))
+            if "sigma" in cols:
+                sigs = [(x,) * width for x in cols["sigma"]]
+            else:
+                s = self.eff["sigma"]
+                one = _axes(s, width) if type(s) is list else (s,) * width
+                sigs = [one] * n  # one is None: no row is good, the full check says why
+        bad = self.bad(polar, width, n, cols)
+        out: list[Measurement | str] = _records(
+            n, sensor=self.sensor, target="", t=self.t, dim=len(names) if polar else width,
+            polar=polar, values=vals, sigmas=sigs, sensor_pos=self.sensor_pos, seq=None)
+        for i in bad:
+            out[i] = self.row(i, polar, cols)
+        return out, bad
+
+    def row(self, i: int, polar: bool, cols: dict[str, list[float]]) -> Measurement | str:
+        """The full check of row i of a columnar scan (`bins`): its record or reason."""
+        row = {k: c[i] for k, c in cols.items() if k != "pos"}
+        return self.full(row if polar else {**row, "pos": self._pos(i, cols)})
+
+    def bad(self, polar: bool, width: int, n: int, cols: dict[str, list[float]]) -> set[int]:
+        """The rows of a columnar scan (`bins`) that need the full check: a value not
+        finite or out of bounds, a column at a time (`bad_rows`)."""
+        if polar:
+            names = ("r", "az", "el") if "el" in cols else ("r", "az")
+            keys = NOISE[:len(names)]
+            if any(bad_rows([self.eff[k]], k) for k in keys if k not in cols):
+                return set(range(n))  # a scan-wide (or the default) noise is bad
+            return bad_rows(cols["r"], "r").union(
+                *(bad_rows(cols[k], k) for k in names[1:]),
+                *(bad_rows(cols[k], k) for k in keys if k in cols))
+        if "sigma" in cols:
+            bad = bad_rows(cols["sigma"], "sigma")
+        else:
+            s = self.eff["sigma"]
+            one = _axes(s, width) if type(s) is list else (s,) * width
+            bad = set(range(n)) if one is None or bad_rows(list(one), "sigma") else set()
+        return bad | {j // width for j in bad_rows(cols["pos"], "pos")}
+
+    def bins(self) -> tuple[bool, int, int, dict[str, list[float]]]:
+        """The columnar form read: polar or not, the width of a `pos` row, the row count and
+        each bin as a list of floats (scan-wide noise fields checked into `eff`). Raises
+        `Rejected` when the bins cannot be read as one table."""
         msg = self.msg
         polar = "pos" not in msg
         if not polar and any(k in msg for k in ("r", "az", "el")):
@@ -206,32 +256,12 @@ class _Scan:
         n = rows["r" if polar else "pos"]
         _limit(n)
         cols = {k: list(struct.unpack(f"<{len(v) // 8}d", v)) for k, v in bins.items()}
-        if polar:
-            names = ("r", "az", "el") if "el" in cols else ("r", "az")
-            vals = list(zip(*(cols[k] for k in names), strict=True))
-            noise = [cols[k] if k in cols else [self.eff[k]] * n for k in NOISE[:len(names)]]
-            sigs = list(zip(*noise, strict=True))
-            bad = bad_rows(cols["r"], "r").union(
-                *(bad_rows(cols[k], k) for k in names[1:]),
-                *(bad_rows(c, k) for c, k in zip(noise, NOISE, strict=False)))
-        else:
-            vals = list(zip(*[iter(cols["pos"])] * width, strict=True))
-            if "sigma" in cols:
-                sigs = [(x,) * width for x in cols["sigma"]]
-                bad = bad_rows(cols["sigma"], "sigma")
-            else:
-                s = self.eff["sigma"]
-                one = _axes(s, width) if type(s) is list else (s,) * width
-                sigs = [one] * n  # one is None: no row is good, the full check says why
-                bad = set(range(n)) if one is None or bad_rows(list(one), "sigma") else set()
-            bad |= {j // width for j in bad_rows(cols["pos"], "pos")}
-        out: list[Measurement | str] = _records(
-            n, sensor=self.sensor, target="", t=self.t, dim=len(names) if polar else width,
-            polar=polar, values=vals, sigmas=sigs, sensor_pos=self.sensor_pos, seq=None)
-        for i in bad:
-            row = {k: c[i] for k, c in cols.items() if k != "pos"}
-            out[i] = self.full(row if polar else {**row, "pos": list(vals[i])})
-        return out, bad
+        self._width = width
+        return polar, width, n, cols
+
+    def _pos(self, i: int, cols: dict[str, list[float]]) -> list[float]:
+        w = self._width
+        return cols["pos"][i * w:(i + 1) * w]
 
     def width(self, rows: dict[str, int]) -> int:
         """The number of values in a row of `pos`: `dim` if given, else the row count of the
