@@ -92,9 +92,8 @@ def pack_frame(t: float, ids: bytes, pos: np.ndarray, vel: np.ndarray,
     changes only when tracks come or go), the arrays as little-endian float64 bytes and
     `status` one byte per track (an index into wire.STATUSES)."""
     return b"".join((pack_map_header(6), pack("t"), pack(float(t)), pack("ids"), ids,
-                     pack("pos"), pack(pos.astype("<f8").tobytes()),
-                     pack("vel"), pack(vel.astype("<f8").tobytes()),
-                     pack("sigma"), pack(sigma.astype("<f8").tobytes()),
+                     pack("pos"), pack(_f64(pos)), pack("vel"), pack(_f64(vel)),
+                     pack("sigma"), pack(_f64(sigma)),
                      pack("status"), pack(status.astype(np.uint8).tobytes())))
 
 

@@ -145,3 +145,23 @@ def test_tentative_tracks_snap_to_their_first_estimates():
     table.track([cart("a", 2.0, (20.0, 0.0, 0.0))])
     table.track([cart("a", 3.0, (31.0, 0.0, 0.0))])  # confirmed: a 1 m surprise blends
     assert table.snapshot(3.0).shown == ["blend"]
+
+
+@pytest.mark.parametrize("order, dim", [(3, 3), (3, 2), (2, 3), (2, 2)])
+def test_frame_prediction_is_the_reference_prediction(order, dim):
+    """`predicted_at` (the frames' fast form, chunked) against `predicted` (Phi x and
+    c0' A c0 term by term): the same positions, velocities and variances to rounding,
+    over more rows than one chunk, dt of both signs."""
+    rng = np.random.default_rng(order * 10 + dim)
+    n_rows, n = display.FRAME_CHUNK * 2 + 37, order * dim
+    x = rng.normal(0, 100, (n_rows, n))
+    a = rng.normal(0, 1, (n_rows, n, n))
+    p = a @ a.transpose(0, 2, 1) + np.eye(n)
+    axis_cov = display.axis_traces(p, order, dim)
+    t_state = rng.uniform(-2, 3, n_rows)
+    pos, vel, var = display.predicted_at(x, t_state, axis_cov, 1.25, 0.7, order, dim)
+    xs, ref_var = display.predicted(x, t_state, axis_cov, 1.25, 0.7, order, dim)
+    np.testing.assert_allclose(pos[:, :dim], xs[:, 0], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(vel[:, :dim], xs[:, 1], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(var, ref_var, rtol=1e-12)
+    assert not pos[:, dim:].any() and not vel[:, dim:].any()

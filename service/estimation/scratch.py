@@ -62,3 +62,12 @@ def to_soa(a: np.ndarray, name: str) -> np.ndarray:
     out = buffer(name, a.shape[1:], len(a))
     np.copyto(out, np.moveaxis(a, 0, -1))
     return out
+
+
+def span(rows: np.ndarray) -> slice | np.ndarray:
+    """rows as a slice when they are consecutive and ascending (indexing by a slice is a
+    view: no gather, no scatter), else rows."""
+    k = len(rows)
+    if k and rows[-1] - rows[0] == k - 1 and (k == 1 or bool((np.diff(rows) == 1).all())):
+        return slice(int(rows[0]), int(rows[0]) + k)
+    return rows

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import repeat
+from operator import itemgetter
 
 import numpy as np
 
@@ -95,18 +97,22 @@ class LabelAssociator:
         new targets and the rejected ones with their reasons (the same as `associate`'s)."""
         where, last = store.where, self.last
         arrays = store.layouts.get(dim)
+        hits = list(map(where.get, ids))
         upd: list[int] = []
         rows: list[int] = []
         new: list[int] = []
         rejected: dict[int, str] = {}
-        for i, hit in enumerate(map(where.get, ids)):
-            if hit is None:
-                new.append(i)
-            elif hit[0] is arrays:
-                upd.append(i)
-                rows.append(hit[1])
-            else:
-                rejected[i] = f"{dim}-D measurement for a {hit[0].dim}-D track"
+        if None not in hits and len(store.layouts) == 1 and arrays is not None:
+            upd, rows = list(range(len(ids))), list(map(itemgetter(1), hits))  # all tracked
+        else:
+            for i, hit in enumerate(hits):
+                if hit is None:
+                    new.append(i)
+                elif hit[0] is arrays:
+                    upd.append(i)
+                    rows.append(hit[1])
+                else:
+                    rejected[i] = f"{dim}-D measurement for a {hit[0].dim}-D track"
         ui, ri = np.array(upd, dtype=np.intp), np.array(rows, dtype=np.intp)
         if len(ri):
             tt, mt = arrays.t[ri], t[ui]  # type: ignore[union-attr]
@@ -123,10 +129,10 @@ class LabelAssociator:
                                        f"target at t={mt[j]:.6f}")
                 keep = np.array([i not in rejected for i in upd], dtype=bool)
                 ui, ri = ui[keep], ri[keep]
-        for i in ui.tolist():
-            last[ids[i]] = sensor
-        for i in new:
-            last[ids[i]] = sensor
+        if not rejected:
+            last.update(zip(ids, repeat(sensor)))
+        else:
+            last.update((ids[i], sensor) for i in (*ui.tolist(), *new))
         return ui, ri, new, rejected
 
     def associate(self, store: TrackStore, scan: Sequence[Measurement],

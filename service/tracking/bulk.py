@@ -54,8 +54,9 @@ def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str, batch: Meas
                                                                    sub.t, dim)
         if len(upd):
             arrays = store.layout(dim)
-            good, ok, _ = tracker.update_rows(arrays, rows, sub if len(upd) == len(sub_ids)
-                                              else sub.take(upd))
+            order = np.argsort(rows, kind="stable")  # the rows in store order: a row's
+            upd, rows = upd[order], rows[order]  # result does not depend on the others
+            good, ok, _ = tracker.update_rows(arrays, rows, sub.take(upd))
             for j in np.flatnonzero(~ok).tolist():
                 bad[int(upd[j])] = NON_FINITE
             if states and len(good):

@@ -11,7 +11,7 @@ from .store import TrackArrays
 TENTATIVE, CONFIRMED, COASTING = range(3)  # indices into wire.STATUSES
 
 
-def status_codes(arrays: TrackArrays, rows: np.ndarray, age: np.ndarray,
+def status_codes(arrays: TrackArrays, rows: np.ndarray | slice, age: np.ndarray,
                  coast_after: float) -> np.ndarray:
     """Status of rows, as indices into STATUSES.
 
