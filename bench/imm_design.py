@@ -48,9 +48,18 @@ CANDIDATES = {
     "sojourn-3000": lambda: ModeSet(sojourn=3000.0).imm(),
     "nominal-0.5": lambda: ModeSet(q=0.5).imm(),
     "nominal-150s": lambda: variant(sojourn=(600.0, 150.0, 10.0)),
+    "quiet-0.001": lambda: ModeSet(quiet_q=0.001).imm(),
     "quiet-0.03": lambda: ModeSet(quiet_q=0.03).imm(),
     "ca-0.3": lambda: ModeSet(ca_q=0.3).imm(),
     "ca-sojourn-30": lambda: ModeSet(manoeuvre_sojourn=30.0).imm(),
+    # issue 14's straight legs (docs/accuracy.md, "What is not met, and why")
+    "quiet-3000s": lambda: variant(sojourn=(3000.0, 600.0, 10.0)),
+    "quiet-20000s": lambda: variant(sojourn=(20000.0, 600.0, 10.0)),
+    "mid-0.3": lambda: IMM((("quiet", "cv", 0.003, 0.0), ("mid", "cv", 0.3, 0.0),
+                            ("cv", "cv", 1.0, 0.0), ("ca", "ca", 0.1, 0.0)),
+                           (200.0, 150.0, 240.0, 10.0),  # chained neighbour to neighbour
+                           ((0, 1, 0, 0), (1, 0, 1, 0), (0, 1, 0, 0.5), (0, 0, 1, 0)),
+                           (0.1, 0.1, 0.5, 0.3)),
 }
 BEST = {"display": "ca", "radar3d": "cv", "maneuver": "vdf"}
 
