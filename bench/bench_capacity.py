@@ -201,7 +201,7 @@ class Observer:
     """Subscribers and samplers of one run; everything stamped with time.time()."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, pattern: str, display: bool,
-                 display_pattern: str) -> None:
+                 display_pattern: str, batched: bool = False) -> None:
         self.keys = keys
         self.frames: list[tuple[float, float, int]] = []  # (arrival, t, ids)
         self.meas: list[tuple[str, float, float]] = []  # (id, t, arrival)
@@ -212,6 +212,10 @@ class Observer:
             session.declare_subscriber(keys.tracks(pattern), direct(self._on(self.tracks))),
             session.declare_subscriber(keys.meas("*", pattern), direct(self._on(self.meas))),
         ]
+        if batched:  # the sampled rows of each batched scan (scan/<sensor>)
+            self.suffix = pattern.split("$*")[-1] if "$*" in pattern else ""
+            self.subs.append(session.declare_subscriber(keys.scan("*"),
+                                                        direct(self._on_scan)))
         if display:
             # every display/ message delivered to this process, dropped in Rust
             self.subs.append(session.declare_subscriber(keys.display("*"),
@@ -225,6 +229,15 @@ class Observer:
             return
         t, n = head(s.payload.to_bytes())
         self.frames.append((now, t, n))
+
+    def _on_scan(self, s: Any) -> None:
+        now = time.time()
+        msg = unpack(s.payload.to_bytes())
+        ids, t = msg["ids"], msg["t"]
+        times = np.frombuffer(t, "<f8") if isinstance(t, bytes) else np.full(len(ids), t)
+        suffix = self.suffix
+        self.meas.extend((k, float(times[i]), now) for i, k in enumerate(ids)
+                         if k.endswith(suffix))
 
     def _on(self, out: list) -> Any:
         def cb(s: Any) -> None:
@@ -333,7 +346,7 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
         session = session_open(endpoint)
         if not wait_for_tracker(session, keys, 1, timeout=30):
             raise RuntimeError("service did not come up")
-        obs = Observer(session, keys, pattern, display, dpattern)
+        obs = Observer(session, keys, pattern, display, dpattern, args.batched)
         sampler = Sampler(svc.pid, args.proc_period)
         sampler.start()
 
@@ -364,6 +377,7 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
         res["feed_out"] = feed_log.read().strip()[-500:]
         res.update(analyse(n, display, obs, sampler, poller, duration, feed_end, warmup,
                            n_sample))
+        res["loadavg_end"] = os.getloadavg()
     finally:
         if obs is not None:
             obs.close()
@@ -701,6 +715,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--encode", type=int, nargs="*", default=None, metavar="N",
                    help="instead of the sweep: time of the frame (snapshot + encoding) at N "
                         "tracks (default 10,000 and 100,000)")
+    p.add_argument("--scan-cost", type=int, nargs="*", default=None, metavar="N",
+                   help="instead of the sweep: CPU per row of batched scans of 10,000 rows "
+                        "(check, one-pass apply) against the filter core, and the frame, at "
+                        "N tracks (default 10,000 and 100,000; bench/throughput.py)")
     p.add_argument("--sample", type=int, default=1000,
                    help="at most this many targets' tracks/ and meas/ keys subscribed")
     p.add_argument("--display-sample", type=int, default=10,
@@ -752,6 +770,11 @@ def main(argv: list[str] | None = None) -> None:
 
         frame_cost(args.encode or [10_000, 100_000], log)
         return
+    if args.scan_cost is not None:
+        from throughput import scan_cost  # bench/throughput.py
+
+        scan_cost(args.scan_cost or [10_000, 100_000], log)
+        return
     if args.minutes:
         d = args.minutes * 60
         log(f"# memory run: N={args.memory_targets} {args.memory_mode}, {d:.0f} s")
@@ -775,6 +798,12 @@ def main(argv: list[str] | None = None) -> None:
                 progress.update(1)
         progress.close()
         log(table(results))
+        if args.batched:  # scans: memory over the run too
+            for r in results:
+                if "rss_series" in r:
+                    log(f"N={r['n']} {r['mode']} (load average at the end "
+                        f"{' '.join(f'{x:.2f}' for x in r['loadavg_end'])}): "
+                        + memory_report(r, args.warmup))
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=str))
 

@@ -141,6 +141,94 @@ def frame_cost(sizes: list[int], log: Any, reps: int = 20) -> None:
         log(f"{n:>8} {a:>9.2f} {b:>8.2f} {a + b:>8.2f} {(a + b) / (1e3 / 30) * 100:>10.1f}")
 
 
+def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
+    """CPU time of the worker's parts for batched scans, in this process: a swarm of N
+    targets reported in scans of `rows` rows (N / rows sectors per turn, one turn per
+    second); per row the check of the columns (`parse_scan_columns`, `MeasurementBatch.
+    of_scan`) and the one-pass application (`tracking.bulk.track_columns`, the default
+    IMM), against the filter core (`filters.cmkf_step`, CV) on as many rows in the same
+    run; the frame at N tracks (snapshot + pack_frame); and what one core could then
+    sustain: measurements per second with 30 frames per second."""
+    from clients import scenarios
+    from service import defaults
+    from service.encode import pack_frame
+    from service.estimation.filters import cmkf_step
+    from service.estimation.measurements import MeasurementBatch
+    from service.tracking.bulk import track_columns
+    from service.tracking.tracker import Tracker
+    from service.wire import pack, parse_scan, parse_scan_columns
+
+    clock = time.process_time
+    log(f"scan cost: swarm of N targets in scans of {rows} rows (N / {rows} sectors per "
+        "turn), CPU time of this process, turns 0-1 warm-up, turn 2 measured")
+    log(f"{'N':>8} {'check':>7} {'apply':>7} {'core':>6} {'apply/core':>10} {'frame':>7} "
+        f"{'meas/s/core':>12} {'records':>8} {'x':>5}")
+    for n in sizes:
+        tracker, ref = Tracker(), Tracker()
+        turns: list[list[bytes]] = [[], [], []]
+        for sent, sec in scenarios.swarm_sectors(n, 0, 2.0, sectors=max(1, n // rows)):
+            msg = {"ids": [sec.names[i] for i in sec.idx.tolist()], "t": sec.t.tobytes(),
+                   "r": sec.r.tobytes(), "az": sec.az.tobytes(), "el": sec.el.tobytes(),
+                   "sr": sec.sr, "saz": sec.sa, "sel": sec.sa}
+            turns[min(2, int(sent - 1e-9))].append(pack(msg))
+        check = apply = 0.0
+        count = 0
+        for k, turn in enumerate(turns):
+            for payload in turn:
+                t0 = clock()
+                cols = parse_scan_columns("radar1", payload, defaults.NOISE)
+                batch = MeasurementBatch.of_scan(cols)
+                t1 = clock()
+                track_columns(tracker, cols.ids, "radar1", batch, want=None)
+                t2 = clock()
+                if k == 2:
+                    check, apply, count = check + t1 - t0, apply + t2 - t1, count + len(cols.ids)
+        # the record path (parse_scan + Tracker.track) on the same scans, small N only
+        records = float("nan")
+        if n <= 20_000:
+            spent = 0.0
+            for k, turn in enumerate(turns):
+                for payload in turn:
+                    t0 = clock()
+                    ref.track(parse_scan("radar1", payload, defaults.NOISE).measurements)
+                    if k == 2:
+                        spent += clock() - t0
+            records = spent / count * 1e6
+        arrays = tracker.store.layout(3)
+        live = arrays.live()[0][:len(batch)]
+        x = np.ascontiguousarray(arrays.x[live][:, :6])
+        p = np.ascontiguousarray(arrays.p[live][:, :6, :6])
+        dt = np.full(len(batch), 0.5)
+        core = min(_timed(clock, cmkf_step, x, p, dt, 2, 3, 1.0, batch)
+                   for _ in range(5)) / len(batch) * 1e6
+        ids = pack(tracker.snapshot(2.5, detail=False).ids)
+        frame_ms = float(np.median([_timed(clock, _frame, tracker, ids, pack_frame)
+                                    for _ in range(10)])) * 1e3
+        per_row = (check + apply) / count * 1e6
+        rate = (1.0 - 30 * frame_ms / 1e3) / per_row * 1e6
+        log(f"{n:>8} {check / count * 1e6:>7.2f} {apply / count * 1e6:>7.2f} {core:>6.2f} "
+            f"{apply / count * 1e6 / core:>10.1f} {frame_ms:>7.1f} {rate:>12.0f} "
+            f"{records:>8.2f} {records / per_row:>5.1f}")
+    log("  check, apply: us of CPU per row (the scan's columns checked and made arrays; the "
+        "rows applied in one pass, IMM); core: us per row of filters.cmkf_step (CV, the "
+        "single-model filter core) on as many rows, same run; frame: ms per frame at N "
+        "tracks (every track predicted to the instant + pack_frame); meas/s/core: rows one "
+        "core could apply per second beside 30 frames per second; records: us per row of "
+        "the record path (parse_scan + Tracker.track, as before issue 13's one pass), x: "
+        "its ratio to check + apply")
+
+
+def _timed(clock: Any, fn: Any, *args: Any) -> float:
+    t0 = clock()
+    fn(*args)
+    return clock() - t0
+
+
+def _frame(tracker: Any, ids: bytes, pack_frame: Any) -> None:
+    snap = tracker.snapshot(2.5, detail=False)
+    pack_frame(2.5, ids, snap.pos, snap.vel, snap.sigma, snap.codes)
+
+
 def client_of(endpoint: str, timeout: float = 30.0) -> zenoh.Session:
     """A client session of the router at `endpoint` (multicast scouting off), retried
     while the router is starting."""

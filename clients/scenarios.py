@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -163,6 +164,37 @@ def swarm(targets: int = 100, seed: int = 0, duration: float = 60.0,
     `sectors` sectors of a turn go out together when the beam leaves the sector, as
     radars report by sector. sectors=1 gives one burst per turn.
     """
+    for sent, s in swarm_sectors(targets, seed, duration, period, sectors):
+        names, t, r, az, el, q, v = s.names, s.t, s.r, s.az, s.el, s.q, s.v
+        sr, sa = s.sr, s.sa
+        meas = [(names[i], {"t": float(t[j]), "r": float(r[j]), "az": float(az[j]),
+                            "el": float(el[j]), "sr": sr, "saz": sa, "sel": sa})
+                for j, i in enumerate(s.idx.tolist())]
+        truth = [(names[i], {"t": float(t[j]), **_truth(q[j], v[j])})
+                 for j, i in enumerate(s.idx.tolist())]
+        yield sent, meas, truth
+
+
+class Sector(NamedTuple):
+    """One sector's reports of `swarm` as columns: target indices (in time order), their
+    names, times, polar values, true positions and velocities, and the noise."""
+
+    idx: np.ndarray
+    names: list[str]
+    t: np.ndarray
+    r: np.ndarray
+    az: np.ndarray
+    el: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    sr: float
+    sa: float
+
+
+def swarm_sectors(targets: int = 100, seed: int = 0, duration: float = 60.0,
+                  period: float = 1.0, sectors: int = 32) -> Iterator[tuple[float, Sector]]:
+    """`swarm` as columns: (time the sector is sent, its reports), without a map per
+    report (what a feed of 100,000 targets needs)."""
     rng = np.random.default_rng(seed)
     n = targets
     rho = rng.uniform(5_000, 80_000, n)
@@ -182,14 +214,13 @@ def swarm(targets: int = 100, seed: int = 0, duration: float = 60.0,
         r = np.linalg.norm(q, axis=1) + sr * rng.standard_normal(n)
         az = np.arctan2(q[:, 0], q[:, 1]) + sa * rng.standard_normal(n)
         el = np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1])) + sa * rng.standard_normal(n)
+        order = np.argsort(sector, kind="stable")
+        bounds = np.searchsorted(sector[order], np.arange(sectors + 1))
         for j in range(sectors):
-            idx = np.flatnonzero(sector == j)
+            idx = order[bounds[j]:bounds[j + 1]]
             idx = idx[np.argsort(t[idx])]
-            meas = [(names[i], {"t": float(t[i]), "r": float(r[i]), "az": float(az[i]),
-                                "el": float(el[i]), "sr": sr, "saz": sa, "sel": sa})
-                    for i in idx]
-            truth = [(names[i], {"t": float(t[i]), **_truth(q[i], v[i])}) for i in idx]
-            yield k * period + (j + 1) * period / sectors, meas, truth
+            yield k * period + (j + 1) * period / sectors, Sector(
+                idx, names, t[idx], r[idx], az[idx], el[idx], q[idx], v[idx], sr, sa)
 
 
 SCENARIOS = {"display": display, "radar3d": radar3d, "maneuver": maneuver}

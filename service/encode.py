@@ -87,14 +87,37 @@ def pack_displays(t: float, ids: Sequence[str], pos: np.ndarray, vel: np.ndarray
 
 
 def pack_frame(t: float, ids: bytes, pos: np.ndarray, vel: np.ndarray,
-               sigma: np.ndarray, status: np.ndarray) -> bytes:
+               sigma: np.ndarray, status: np.ndarray) -> bytearray:
     """The `frame` body {t, ids, pos, vel, sigma, status} with `ids` already packed (it
-    changes only when tracks come or go), the arrays as little-endian float64 bytes and
-    `status` one byte per track (an index into wire.STATUSES)."""
-    return b"".join((pack_map_header(6), pack("t"), pack(float(t)), pack("ids"), ids,
-                     pack("pos"), pack(_f64(pos)), pack("vel"), pack(_f64(vel)),
-                     pack("sigma"), pack(_f64(sigma)),
-                     pack("status"), pack(status.astype(np.uint8).tobytes())))
+    changes only when tracks come or go), the arrays as little-endian float64 bins and
+    `status` one byte per track (an index into wire.STATUSES): written once into one
+    buffer (at 100,000 tracks a frame is 7 MB; no copy per part and per join)."""
+    columns = (("pos", pos, "<f8"), ("vel", vel, "<f8"), ("sigma", sigma, "<f8"),
+               ("status", status, "u1"))
+    head = b"".join((pack_map_header(6), pack("t"), pack(float(t)), pack("ids"), ids))
+    parts = []
+    for key, col, dtype in columns:
+        size = col.size * np.dtype(dtype).itemsize
+        parts.append((pack(key) + _bin_header(size), col, dtype, size))
+    buf = bytearray(len(head) + sum(len(h) + size for h, _, _, size in parts))
+    buf[:len(head)] = head
+    at = len(head)
+    for header, col, dtype, size in parts:
+        buf[at:at + len(header)] = header
+        at += len(header)
+        view = np.frombuffer(buf, dtype=dtype, count=col.size, offset=at)
+        view[:] = col.reshape(-1)  # cast as it is copied
+        at += size
+    return buf
+
+
+def _bin_header(size: int) -> bytes:
+    """MessagePack bin 8/16/32 header of `size` bytes."""
+    if size < 1 << 8:
+        return b"\xc4" + size.to_bytes(1, "big")
+    if size < 1 << 16:
+        return b"\xc5" + size.to_bytes(2, "big")
+    return b"\xc6" + size.to_bytes(4, "big")
 
 
 _TRACK_STRINGS = PackedStrings(("id", "model"))

@@ -324,7 +324,9 @@ class TrackService:
         else:
             self._frames_before(float(batch.t.min()), pending)
         self._flush(pending)
-        outcome = track_columns(self.tracker, ids, sensor, batch, self.out.wants_states)
+        outcome = track_columns(self.tracker, ids, sensor, batch,
+                                self.out.wanted if self.out.wants_states else None,
+                                self._frame_between if self.realtime else None)
         self.out.deleted(outcome.deleted)
         self.out.batch(sensor, ids, outcome)
 
@@ -441,6 +443,15 @@ class TrackService:
         self.out.deleted(self.tracker.step([], now=t))  # an empty scan: coast and delete
         self.out.frame(t, self.tracker.snapshot(t, detail=False))
 
+    def _frame_between(self) -> None:
+        """Between two parts of a scan's update: the frame due, if any, and nothing else
+        (no deletion, no held scan: the scan's rows still to come hold their tracks)."""
+        instant = self.clock.due(time.time() - self.tracker.config.display.lag)
+        if instant is not None:
+            self.out.look()
+            self.count.frames_missed = self.clock.missed
+            self.out.frame(instant, self.tracker.snapshot(instant, detail=False))
+
     def _tick(self) -> None:
         if len(self.reorder) and self.clock.offset is not None:
             for _, (key, scan) in self.reorder.advance(time.time() + self.clock.offset):
@@ -484,7 +495,7 @@ class TrackService:
                     query.reply(self.keys.status, pack(self.status()), encoding=MSGPACK)
             elif kind == "frame":
                 if self.out.latest[0] is not None:
-                    query.reply(self.keys.frame, self.out.latest[0], encoding=MSGPACK)
+                    query.reply(self.keys.frame, bytes(self.out.latest[0]), encoding=MSGPACK)
             elif kind == "display":
                 sel = zenoh.KeyExpr(str(query.key_expr))
                 for track_id, body in zip(*self.out.latest_displays(), strict=True):

@@ -75,7 +75,7 @@ class Publisher:
         self.track_keys: dict[str, tuple[zenoh.KeyExpr, zenoh.KeyExpr]] = {}
         self.frame_ids: tuple[list[str] | None, bytes] = (None, b"")  # ids, packed
         # the latest instant's frame and snapshot: late joiners get them by query
-        self.latest: tuple[bytes | None, Snapshot | None] = (None, None)
+        self.latest: tuple[bytearray | None, Snapshot | None] = (None, None)
         self.latest_bodies: tuple[Snapshot | None, list[bytes]] = (None, [])
 
     def reject(self, key: str, sensor: str, reason: str) -> None:
@@ -115,10 +115,19 @@ class Publisher:
                 blocks.setdefault(id(out.states), out.states)
         self.put_states(list(blocks.values()))
 
+    def wanted(self, ids: list[str]) -> list[int] | None:
+        """Which of these tracks' states are to be put (`states` subscribed: all, None;
+        else the indices of those someone listens to on `tracks/`)."""
+        listeners = self.track_listeners
+        if listeners.everything or self.pub_states.matching_status.matching:
+            return None
+        if listeners.none:
+            return []
+        return [i for i, k in enumerate(ids) if listeners.wants(k)]
+
     @property
     def wants_states(self) -> bool:
-        """Whether anyone listens to `tracks/` or `states` (else no block of states is
-        needed)."""
+        """Whether anyone listens to `tracks/` or `states` (else no state is put)."""
         return not self.track_listeners.none or self.pub_states.matching_status.matching
 
     def batch(self, sensor: str, ids: list[str], outcome: BatchOutcome) -> None:

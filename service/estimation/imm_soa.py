@@ -58,32 +58,26 @@ def step(imm: Any, arrays: Any, rows: np.ndarray, dt: np.ndarray,
             imm, arrays.dim, _gather(arrays.mode_x, r, "imm.mx"),
             _gather(arrays.mode_p, r, "imm.mp"), _gather(arrays.mode_prob, r, "imm.mu"),
             scratch.to_soa(pi_all[lo:hi], "imm.pi"), dt[lo:hi], batch.rows(lo, hi))
-        np.copyto(xn[lo:hi].T, x)
-        np.copyto(pn[lo:hi].transpose(1, 2, 0), p)
+        scratch.scatter_soa(x, xn, slice(lo, hi))
+        scratch.scatter_soa(p, pn, slice(lo, hi))
         # the modes of the finite rows (the others keep their prior, as `IMM.update`)
         keep = ok[lo:hi]
-        sel = slice(None) if keep.all() else keep
-        good = scratch.span(r) if keep.all() else r[sel]
-        arrays.mode_x[good] = np.moveaxis(xu, -1, 0)[sel]
-        arrays.mode_p[good] = np.moveaxis(pu, -1, 0)[sel]
-        arrays.mode_prob[good] = mu.T[sel]
+        if keep.all():
+            good = scratch.span(r)
+            for src, dst in ((xu, arrays.mode_x), (pu, arrays.mode_p), (mu, arrays.mode_prob)):
+                scratch.scatter_soa(src, dst, good)
+        else:
+            good = r[keep]
+            arrays.mode_x[good] = np.moveaxis(xu, -1, 0)[keep]
+            arrays.mode_p[good] = np.moveaxis(pu, -1, 0)[keep]
+            arrays.mode_prob[good] = mu.T[keep]
     return xn, pn, nis, ok
 
 
 def _gather(a: np.ndarray, rows: np.ndarray, name: str) -> np.ndarray:
-    """a[rows] batch-last ((*shape, k)), through reused work arrays (a fresh array of
-    this size per call costs page faults: `scratch`)."""
-    shape, k = a.shape[1:], len(rows)
-    index = scratch.span(rows)
-    if isinstance(index, slice):
-        taken = a[index]  # a view
-    else:
-        flat = scratch.buffer(name + ".rows", (int(np.prod(shape)),), k).reshape(-1)
-        taken = flat.reshape(k, *shape)
-        np.take(a, rows, axis=0, out=taken)
-    out = scratch.buffer(name, shape, k)
-    np.copyto(out, np.moveaxis(taken, 0, -1))
-    return out
+    """a[rows] batch-last ((*shape, k)) in a reused work array (`scratch.gather_soa`)."""
+    return scratch.gather_soa(a, scratch.span(rows), scratch.buffer(name, a.shape[1:],
+                                                                     len(rows)))
 
 
 def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,

@@ -12,7 +12,7 @@ tracks come out identical to those of the single measurements.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -20,12 +20,21 @@ import numpy as np
 
 from ..estimation.measurements import MeasurementBatch
 from .associator import split_repeats
-from .store import States
+from .store import States, TrackArrays
 
 if TYPE_CHECKING:
     from .tracker import Tracker
 
 NON_FINITE = "update gave a non-finite state"  # as Tracker.update words it
+# rows of an update between two pauses: a realtime frame due meanwhile waits for one
+# part (~10 ms on an idle 2-core machine with the default IMM)
+PART = 2048
+Want = Callable[[list[str]], "list[int] | None"]  # ids -> indices wanted (None: all)
+
+
+def all_states(ids: list[str]) -> None:
+    """Every track's state is wanted."""
+    return None
 
 
 @dataclass
@@ -41,10 +50,23 @@ class BatchOutcome:
 
 
 def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str, batch: MeasurementBatch,
-                  states: bool = True) -> BatchOutcome:
+                  want: Want | None = all_states, pause: Callable[[], None] | None = None
+                  ) -> BatchOutcome:
     """Apply the measurements `batch` of one sensor, row i labelled ids[i], in order.
-    `states`: also return the blocks of states (for `tracks/` and `states` outputs)."""
+    `want`: which of the tracks updated (given their ids) to return the states of, for
+    the `tracks/` and `states` outputs (None: none). `pause`: called between parts of
+    `PART` rows of an update (a realtime service publishes a due frame there; a row's
+    update does not depend on the others, so the parts give the same result)."""
     out = BatchOutcome()
+
+    def keep(arrays: TrackArrays, rows: np.ndarray) -> None:
+        if want is None or not len(rows):
+            return
+        names = arrays.ids
+        pick = want([names[r] for r in rows.tolist()])  # type: ignore[misc]
+        if pick is None or len(pick):
+            out.states.append(tracker.states(arrays, rows if pick is None else rows[pick]))
+
     store, dim = tracker.store, batch.dim
     for idx in split_repeats(ids):
         whole = len(idx) == len(ids)
@@ -56,11 +78,15 @@ def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str, batch: Meas
             arrays = store.layout(dim)
             order = np.argsort(rows, kind="stable")  # the rows in store order: a row's
             upd, rows = upd[order], rows[order]  # result does not depend on the others
-            good, ok, _ = tracker.update_rows(arrays, rows, sub.take(upd))
-            for j in np.flatnonzero(~ok).tolist():
-                bad[int(upd[j])] = NON_FINITE
-            if states and len(good):
-                out.states.append(tracker.states(arrays, good))
+            cut = len(rows) if pause is None else PART
+            for lo in range(0, len(rows), cut):
+                if lo:
+                    pause()  # type: ignore[misc]
+                part = upd[lo:lo + cut]
+                good, ok, _ = tracker.update_rows(arrays, rows[lo:lo + cut], sub.take(part))
+                for j in np.flatnonzero(~ok).tolist():
+                    bad[int(part[j])] = NON_FINITE
+                keep(arrays, good)
         out.deleted += tracker.delete(float(sub.t.max()))
         if new:
             arrays, made, reasons = tracker.initiator.initiate(
@@ -71,8 +97,7 @@ def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str, batch: Meas
             for i, reason in zip(new, reasons, strict=True):
                 if reason is not None:
                     bad[i] = reason
-            if states and len(made):
-                out.states.append(tracker.states(arrays, made))
+            keep(arrays, made)
         out.rejected += [(idx[i], reason) for i, reason in bad.items()]
         out.accepted += len(idx) - len(bad)
     out.rejected.sort()

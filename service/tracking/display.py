@@ -275,7 +275,8 @@ class DisplayState:
             cols.offset[rows] = np.where(keep[:, None], off, 0.0)
             cols.blend_start[rows] = before
             cols.blend_period[rows] = blend_period(cols.offset[rows], c.blend, c.blend_speed)
-        cols.prev_x[rows], cols.prev_p[rows] = arrays.x[rows], arrays.p[rows]
+        if c.lag > 0:  # the previous state is read only by the smoothing of a lagged display
+            cols.prev_x[rows], cols.prev_p[rows] = arrays.x[rows], arrays.p[rows]
         cols.prev_t[rows] = arrays.t[rows]
         cols.axis_cov[rows] = axis_cov
 
