@@ -220,3 +220,26 @@ def test_service_takes_a_scan_as_its_single_messages(service_factory):
     assert b1.keys() == b2.keys() and len(b1) == 31
     for k, a in b1.items():
         assert a == b2[k], k  # every number to the bit (msgpack floats are float64)
+
+
+def test_an_update_in_parts_gives_the_same_tracks(monkeypatch):
+    """A realtime service publishes a due frame between parts of a scan's update
+    (`pause`): the tracks are those of the update in one part."""
+    import service.tracking.bulk as bulk
+
+    rng = random.Random(5)
+    msgs = scans(rng)
+    whole, parts = Tracker(), Tracker()
+    pauses = []
+    monkeypatch.setattr(bulk, "PART", 7)
+    for msg in msgs:
+        cols = parse_scan_columns("s", pack(msg), NOISE)
+        a = track_columns(whole, cols.ids, "s", MeasurementBatch.of_scan(cols))
+        b = track_columns(parts, cols.ids, "s", MeasurementBatch.of_scan(cols),
+                          pause=lambda: pauses.append(len(parts)))
+        assert a.rejected == b.rejected and a.accepted == b.accepted
+    assert len(pauses) >= 3 * 4  # 30 rows in parts of 7: 4 pauses per scan after the first
+    for track_id, (arr, row) in whole.store.where.items():
+        arr_b, row_b = parts.store.where[track_id]
+        for name in ("x", "p", "mode_p", "mode_prob"):
+            assert getattr(arr, name)[row].tobytes() == getattr(arr_b, name)[row_b].tobytes()
