@@ -143,6 +143,38 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
         assert total(sorted(chosen)) == pytest.approx(total(best), abs=1e-9), trial
 
 
+def test_packed_assignment_equals_one_cluster_at_a_time():
+    """GNN's block-diagonal packing of small clusters (`assign`) chooses the same pairs
+    as solving each cluster alone (`assign_reference`), with clusters of every size."""
+    rng = np.random.default_rng(7)
+    tracker = make(confirm_m=1, confirm_score=-100.0)
+    pairs = rng.uniform(0, 50_000, (30, 2))
+    truth = np.vstack([pairs, pairs + [60.0, 0.0],  # two close targets: small clusters
+                       rng.uniform(0, 1_500, (60, 2))])  # crowded: a large one
+    scan(tracker, 0.0, truth)
+    scan(tracker, 1.0, truth + rng.normal(0, SIGMA, truth.shape))
+    arrays = tracker.store.layout(2)
+    dets = np.vstack([truth + rng.normal(0, 40, truth.shape), rng.uniform(0, 50_000, (50, 2))])
+    z, r = gating.convert(MeasurementBatch.of([det(2.0, p) for p in dets], 2))
+    g = gating.gate(arrays, arrays.rows(), z, r, 2.0, 1.0, gating.gate_threshold(0.999, 2))
+    score, miss = association.scores(g, 0.9, 1e-8)
+    single, multi = gating.singles(g)
+    label = gating.clusters_reference(g.ti, g.dj, len(g.rows), len(g.z))
+    np.testing.assert_array_equal(single, np.flatnonzero(np.bincount(label)[label] == 1))
+    groups = gating.split(g, multi)
+    assert sorted(len(k) for k in groups) == sorted(np.bincount(label[multi])[
+        np.unique(label[multi])].tolist())
+    sizes = [len(np.unique(g.ti[k])) for k in groups]
+    assert min(sizes) == 2 and max(sizes) > association.PACK  # both kinds of pack
+    every = [np.concatenate(groups[:n]) for n in (len(groups), 8)]  # and under PACK
+    assert len(np.unique(g.ti[every[1]])) <= association.PACK
+    for part in every:
+        got = np.sort(np.concatenate(association.assign(g, part, score, miss)))
+        ref = np.sort(np.concatenate(association.assign_reference(g, part, score, miss)))
+        np.testing.assert_array_equal(got, ref)
+        assert len(got) > 8
+
+
 # ---------------------------------------------------------------- JPDA
 def test_jpda_exact_marginals_by_hand():
     """Two tracks, two detections, all four pairs gated: the marginals of the seven joint

@@ -27,6 +27,9 @@ class MeasurementBatch:
     values: np.ndarray  # (N, d): (r, az[, el]) or the position
     sigmas: np.ndarray  # (N, d): (sr, saz[, sel]) or the std of each axis
     origin: np.ndarray  # (N, 3): sensor position
+    # the conversion at the measured points, z (N, d) and R (N, d, d), once computed
+    # (`ucm.at_point`): gating and initiation share it
+    point: tuple[np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def of(cls, meas: Sequence[Measurement], dim: int) -> MeasurementBatch:
@@ -79,9 +82,11 @@ class MeasurementBatch:
     def take(self, index: Sequence[int] | np.ndarray) -> MeasurementBatch:
         """The measurements at `index`, in that order."""
         i = np.asarray(index, dtype=int)
+        point = None if self.point is None else (self.point[0][i], self.point[1][i])
         return MeasurementBatch(self.t[i], self.polar[i], np.asfortranarray(self.values[i]),
-                                np.asfortranarray(self.sigmas[i]), self.origin[i])
+                                np.asfortranarray(self.sigmas[i]), self.origin[i], point)
 
     def rows(self, lo: int, hi: int) -> MeasurementBatch:
+        point = None if self.point is None else (self.point[0][lo:hi], self.point[1][lo:hi])
         return MeasurementBatch(self.t[lo:hi], self.polar[lo:hi], self.values[lo:hi],
-                                self.sigmas[lo:hi], self.origin[lo:hi])
+                                self.sigmas[lo:hi], self.origin[lo:hi], point)

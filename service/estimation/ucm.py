@@ -52,11 +52,13 @@ def cmkf_arrays(batch: MeasurementBatch, pred: np.ndarray | None,
             np.copyto(z[lo:hi].T, zs)
             np.copyto(np.moveaxis(r[lo:hi], 0, -1), rs)
         return z, r
-    polar, cart = batch.polar, ~batch.polar
-    if cart.any():
+    polar = batch.polar
+    if not polar.all():
+        cart = np.flatnonzero(~polar)
         z[cart] = batch.values[cart]
-        sig = batch.sigmas[cart]
-        r[cart] = sig[:, :, None] * np.eye(d) * sig[:, None, :]
+        r[cart] = 0.0
+        diag = np.arange(d)
+        r[cart[:, None], diag, diag] = np.square(batch.sigmas[cart])
     if polar.any():
         vals, sig = batch.values[polar], batch.sigmas[polar]
         el, sel = (vals[:, 2], sig[:, 2]) if d == 3 else (None, None)
@@ -64,6 +66,14 @@ def cmkf_arrays(batch: MeasurementBatch, pred: np.ndarray | None,
         z[polar] = batch.origin[polar, :d] + rel
         r[polar] = ucm_covariance(rel, sig[:, 0], sig[:, 1], sel)
     return z, r
+
+
+def at_point(batch: MeasurementBatch) -> tuple[np.ndarray, np.ndarray]:
+    """`cmkf_arrays(batch, None)`, the conversion at the measured points (gating,
+    initiation), computed once per batch and kept in `batch.point`."""
+    if batch.point is None:
+        batch.point = cmkf_arrays(batch, None)
+    return batch.point
 
 
 def cmkf_soa(batch: MeasurementBatch, pos: np.ndarray, cov: np.ndarray, z: np.ndarray,

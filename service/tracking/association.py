@@ -38,10 +38,11 @@ from .. import defaults
 from ..estimation.measurements import MeasurementBatch
 from ..wire import Measurement
 from .associator import Hypotheses, Seen, WeightedUpdate
-from .gating import Gating, convert, gate, gate_threshold, restrict, split
+from .gating import Gating, convert, gate, gate_threshold, restrict, singles, split
 from .store import TrackStore
 
 UNLIKELY = 1e12  # cost of a pair outside the gate in an assignment matrix
+PACK = 32  # tracks of the small clusters solved together as one block-diagonal assignment
 
 
 @dataclass
@@ -173,24 +174,9 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
     """Global nearest neighbour on the gated pairs of `g` (detections scan[index]): the
     best joint assignment of each cluster, recorded in `hyp`; returns the indices of the
     detections no track took."""
-    from scipy.optimize import linear_sum_assignment  # SciPy only once scans come
-
     score, miss = scores(g, pd, lam)
-    single, groups = split(g)
-    chosen = [single[score[single] > miss]]
-    for k in groups:  # one rectangular assignment per cluster
-        tracks, ti = np.unique(g.ti[k], return_inverse=True)
-        dets, dj = np.unique(g.dj[k], return_inverse=True)
-        nt, nd = len(tracks), len(dets)
-        cost = np.full((nt, nd + nt), UNLIKELY)
-        cost[ti, dj] = -score[k]
-        cost[np.arange(nt), nd + np.arange(nt)] = -miss
-        r, c = linear_sum_assignment(cost)
-        hit = c < nd
-        lookup = {(a, b): pair for a, b, pair in zip(ti, dj, k, strict=True)}
-        chosen.append(np.array([lookup[a, b] for a, b in zip(r[hit], c[hit], strict=True)
-                                if (a, b) in lookup], dtype=int))
-    pairs = np.concatenate(chosen) if chosen else np.zeros(0, dtype=int)
+    single, multi = singles(g)
+    pairs = np.concatenate([single[score[single] > miss], *assign(g, multi, score, miss)])
     ti, dj = g.ti[pairs], g.dj[pairs]
     if len(pairs):
         ids = g.arrays.ids
@@ -204,6 +190,71 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
     free = np.ones(len(index), dtype=bool)
     free[dj] = False
     return index[free]
+
+
+def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list[np.ndarray]:
+    """The pairs chosen among the pairs `multi` (clusters of two or more tracks or
+    detections): per cluster, the rectangular assignment of its tracks to its detections
+    or to a missed-detection column of their own, costs -score and -miss (SciPy's
+    `linear_sum_assignment`). Clusters are solved together, as one block-diagonal matrix,
+    while they hold at most `PACK` tracks in all: a pair of two clusters costs UNLIKELY,
+    never better than a miss, so each block's optimum is its cluster's, and up to PACK
+    tracks the clusters need not even be found. `assign_reference` solves them one by one."""
+    from scipy.optimize import linear_sum_assignment  # SciPy only once scans come
+
+    if not len(multi):
+        return []
+    n_rows, n_dets = len(g.rows), len(g.z)
+    if len(np.unique(g.ti[multi])) <= PACK:
+        groups, cl = [multi], np.zeros(len(multi), dtype=int)
+    else:
+        groups = split(g, multi)
+        cl = np.repeat(np.arange(len(groups)), [len(x) for x in groups])
+    k = np.concatenate(groups)
+    # number each cluster's tracks (detections) consecutively, in cluster order
+    tkey, tpos = np.unique(cl * n_rows + g.ti[k], return_inverse=True)
+    dkey, dpos = np.unique(cl * n_dets + g.dj[k], return_inverse=True)
+    nt = np.bincount(tkey // n_rows, minlength=len(groups))
+    nd = np.bincount(dkey // n_dets, minlength=len(groups))
+    pack = (np.cumsum(nt) - nt) // PACK  # clusters packed by their first track
+    ends = np.flatnonzero(np.diff(pack, append=pack[-1] + 1)) + 1
+    t_end, d_end = np.cumsum(nt)[ends - 1], np.cumsum(nd)[ends - 1]
+    p_end = np.cumsum([len(x) for x in groups])[ends - 1]
+    out, t0, d0, p0 = [], 0, 0, 0
+    for t1, d1, p1 in zip(t_end.tolist(), d_end.tolist(), p_end.tolist(), strict=True):
+        n_t, n_d = t1 - t0, d1 - d0
+        ti, dj, kk = tpos[p0:p1] - t0, dpos[p0:p1] - d0, k[p0:p1]
+        cost = np.full((n_t, n_d + n_t), UNLIKELY)
+        cost[ti, dj] = -score[kk]
+        cost[np.arange(n_t), n_d + np.arange(n_t)] = -miss
+        pair = np.full((n_t, n_d), -1)
+        pair[ti, dj] = kk
+        r, c = linear_sum_assignment(cost)
+        hit = c < n_d
+        chosen = pair[r[hit], c[hit]]
+        out.append(chosen[chosen >= 0])
+        t0, d0, p0 = t1, d1, p1
+    return out
+
+
+def assign_reference(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float
+                     ) -> list[np.ndarray]:
+    """`assign`, one cluster at a time with dictionaries (the textbook form)."""
+    from scipy.optimize import linear_sum_assignment
+
+    out = []
+    for k in split(g, multi):
+        tracks, ti = np.unique(g.ti[k], return_inverse=True)
+        dets, dj = np.unique(g.dj[k], return_inverse=True)
+        nt, nd = len(tracks), len(dets)
+        cost = np.full((nt, nd + nt), UNLIKELY)
+        cost[ti, dj] = -score[k]
+        cost[np.arange(nt), nd + np.arange(nt)] = -miss
+        r, c = linear_sum_assignment(cost)
+        lookup = {(a, b): pair for a, b, pair in zip(ti, dj, k, strict=True)}
+        out.append(np.array([lookup[a, b] for a, b in zip(r, c, strict=True)
+                             if (a, b) in lookup], dtype=int))
+    return out
 
 
 class GNNAssociator(_ScanAssociator):
@@ -228,7 +279,8 @@ class JPDAAssociator(_ScanAssociator):
                 hyp: Hypotheses) -> np.ndarray:
         ratio = np.exp(scores(g, pd, lam)[0])  # G of each pair
         beta = np.zeros(len(ratio))
-        single, groups = split(g)
+        single, multi = singles(g)
+        groups = split(g, multi)
         beta[single] = ratio[single] / (ratio[single] + (1 - pd))
         for k in groups:
             beta[k] = self._marginals(g.ti[k], g.dj[k], ratio[k], 1 - pd)

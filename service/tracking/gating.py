@@ -20,7 +20,7 @@ import numpy as np
 
 from ..estimation import models
 from ..estimation.measurements import MeasurementBatch
-from ..estimation.ucm import cmkf_arrays
+from ..estimation.ucm import at_point
 from .store import TrackArrays
 
 
@@ -31,7 +31,7 @@ class Gating:
     `cross`, its position block `cov`), detections the scan's converted points
     `z` with covariances `r`. Pair k joins track `ti[k]` and detection `dj[k]`, with
     squared Mahalanobis distance `d2[k]` and log-likelihood `loglik[k]` of the
-    innovation; `cluster[k]` numbers its independent cluster."""
+    innovation."""
 
     arrays: TrackArrays
     rows: np.ndarray  # (T,) store rows of the candidate tracks
@@ -44,7 +44,6 @@ class Gating:
     d2: np.ndarray  # (K,)
     loglik: np.ndarray  # (K,)
     nu: np.ndarray  # (K, d) innovations
-    cluster: np.ndarray  # (K,) cluster label of each pair
 
     @property
     def cov(self) -> np.ndarray:
@@ -63,7 +62,7 @@ def gate_threshold(probability: float, dim: int) -> float:
 
 def convert(batch: MeasurementBatch) -> tuple[np.ndarray, np.ndarray]:
     """The detections' converted points z (D, d) and covariances R at those points."""
-    return cmkf_arrays(batch, None)
+    return at_point(batch)
 
 
 def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t: float,
@@ -77,7 +76,7 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     empty = np.zeros(0, dtype=int)
     if not len(rows) or not len(z):
         return Gating(arrays, rows, mean, cross, z, r, empty, empty, np.zeros(0), np.zeros(0),
-                      np.zeros((0, d)), empty)
+                      np.zeros((0, d)))
     # the gate's largest semi-axis is sqrt(gamma lambda_max(S)) <= sqrt(gamma (tr P + tr R))
     from scipy.spatial import cKDTree
 
@@ -95,8 +94,7 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     ti, dj, d2, nu, s = ti[keep], dj[keep], d2[keep], nu[keep], s[keep]
     logdet = np.linalg.slogdet(s)[1] if len(s) else np.zeros(0)
     loglik = -0.5 * (d2 + logdet + d * np.log(2 * np.pi))
-    return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu,
-                  clusters(ti, dj, len(rows), len(z)))
+    return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu)
 
 
 def clusters(ti: np.ndarray, dj: np.ndarray, n_tracks: int, n_dets: int) -> np.ndarray:
@@ -140,16 +138,23 @@ def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray) -> Gating:
     keep = (t_new[g.ti] >= 0) & (d_new[g.dj] >= 0)
     ti, dj = t_new[g.ti[keep]], d_new[g.dj[keep]]
     return Gating(g.arrays, g.rows[tracks], g.mean[tracks], g.cross[tracks], g.z[dets],
-                  g.r[dets], ti, dj, g.d2[keep], g.loglik[keep], g.nu[keep],
-                  clusters(ti, dj, int(tracks.sum()), len(dets)))
+                  g.r[dets], ti, dj, g.d2[keep], g.loglik[keep], g.nu[keep])
 
 
-def split(g: Gating) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The pairs that are a cluster on their own (one track, one detection), and the
-    indices of the pairs of each larger cluster."""
-    size = np.bincount(g.cluster)[g.cluster] if len(g.cluster) else g.cluster
-    single, multi = np.flatnonzero(size == 1), np.flatnonzero(size > 1)
+def singles(g: Gating) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs that are a cluster on their own (their track gates no other detection
+    and their detection no other track), and the others."""
+    if not len(g.ti):
+        return g.ti, g.ti
+    alone = (np.bincount(g.ti)[g.ti] == 1) & (np.bincount(g.dj)[g.dj] == 1)
+    return np.flatnonzero(alone), np.flatnonzero(~alone)
+
+
+def split(g: Gating, multi: np.ndarray) -> list[np.ndarray]:
+    """The pairs `multi` (the non-singleton ones of `singles`) by cluster: a list of
+    pair indices per cluster, in cluster order."""
     if not len(multi):
-        return single, []
-    order = multi[np.argsort(g.cluster[multi], kind="stable")]
-    return single, np.split(order, np.flatnonzero(np.diff(g.cluster[order])) + 1)
+        return []
+    label = clusters(g.ti[multi], g.dj[multi], len(g.rows), len(g.z))
+    order = np.argsort(label, kind="stable")
+    return np.split(multi[order], np.flatnonzero(np.diff(label[order])) + 1)

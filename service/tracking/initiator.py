@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..estimation.measurements import MeasurementBatch
-from ..estimation.ucm import cmkf_arrays
+from ..estimation.ucm import at_point
 from .store import TrackArrays, TrackStore
 
 
@@ -28,7 +28,7 @@ class SinglePointInitiator:
         rows created and, per measurement, None or the reason it started no track.
         `speed`: the velocity prior's std instead of `init_speed`."""
         arrays = store.layout(dim)
-        z, r = cmkf_arrays(batch, None)
+        z, r = at_point(batch)  # shared with the gate of an unlabelled scan
         finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
         speed = self.init_speed if speed is None else speed
         prior = [speed**2, self.init_accel**2][: arrays.order - 1]
