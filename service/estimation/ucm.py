@@ -84,17 +84,17 @@ def cmkf_soa(batch: MeasurementBatch, pos: np.ndarray, cov: np.ndarray, z: np.nd
     (`ucm_expected_soa`), Cartesian ones as given with R = diag(sigma^2)."""
     d = pos.shape[0]
     polar = batch.polar
-    if polar.all():
+    some = polar.any()
+    if some and polar.all():
         _polar_soa(batch, pos, cov, z, r)
         return
-    cart = ~polar
-    if cart.any():
-        z[:, cart] = batch.values[cart].T
-        r[:, :, cart] = 0.0
-        sig = batch.sigmas[cart]
-        for i in range(d):
-            r[i, i, cart] = sig[:, i] ** 2
-    if polar.any():
+    cart = ~polar if some else slice(None)
+    z[:, cart] = batch.values[cart].T
+    r[:, :, cart] = 0.0
+    sig = batch.sigmas[cart]
+    for i in range(d):
+        r[i, i, cart] = sig[:, i] ** 2
+    if some:
         idx = np.flatnonzero(polar)
         zp, rp = np.empty((d, len(idx))), np.empty((d, d, len(idx)))
         sub = MeasurementBatch(batch.t[idx], polar[idx], batch.values[idx],

@@ -204,18 +204,14 @@ def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list
 
     if not len(multi):
         return []
-    n_rows, n_dets = len(g.rows), len(g.z)
     if len(np.unique(g.ti[multi])) <= PACK:
-        groups, cl = [multi], np.zeros(len(multi), dtype=int)
+        groups = [multi]
     else:
         groups = split(g, multi)
-        cl = np.repeat(np.arange(len(groups)), [len(x) for x in groups])
     k = np.concatenate(groups)
-    # number each cluster's tracks (detections) consecutively, in cluster order
-    tkey, tpos = np.unique(cl * n_rows + g.ti[k], return_inverse=True)
-    dkey, dpos = np.unique(cl * n_dets + g.dj[k], return_inverse=True)
-    nt = np.bincount(tkey // n_rows, minlength=len(groups))
-    nd = np.bincount(dkey // n_dets, minlength=len(groups))
+    cl = np.repeat(np.arange(len(groups)), [len(x) for x in groups])
+    tpos, nt = _number(g.ti[k], cl, len(g.rows), len(groups))
+    dpos, nd = _number(g.dj[k], cl, len(g.z), len(groups))
     pack = (np.cumsum(nt) - nt) // PACK  # clusters packed by their first track
     ends = np.flatnonzero(np.diff(pack, append=pack[-1] + 1)) + 1
     t_end, d_end = np.cumsum(nt)[ends - 1], np.cumsum(nd)[ends - 1]
@@ -235,6 +231,21 @@ def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list
         out.append(chosen[chosen >= 0])
         t0, d0, p0 = t1, d1, p1
     return out
+
+
+def _number(node: np.ndarray, cl: np.ndarray, n_nodes: int, n_clusters: int
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Number the tracks (or detections) `node` of pairs of clusters `cl` (each node in
+    one cluster) consecutively in cluster order, then by node: each pair's number, and
+    the count of nodes per cluster."""
+    cluster = np.full(n_nodes, n_clusters)
+    cluster[node] = cl
+    present = cluster < n_clusters
+    order = np.argsort(cluster, kind="stable")[:int(present.sum())] if n_clusters > 1 \
+        else np.flatnonzero(present)
+    number = np.empty(n_nodes, dtype=int)
+    number[order] = np.arange(len(order))
+    return number[node], np.bincount(cluster[order], minlength=n_clusters)
 
 
 def assign_reference(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float
