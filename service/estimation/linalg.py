@@ -235,6 +235,9 @@ def ldl_inverse(s: np.ndarray, out: np.ndarray, det: np.ndarray, floor: float = 
     then S^-1 = M' D^-1 M with M = L^-1. A row with a zero pivot (singular S) gets NaN,
     flagged by the caller's finiteness mask as in `solve`."""
     m = s.shape[0]
+    if m == 2:  # closed form: the adjugate over the determinant (a few passes, not ~25)
+        _inverse2(s, out, det, floor)
+        return
     low, piv, inv_piv = _ldl(s, floor)
     inv_l: dict = {}  # M = L^-1 below its unit diagonal
     for j in range(m):
@@ -255,6 +258,21 @@ def ldl_inverse(s: np.ndarray, out: np.ndarray, det: np.ndarray, floor: float = 
     np.copyto(det, piv[0])
     for pj in piv[1:]:
         det *= pj
+
+
+def _inverse2(s: np.ndarray, out: np.ndarray, det: np.ndarray, floor: float) -> None:
+    """`ldl_inverse` of 2 x 2 matrices: det = a c - b^2 with a, c the floored diagonal
+    and b the lower entry; the inverse [c -b; -b a] / det (NaN where det is 0)."""
+    a, c, b = out[0, 0], out[1, 1], out[0, 1]
+    np.add(s[1, 1], floor, out=a)  # a and c swapped: the adjugate's diagonal
+    np.add(s[0, 0], floor, out=c)
+    np.multiply(a, c, out=det)
+    np.negative(s[1, 0], out=b)
+    det -= np.square(b)
+    inv = np.divide(1.0, det) if det.all() else \
+        np.divide(1.0, det, out=np.full_like(det, np.nan), where=det != 0)
+    np.copyto(out[1, 0], b)
+    out *= inv
 
 
 def _ldl(s: np.ndarray, floor: float) -> tuple[dict, list, list]:
