@@ -143,6 +143,22 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
         assert total(sorted(chosen)) == pytest.approx(total(best), abs=1e-9), trial
 
 
+@pytest.mark.parametrize("tracks,dets", [(20, 30), (400, 300)])
+def test_near_pairs_equal_the_distance_matrix(tracks, dets):
+    """Both prefilters of the gate (the dense matrix for small scans, the KD-tree beyond
+    DENSE_PAIRS) find exactly the pairs within each track's radius."""
+    rng = np.random.default_rng(tracks)
+    mean, z = rng.uniform(0, 3_000, (tracks, 2)), rng.uniform(0, 3_000, (dets, 2))
+    radius = rng.uniform(50, 800, tracks)
+    ti, dj = gating.near(mean, z, radius)
+    dist = np.linalg.norm(mean[:, None] - z[None], axis=2)
+    want = set(zip(*np.nonzero(dist <= radius[:, None]), strict=True))
+    assert set(zip(ti.tolist(), dj.tolist(), strict=True)) == want
+    assert len(want) > tracks
+    assert len(ti) == len(want)  # no pair twice
+    assert (tracks * dets > gating.DENSE_PAIRS) == (tracks == 400)  # both paths run
+
+
 def test_packed_assignment_equals_one_cluster_at_a_time():
     """GNN's block-diagonal packing of small clusters (`assign`) chooses the same pairs
     as solving each cluster alone (`assign_reference`), with clusters of every size."""

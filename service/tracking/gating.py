@@ -5,7 +5,8 @@ nu' S^-1 nu <= gamma with S = H P H' + R, where the track is predicted to the sc
 and R is the detection's UCM covariance at its converted point (the same conversion the
 filters use; the update itself then averages R over the prediction). A KD-tree over the
 detections (SciPy's `cKDTree`) proposes for each track only the detections within a
-radius that bounds its gate, so no tracks x detections matrix is ever built; the pairs
+radius that bounds its gate, so no tracks x detections matrix is built (except for
+small scans, `DENSE_PAIRS`, where the tree costs more than the matrix); the pairs
 that pass are split into independent clusters (connected components of the bipartite
 gate graph), which the associators resolve one at a time. SciPy is imported when a scan
 first needs it: a service fed only labelled measurements never loads it (about 40 MB).
@@ -22,6 +23,8 @@ from ..estimation import models
 from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import at_point
 from .store import TrackArrays
+
+DENSE_PAIRS = 16_384  # tracks x detections below which `near` skips the KD-tree
 
 
 @dataclass
@@ -78,14 +81,9 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
         return Gating(arrays, rows, mean, cross, z, r, empty, empty, np.zeros(0), np.zeros(0),
                       np.zeros((0, d)))
     # the gate's largest semi-axis is sqrt(gamma lambda_max(S)) <= sqrt(gamma (tr P + tr R))
-    from scipy.spatial import cKDTree
-
     tr_r = np.trace(r, axis1=1, axis2=2).max()
     radius = np.sqrt(gamma * (np.trace(cov, axis1=1, axis2=2) + tr_r))
-    near = cKDTree(z).query_ball_point(mean, radius, return_sorted=False)
-    counts = np.fromiter(map(len, near), int, len(near))
-    ti = np.repeat(np.arange(len(rows)), counts)
-    dj = np.fromiter((j for js in near for j in js), int, int(counts.sum()))
+    ti, dj = near(mean, z, radius)
     nu = z[dj] - mean[ti]
     s = cov[ti] + r[dj]
     sol = np.linalg.solve(s, nu[:, :, None])[:, :, 0] if len(ti) else nu
@@ -95,6 +93,24 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     logdet = np.linalg.slogdet(s)[1] if len(s) else np.zeros(0)
     loglik = -0.5 * (d2 + logdet + d * np.log(2 * np.pi))
     return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu)
+
+
+def near(mean: np.ndarray, z: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs (track i, detection j) with |z_j - mean_i| <= radius_i, tracks in
+    ascending order: from a KD-tree over the detections (SciPy's `cKDTree`), or, while
+    tracks x detections stays under `DENSE_PAIRS`, from the dense distance matrix (the
+    same pairs; building and querying the tree costs more than the whole matrix then)."""
+    if len(mean) * len(z) <= DENSE_PAIRS:
+        diff = z[None, :, :] - mean[:, None, :]
+        ti, dj = np.nonzero(np.einsum("tdk,tdk->td", diff, diff) <= np.square(radius)[:, None])
+        return ti, dj
+    from scipy.spatial import cKDTree
+
+    found = cKDTree(z).query_ball_point(mean, radius, return_sorted=False)
+    counts = np.fromiter(map(len, found), int, len(found))
+    ti = np.repeat(np.arange(len(mean)), counts)
+    dj = np.fromiter((j for js in found for j in js), int, int(counts.sum()))
+    return ti, dj
 
 
 def clusters(ti: np.ndarray, dj: np.ndarray, n_tracks: int, n_dets: int) -> np.ndarray:
