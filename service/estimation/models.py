@@ -95,13 +95,14 @@ def predict_position(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, d
     gain = np.abs(dt)
     g = [gain ** (order - k) / math.factorial(order - k) for k in range(order)]
     noise = np.square(q) * g[0]
-    diag = np.arange(dim)
     for b in range(order):
         acc = rows[:, :, blk[b]]
         acc[...] = a[:, :, blk[b]]
         for e in range(b + 1, order):
             acc += coef[e - b][:, :, None] * a[:, :, blk[e]]
-        acc[:, diag, diag] += (noise * g[b])[:, None]
+        qb = noise * g[b]
+        for i in range(dim):
+            acc[:, i, i] += qb
     return mean, rows
 
 

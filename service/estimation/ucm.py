@@ -53,13 +53,15 @@ def cmkf_arrays(batch: MeasurementBatch, pred: np.ndarray | None,
             np.copyto(np.moveaxis(r[lo:hi], 0, -1), rs)
         return z, r
     polar = batch.polar
-    if not polar.all():
-        cart = np.flatnonzero(~polar)
+    some = polar.any()
+    if not (some and polar.all()):
+        cart = np.flatnonzero(~polar) if some else slice(None)
         z[cart] = batch.values[cart]
         r[cart] = 0.0
-        diag = np.arange(d)
-        r[cart[:, None], diag, diag] = np.square(batch.sigmas[cart])
-    if polar.any():
+        sig2 = np.square(batch.sigmas[cart])
+        for i in range(d):
+            r[cart, i, i] = sig2[:, i]
+    if some:
         vals, sig = batch.values[polar], batch.sigmas[polar]
         el, sel = (vals[:, 2], sig[:, 2]) if d == 3 else (None, None)
         rel = unbiased(vals[:, 0], vals[:, 1], el, sig[:, 1], sel)
