@@ -101,8 +101,11 @@ def near(mean: np.ndarray, z: np.ndarray, radius: np.ndarray) -> tuple[np.ndarra
     tracks x detections stays under `DENSE_PAIRS`, from the dense distance matrix (the
     same pairs; building and querying the tree costs more than the whole matrix then)."""
     if len(mean) * len(z) <= DENSE_PAIRS:
-        diff = z[None, :, :] - mean[:, None, :]
-        ti, dj = np.nonzero(np.einsum("tdk,tdk->td", diff, diff) <= np.square(radius)[:, None])
+        d2 = np.zeros((len(mean), len(z)))
+        for k in range(z.shape[1]):  # axis by axis: long inner loops, not runs of d
+            diff = np.subtract.outer(mean[:, k], z[:, k])
+            d2 += np.square(diff, out=diff)
+        ti, dj = np.nonzero(d2 <= np.square(radius)[:, None])
         return ti, dj
     from scipy.spatial import cKDTree
 
