@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..estimation import models
+from ..estimation.linalg import ldl_inverse
 from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import at_point
 from .store import TrackArrays
@@ -86,12 +87,14 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     ti, dj = near(mean, z, radius)
     nu = z[dj] - mean[ti]
     s = cov[ti] + r[dj]
-    sol = np.linalg.solve(s, nu[:, :, None])[:, :, 0] if len(ti) else nu
-    d2 = np.einsum("ki,ki->k", nu, sol)
-    keep = d2 <= gamma
-    ti, dj, d2, nu, s = ti[keep], dj[keep], d2[keep], nu[keep], s[keep]
-    logdet = np.linalg.slogdet(s)[1] if len(s) else np.zeros(0)
-    loglik = -0.5 * (d2 + logdet + d * np.log(2 * np.pi))
+    # S^-1 and det S of every pair at once, batch axis last (`linalg.ldl_inverse`)
+    sinv, det = np.empty((d, d, len(ti))), np.empty(len(ti))
+    ldl_inverse(s.transpose(1, 2, 0), sinv, det)
+    nut = nu.T
+    d2 = np.einsum("in,ijn,jn->n", nut, sinv, nut)
+    keep = (d2 <= gamma) & (det > 0)
+    ti, dj, d2, nu, det = ti[keep], dj[keep], d2[keep], nu[keep], det[keep]
+    loglik = -0.5 * (d2 + np.log(det) + d * np.log(2 * np.pi))
     return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu)
 
 
