@@ -142,15 +142,16 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
                     acc += term
     # + Q: q^2 g_a g_b, g_a = |dt|^(order - a) / (order - a)! (axis_noise)
     gain = np.abs(dt)
-    g = [gain ** (order - a) / math.factorial(order - a) for a in range(order)]
-    q2 = np.square(q)
+    g = np.empty((order, n_rows))
     for a in range(order):
-        for b in range(a, order):
-            qab = g[a] * g[b] * q2
-            for k in range(dim):
-                p[a * dim + k, b * dim + k] += qab
-            if b > a:
-                p[blk[b], blk[a]] = p[blk[a], blk[b]].transpose(1, 0, 2)
+        np.divide(gain ** (order - a), math.factorial(order - a), out=g[a])
+    qm = g[:, None] * g[None, :]  # (order, order, N): g_a g_b, then q^2 g_a g_b
+    qm *= np.square(q)
+    for k in range(dim):  # the entries (a dim + k, b dim + k) of every block
+        p[k::dim, k::dim] += qm
+    for a in range(order):
+        for b in range(a + 1, order):
+            p[blk[b], blk[a]] = p[blk[a], blk[b]].transpose(1, 0, 2)
 
 
 def _phi(powers: list, a: int, c: int) -> np.ndarray | float:
