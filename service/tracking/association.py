@@ -130,7 +130,7 @@ class _ScanAssociator:
         gamma = gate_threshold(self.gate_probability, m0.dim)
         every = gate(arrays, rows, z, r, m0.t, self.q, gamma)
         confirmed = arrays.confirmed[rows]
-        g = restrict(every, confirmed, np.arange(len(scan)))
+        g = restrict(every, confirmed)
         ungated = len(scan) - len(np.unique(every.dj))
         lam = self.sensors.density(m0.sensor, z, ungated)
         pd = self.sensors.model(m0.sensor).pd

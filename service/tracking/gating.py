@@ -150,17 +150,23 @@ def clusters_reference(ti: np.ndarray, dj: np.ndarray, n_tracks: int,
     return connected_components(graph, directed=False)[1][ti]
 
 
-def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray) -> Gating:
+def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray | None = None) -> Gating:
     """The gating of a subset of the tracks (boolean mask over g.rows) and of the
-    detections (indices into g.z) of `g`, its pairs renumbered and re-clustered."""
+    detections (indices into g.z; None: all of them) of `g`, its pairs renumbered."""
     t_new = np.full(len(g.rows), -1)
     t_new[tracks] = np.arange(int(tracks.sum()))
-    d_new = np.full(len(g.z), -1)
-    d_new[dets] = np.arange(len(dets))
-    keep = (t_new[g.ti] >= 0) & (d_new[g.dj] >= 0)
-    ti, dj = t_new[g.ti[keep]], d_new[g.dj[keep]]
-    return Gating(g.arrays, g.rows[tracks], g.mean[tracks], g.cross[tracks], g.z[dets],
-                  g.r[dets], ti, dj, g.d2[keep], g.loglik[keep], g.nu[keep])
+    ti = t_new[g.ti]
+    keep = ti >= 0
+    if dets is None:
+        dj, z, r = g.dj[keep], g.z, g.r
+    else:
+        d_new = np.full(len(g.z), -1)
+        d_new[dets] = np.arange(len(dets))
+        dj = d_new[g.dj]
+        keep &= dj >= 0
+        dj, z, r = dj[keep], g.z[dets], g.r[dets]
+    return Gating(g.arrays, g.rows[tracks], g.mean[tracks], g.cross[tracks], z, r, ti[keep],
+                  dj, g.d2[keep], g.loglik[keep], g.nu[keep])
 
 
 def singles(g: Gating) -> tuple[np.ndarray, np.ndarray]:

@@ -28,12 +28,17 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:
     log-likelihood ratio to each track's score; confirm those detected M of the last N
     scans whose score reached `threshold`."""
     mask = (1 << n) - 1
-    for s in seen:
-        a, rows, hit = s.arrays, s.rows, s.detected
+    by_layout: dict[int, list[Seen]] = {}
+    for s in seen:  # one pass per layout (a scan's stages see disjoint tracks)
+        by_layout.setdefault(id(s.arrays), []).append(s)
+    for group in by_layout.values():
+        a = group[0].arrays
+        rows, hit, gain = (np.concatenate([getattr(s, f) for s in group])
+                           for f in ("rows", "detected", "gain"))
         a.hits[rows] = ((a.hits[rows] << 1) | hit) & mask
         a.scans[rows] += 1
         a.misses[rows] = np.where(hit, 0, a.misses[rows] + 1)
-        a.score[rows] += s.gain
+        a.score[rows] += gain
         a.confirmed[rows] |= (np.bitwise_count(a.hits[rows]) >= m) & (a.score[rows] >= threshold)
 
 
