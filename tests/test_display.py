@@ -165,3 +165,39 @@ def test_frame_prediction_is_the_reference_prediction(order, dim):
     np.testing.assert_allclose(vel[:, :dim], xs[:, 1], rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(var, ref_var, rtol=1e-12)
     assert not pos[:, dim:].any() and not vel[:, dim:].any()
+
+
+def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
+    """The frame predicts the IMM's combined estimate with one model (F of CA on the
+    combined state). The IMM's own predicted mean, the mixture of its modes' predictions,
+    differs from it exactly by (mu_CA - c_CA) a_CA dt^2 / 2 in position and
+    (mu_CA - c_CA) a_CA dt in velocity (docs/performance.md, "Frame cost"): the CV modes
+    hold no acceleration, and mixing keeps the mean. |c_CA - mu_CA| <= 1 - exp(-dt / 10 s)
+    with the default sojourns."""
+    from service.estimation import models
+
+    tracker = Tracker()
+    for k in range(6):  # accelerating targets: the CA mode gains weight
+        tracker.track([cart(f"a{i}", k, (100.0 * k + 4.0 * i * k * k, 50.0 * i, 0.0))
+                       for i in range(8)])
+    arrays = tracker.store.layout(3)
+    rows = arrays.live()[0]
+    imm = tracker.updater
+    ca = [kind for _, kind, _, _ in imm.modes].index("ca")
+    for dt in (0.2, 1.0, 3.0):
+        t = float(arrays.t[rows].max()) + dt
+        dts = t - arrays.t[rows]
+        c, x0, _ = imm.mix(arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows],
+                           imm.transition(dts), 3)
+        mean = np.zeros((len(rows), 9))
+        for j, (_, kind, q, omega) in enumerate(imm.modes):
+            f, _ = models.motion(kind, dts, 3, 3, q, omega)
+            mean += c[:, j, None] * (f @ x0[:, j, :, None])[:, :, 0]
+        pos, vel, _ = display.predicted_at(arrays.x[rows], arrays.t[rows],
+                                           tracker.display.columns(arrays).axis_cov[rows], t,
+                                           tracker.display.q, 3, 3)
+        gap = (arrays.mode_prob[rows, ca] - c[:, ca])[:, None] * arrays.mode_x[rows, ca, 6:9]
+        np.testing.assert_allclose(pos - mean[:, :3], gap * dts[:, None] ** 2 / 2, atol=1e-6)
+        np.testing.assert_allclose(vel - mean[:, 3:6], gap * dts[:, None], atol=1e-8)
+        assert (np.abs(c[:, ca] - arrays.mode_prob[rows, ca]) <= 1 - np.exp(-dts / 10)).all()
+        assert np.abs(gap).max() > 0  # the test sees a manoeuvre mode at work
