@@ -71,7 +71,9 @@ def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int
     x (N, n), P (N, n, n) over their own dt, in one pass per chunk of rows on batch-last
     work arrays. Returns new arrays: posterior x, P, NIS and the mask of finite rows."""
     n_rows, n = x.shape
-    dt = np.broadcast_to(np.asarray(dt, dtype=float), (n_rows,))
+    dt = np.asarray(dt, dtype=float)
+    if dt.shape != (n_rows,):
+        dt = np.broadcast_to(dt, (n_rows,))
     q = np.asarray(q, dtype=float)
     xn, pn = np.empty((n_rows, n)), np.empty((n_rows, n, n))
     nis, det, ok = np.empty(n_rows), np.empty(n_rows), np.empty(n_rows, dtype=bool)
@@ -85,7 +87,7 @@ def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int
         kalman.update_soa(xs, ps, zs, rs, pout, nis[lo:hi], det[lo:hi])
         ok[lo:hi] = kalman.finite(xs, pout, nis[lo:hi], dim)
         np.copyto(xn[lo:hi].T, xs)
-        np.copyto(np.moveaxis(pn[lo:hi], 0, -1), pout)
+        np.copyto(scratch.batch_last(pn[lo:hi]), pout)
     return xn, pn, nis, ok
 
 

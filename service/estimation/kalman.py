@@ -77,7 +77,7 @@ def update_full(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray,
                    scratch.to_soa(r[lo:hi], "upda.r"), pout, nis[lo:hi], det[lo:hi])
         ok[lo:hi] = finite(xs, pout, nis[lo:hi], m)
         np.copyto(xn[lo:hi].T, xs)
-        np.copyto(np.moveaxis(pn[lo:hi], 0, -1), pout)
+        np.copyto(scratch.batch_last(pn[lo:hi]), pout)
     return xn, pn, nis, ok, loglik(nis, det, m)
 
 

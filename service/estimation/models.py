@@ -72,7 +72,7 @@ def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
         xs, ps = scratch.to_soa(x[lo:hi], "pred.x"), scratch.to_soa(p[lo:hi], "pred.p")
         predict_soa(xs, ps, dt[lo:hi], order, dim, q[lo:hi] if q.ndim else q)
         np.copyto(xp[lo:hi].T, xs)
-        np.copyto(np.moveaxis(pp[lo:hi], 0, -1), ps)
+        np.copyto(scratch.batch_last(pp[lo:hi]), ps)
     return xp, pp
 
 

@@ -57,10 +57,16 @@ def chunks(n: int) -> list[tuple[int, int]]:
     return list(zip(edges[:-1], edges[1:], strict=True))
 
 
+def batch_last(a: np.ndarray) -> np.ndarray:
+    """The view of rows (k, *shape) as (*shape, k) (np.moveaxis(a, 0, -1), without its
+    Python-level argument handling: kernels call it on every chunk)."""
+    return a.transpose(*range(1, a.ndim), 0)
+
+
 def to_soa(a: np.ndarray, name: str) -> np.ndarray:
     """Rows (k, *shape) copied into the work array `name` of shape (*shape, k)."""
     out = buffer(name, a.shape[1:], len(a))
-    np.copyto(out, np.moveaxis(a, 0, -1))
+    np.copyto(out, batch_last(a))
     return out
 
 

@@ -50,7 +50,7 @@ def cmkf_arrays(batch: MeasurementBatch, pred: np.ndarray | None,
             cmkf_soa(batch.rows(lo, hi), scratch.to_soa(pred[lo:hi], "cmkfa.pos"),
                      scratch.to_soa(pred_cov[lo:hi], "cmkfa.cov"), zs, rs)
             np.copyto(z[lo:hi].T, zs)
-            np.copyto(np.moveaxis(r[lo:hi], 0, -1), rs)
+            np.copyto(scratch.batch_last(r[lo:hi]), rs)
         return z, r
     polar = batch.polar
     some = polar.any()
@@ -143,7 +143,7 @@ def ucm_covariance_expected(mean: np.ndarray, cov: np.ndarray, sr: np.ndarray,
         ucm_expected_soa(scratch.to_soa(mean[lo:hi], "ucmx.mean"),
                          scratch.to_soa(cov[lo:hi], "ucmx.cov"), sr[lo:hi], saz[lo:hi],
                          None if sel is None else sel[lo:hi], az_meas[lo:hi], o)
-        np.copyto(np.moveaxis(out[lo:hi], 0, -1), o)
+        np.copyto(scratch.batch_last(out[lo:hi]), o)
     return out
 
 

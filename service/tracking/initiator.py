@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -9,6 +10,13 @@ import numpy as np
 from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import at_point
 from .store import TrackArrays, TrackStore
+
+
+@functools.lru_cache(maxsize=16)
+def _prior(speed: float, accel: float, order: int, dim: int) -> np.ndarray:
+    """The initial covariance but for its position block: diag(0, speed^2[, accel^2])
+    per axis."""
+    return np.diag(np.repeat([0.0, speed**2, accel**2][:order], dim))
 
 
 class SinglePointInitiator:
@@ -31,15 +39,22 @@ class SinglePointInitiator:
         z, r = at_point(batch)  # shared with the gate of an unlabelled scan
         finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
         speed = self.init_speed if speed is None else speed
-        prior = [speed**2, self.init_accel**2][: arrays.order - 1]
         ok = finite.tolist()
-        arrays, rows = store.add_many([k for k, good in zip(names, ok, strict=True) if good],
+        every = all(ok)
+        arrays, rows = store.add_many(names if every else
+                                      [k for k, good in zip(names, ok, strict=True) if good],
                                       dim)
-        arrays.x[rows] = 0.0
-        arrays.x[rows, :dim] = z[finite]
-        arrays.p[rows] = np.diag(np.repeat([0.0, *prior], dim))
-        arrays.p[rows, :dim, :dim] = r[finite]
-        arrays.t[rows] = arrays.t_first[rows] = batch.t[finite]
+        if not every:
+            z, r, t = z[finite], r[finite], batch.t[finite]
+        else:
+            t = batch.t
+        x = np.zeros((len(rows), arrays.n))
+        x[:, :dim] = z
+        p = np.empty((len(rows), arrays.n, arrays.n))
+        p[:] = _prior(speed, self.init_accel, arrays.order, dim)
+        p[:, :dim, :dim] = r
+        arrays.x[rows], arrays.p[rows] = x, p
+        arrays.t[rows] = arrays.t_first[rows] = t
         arrays.updates[rows] = 1
         arrays.nis[rows] = 0.0
         reasons = [None if good else "conversion gave a non-finite value" for good in ok]

@@ -230,7 +230,7 @@ class Tracker:
         reused in a run), tentative until confirmed M of N."""
         meas = [o.meas for o in scan]
         unlabelled = bool(meas) and not meas[0].target
-        ids = [self._new_id(m.sensor) for m in meas] if unlabelled else \
+        ids = self._new_ids([m.sensor for m in meas]) if unlabelled else \
             [m.target for m in meas]
         speed = self.config.max_speed / 3 if unlabelled else None
         arrays, rows, reasons = self.initiator.initiate(self.store, dim, batch, ids, speed)
@@ -252,9 +252,14 @@ class Tracker:
             if reason is None:
                 out.states = block
 
-    def _new_id(self, sensor: str) -> str:
-        n = self.numbers[sensor] = self.numbers.get(sensor, 0) + 1
-        return f"{sensor}-{n}"
+    def _new_ids(self, sensors: list[str]) -> list[str]:
+        """Ids `<sensor>-<n>` for new unlabelled tracks of these sensors, n counting per
+        sensor from 1."""
+        numbers, out = self.numbers, []
+        for sensor in sensors:
+            n = numbers[sensor] = numbers.get(sensor, 0) + 1
+            out.append(f"{sensor}-{n}")
+        return out
 
     # ------------------------------------------------------------ queries
     def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray) -> States:
