@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from itertools import chain
 from operator import attrgetter
 from typing import TYPE_CHECKING
 
@@ -36,17 +35,19 @@ class MeasurementBatch:
         """Columns of validated records (`validate.Measurement`) that all have dimension
         `dim` (values and sigmas of `dim` numbers each)."""
         n = len(meas)
-        flat = chain.from_iterable
-
-        def column(name: str, width: int) -> np.ndarray:
-            a = np.fromiter(flat(map(attrgetter(name), meas)), float)
-            if a.size != n * width:
-                raise ValueError(f"measurements of mixed dimensions in one {dim}-D batch")
-            return np.asfortranarray(a.reshape(n, width))  # each of its columns contiguous
-
+        if not n:
+            return cls(np.zeros(0), np.zeros(0, bool), np.zeros((0, dim), order="F"),
+                       np.zeros((0, dim), order="F"), np.zeros((0, 3)))
+        try:  # one list per field, then one conversion each
+            values = np.array([m.values for m in meas], dtype=float, order="F")
+            sigmas = np.array([m.sigmas for m in meas], dtype=float, order="F")
+        except ValueError:  # ragged: values of another length
+            values = sigmas = np.zeros((0, 0))
+        if values.shape != (n, dim) or sigmas.shape != (n, dim):
+            raise ValueError(f"measurements of mixed dimensions in one {dim}-D batch")
         return cls(np.fromiter(map(attrgetter("t"), meas), float, n),
-                   np.fromiter(map(attrgetter("polar"), meas), bool, n),
-                   column("values", dim), column("sigmas", dim), column("sensor_pos", 3))
+                   np.fromiter(map(attrgetter("polar"), meas), bool, n), values, sigmas,
+                   np.array([m.sensor_pos for m in meas], dtype=float).reshape(n, 3))
 
     @classmethod
     def of_scan(cls, scan: ScanColumns) -> MeasurementBatch:

@@ -131,7 +131,7 @@ class _ScanAssociator:
         every = gate(arrays, rows, z, r, m0.t, self.q, gamma)
         confirmed = arrays.confirmed[rows]
         g = restrict(every, confirmed)
-        ungated = len(scan) - len(np.unique(every.dj))
+        ungated = len(scan) - np.count_nonzero(np.bincount(every.dj, minlength=len(scan)))
         lam = self.sensors.density(m0.sensor, z, ungated)
         pd = self.sensors.model(m0.sensor).pd
         free = self.resolve(g, np.arange(len(scan)), pd, lam, hyp)
