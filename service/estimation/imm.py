@@ -162,9 +162,10 @@ class IMM:
         loglik = np.stack([o[2][4] for o in outs], 1)
         ok = np.all([o[2][3] for o in outs], 0)
         logw = np.log(np.maximum(c, 1e-300)) + loglik
-        logw -= logw.max(1, keepdims=True)
-        mu_new = np.exp(logw)
-        mu_new /= mu_new.sum(1, keepdims=True)
+        with np.errstate(invalid="ignore"):  # a row with no finite mode: masked by ok
+            logw -= logw.max(1, keepdims=True)
+            mu_new = np.exp(logw)
+            mu_new /= mu_new.sum(1, keepdims=True)
         ok &= np.isfinite(mu_new).all(1)
         good = rows[ok]
         arrays.mode_x[good], arrays.mode_p[good] = xu[ok], pu[ok]
