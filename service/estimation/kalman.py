@@ -85,12 +85,13 @@ def finite(x: np.ndarray, p: np.ndarray, nis: np.ndarray, m: int = 0) -> np.ndar
     """Rows (batch axis last) whose state, covariance and NIS are all finite: a sum is
     finite if and only if all its terms are (short of an overflow). With m > 0, P is
     known symmetric and only its rows :m and its lower-right block are summed."""
-    tot = x.sum(0)
+    add = np.add.reduce  # the C reduction itself: this runs on every chunk
+    tot = add(x, axis=0)
     if m > 0:
-        tot += p[:m].sum((0, 1))
-        tot += p[m:, m:].sum((0, 1))
+        tot += add(p[:m], axis=(0, 1))
+        tot += add(p[m:, m:], axis=(0, 1))
     else:
-        tot += p.sum((0, 1))
+        tot += add(p, axis=(0, 1))
     tot += nis
     return np.isfinite(tot)
 

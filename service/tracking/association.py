@@ -246,7 +246,7 @@ def _number(node: np.ndarray, cl: np.ndarray, n_nodes: int, n_clusters: int
     cluster[node] = cl
     present = cluster < n_clusters
     order = np.argsort(cluster, kind="stable")[:int(present.sum())] if n_clusters > 1 \
-        else np.flatnonzero(present)
+        else present.nonzero()[0]
     number = np.empty(n_nodes, dtype=int)
     number[order] = np.arange(len(order))
     return number[node], np.bincount(cluster[order], minlength=n_clusters)

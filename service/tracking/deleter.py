@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from .store import TrackStore
 
 
@@ -19,7 +17,7 @@ class UpdateTimeDeleter:
         out: list[str] = []
         for arrays in store.layouts.values():
             rows, ids = arrays.live()
-            old = np.flatnonzero(now - arrays.t[rows] > self.delete_after)
+            old = (now - arrays.t[rows] > self.delete_after).nonzero()[0]
             out += [ids[i] for i in old.tolist()]
         return out
 

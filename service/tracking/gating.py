@@ -82,8 +82,8 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
         return Gating(arrays, rows, mean, cross, z, r, empty, empty, np.zeros(0), np.zeros(0),
                       np.zeros((0, d)))
     # the gate's largest semi-axis is sqrt(gamma lambda_max(S)) <= sqrt(gamma (tr P + tr R))
-    tr_r = np.trace(r, axis1=1, axis2=2).max()
-    radius = np.sqrt(gamma * (np.trace(cov, axis1=1, axis2=2) + tr_r))
+    tr_r = r.trace(axis1=1, axis2=2).max()
+    radius = np.sqrt(gamma * (cov.trace(axis1=1, axis2=2) + tr_r))
     ti, dj = near(mean, z, radius)
     nu = z[dj] - mean[ti]
     s = cov[ti] + r[dj]
@@ -175,7 +175,7 @@ def singles(g: Gating) -> tuple[np.ndarray, np.ndarray]:
     if not len(g.ti):
         return g.ti, g.ti
     alone = (np.bincount(g.ti)[g.ti] == 1) & (np.bincount(g.dj)[g.dj] == 1)
-    return np.flatnonzero(alone), np.flatnonzero(~alone)
+    return alone.nonzero()[0], (~alone).nonzero()[0]
 
 
 def split(g: Gating, multi: np.ndarray) -> list[np.ndarray]:

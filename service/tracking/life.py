@@ -58,8 +58,8 @@ class MofNDeleter:
                 continue
             misses, confirmed = arrays.misses[rows], arrays.confirmed[rows]
             d = arrays.dim
-            var = np.trace(arrays.p[rows, :d, :d], axis1=1, axis2=2)
+            var = arrays.p[rows, :d, :d].trace(axis1=1, axis2=2)
             gone = np.where(confirmed, misses >= self.misses, misses > self.n - self.m)
             gone |= var > self.sigma**2
-            out += [ids[i] for i in np.flatnonzero(plot & gone).tolist()]
+            out += [ids[i] for i in (plot & gone).nonzero()[0].tolist()]
         return out

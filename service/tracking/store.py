@@ -104,7 +104,7 @@ class TrackArrays(Columns):
         """Rows of the live tracks and their ids, cached until a track comes or goes
         (every display frame asks)."""
         if self._live is None:
-            rows = np.flatnonzero(self.alive)
+            rows = self.alive.nonzero()[0]
             ids = self.ids
             self._live = (rows, [ids[i] for i in rows.tolist()])  # type: ignore[misc]
         return self._live
