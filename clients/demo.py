@@ -17,7 +17,7 @@ import webbrowser
 
 from service.wire import free_port
 
-from .procs import stop
+from .procs import stop_all
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -46,6 +46,7 @@ def main(argv: list[str] | None = None) -> None:
                      args.scenario, ["--runs", str(args.runs)])
     feed = subprocess.Popen([py, "-m", "clients.feed", args.scenario, "--realtime",
                              "-e", endpoint, *feed_args], stdout=subprocess.DEVNULL)
+    web = None
     try:
         if args.web:
             web = subprocess.Popen([py, "-m", "clients.web", "-e", endpoint,
@@ -55,17 +56,13 @@ def main(argv: list[str] | None = None) -> None:
             if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") \
                     or sys.platform in ("darwin", "win32"):  # never a text browser here
                 webbrowser.open(url)
-            try:
-                web.wait()
-            finally:
-                stop(web, timeout=10)
+            web.wait()
         else:
             subprocess.run([py, "-m", "clients.display", "-e", endpoint], check=False)
     except KeyboardInterrupt:
         pass
-    finally:
-        for proc in (feed, service):
-            stop(proc, timeout=10)
+    finally:  # every child stopped at once, within one 10 s bound
+        stop_all([web, feed, service], timeout=10)
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import subprocess
+import time
 
 
 def stop(proc: subprocess.Popen | None, timeout: float = 15.0) -> str:
@@ -24,3 +25,15 @@ def stop(proc: subprocess.Popen | None, timeout: float = 15.0) -> str:
     if isinstance(err, bytes):
         err = err.decode(errors="replace")
     return err or ""
+
+
+def stop_all(procs: list[subprocess.Popen | None], timeout: float = 15.0) -> None:
+    """`stop` several processes at once: all terminated together, then each waited for
+    within the one `timeout` (not one timeout after another), the late ones killed."""
+    live = [p for p in procs if p is not None]
+    for proc in live:
+        if proc.poll() is None:
+            proc.terminate()
+    deadline = time.monotonic() + timeout
+    for proc in live:
+        stop(proc, timeout=max(0.0, deadline - time.monotonic()))

@@ -195,7 +195,8 @@ async def serve(args: argparse.Namespace) -> None:
     runner = web.AppRunner(server.app, access_log=None)
     await runner.setup()
     try:
-        await web.TCPSite(runner, args.host, args.port).start()
+        # on SIGTERM wait at most 2 s for open connections (aiohttp's default: 60 s)
+        await web.TCPSite(runner, args.host, args.port, shutdown_timeout=2.0).start()
         host = f"[{args.host}]" if ":" in args.host else args.host
         print(f"track-web: http://{host}:{args.port}/ (ns {args.ns})", file=sys.stderr,
               flush=True)
