@@ -213,7 +213,6 @@ def delivered(session: zenoh.Session, keys: Keys, trackers: int,
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
-    zenoh.init_log_from_env_or("error")  # Zenoh's own errors (RUST_LOG for more)
     session = open_session(args, block=True)  # block, never drop
     try:
         if args.trackers and not wait_for_tracker(session, Keys(args.ns), args.trackers):

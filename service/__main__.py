@@ -10,8 +10,6 @@ import sys
 import threading
 import uuid
 
-import zenoh
-
 from . import __version__, defaults
 from .estimation.catalog import FILTERS, FilterSpec
 from .node import TrackService
@@ -193,7 +191,6 @@ def main(argv: list[str] | None = None) -> None:
     steady_malloc()  # before Zenoh starts its threads
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    zenoh.init_log_from_env_or("error")  # Zenoh's own errors (RUST_LOG for more)
     tracker = Tracker(tracker_config(args))
     # lockstep drops nothing: BLOCK puts wait for a slow subscriber
     session = open_session(args, serve=True, block=args.clock == "lockstep",
