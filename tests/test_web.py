@@ -334,9 +334,12 @@ def test_page_keeps_drawing_a_realtime_service(service_factory, browser, capsys)
 @pytest.mark.slow
 def test_demo_web_serves_the_live_map_and_stops_everything():
     port = free_port()
+    # Ctrl-C as in a terminal: SIGINT handled, even when this test runs in a background
+    # job (whose children inherit an ignored SIGINT from a shell without job control)
     demo = subprocess.Popen([sys.executable, "-m", "clients.demo", "--web", "--port", str(port),
                              "--targets", "20"], stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, text=True)
+                            stderr=subprocess.DEVNULL, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     url = f"http://127.0.0.1:{port}"
     try:
         assert "track-demo: the live map is on" in demo.stdout.readline()
