@@ -204,24 +204,20 @@ def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list
 
     if not len(multi):
         return []
-    k, cl = multi, np.zeros(len(multi), dtype=int)
+    groups, k, cl = [multi], multi, np.zeros(len(multi), dtype=int)
     tpos, nt = _number(g.ti[k], cl, len(g.rows), 1)
-    if nt[0] <= PACK:  # one block
-        dpos, nd = _number(g.dj[k], cl, len(g.z), 1)
-        t_end, d_end, p_end = nt, nd, [len(k)]
-    else:
+    if nt[0] > PACK:  # too many tracks for one block: cut it into clusters
         groups = split(g, multi)
         k = np.concatenate(groups)
         cl = np.repeat(np.arange(len(groups)), [len(x) for x in groups])
         tpos, nt = _number(g.ti[k], cl, len(g.rows), len(groups))
-        dpos, nd = _number(g.dj[k], cl, len(g.z), len(groups))
-        pack = (np.cumsum(nt) - nt) // PACK  # clusters packed by their first track
-        ends = np.append(np.flatnonzero(pack[1:] != pack[:-1]), len(pack) - 1)
-        t_end, d_end = np.cumsum(nt)[ends], np.cumsum(nd)[ends]
-        p_end = np.cumsum([len(x) for x in groups])[ends]
+    dpos, nd = _number(g.dj[k], cl, len(g.z), len(groups))
+    pack = (np.cumsum(nt) - nt) // PACK  # clusters packed by their first track
+    ends = np.append(np.flatnonzero(pack[1:] != pack[:-1]), len(pack) - 1)
+    t_end, d_end = np.cumsum(nt)[ends], np.cumsum(nd)[ends]
+    p_end = np.cumsum([len(x) for x in groups])[ends]
     out, t0, d0, p0 = [], 0, 0, 0
-    for t1, d1, p1 in zip(np.asarray(t_end).tolist(), np.asarray(d_end).tolist(),
-                          np.asarray(p_end).tolist(), strict=True):
+    for t1, d1, p1 in zip(t_end.tolist(), d_end.tolist(), p_end.tolist(), strict=True):
         n_t, n_d = t1 - t0, d1 - d0
         ti, dj, kk = tpos[p0:p1] - t0, dpos[p0:p1] - d0, k[p0:p1]
         cost = np.full((n_t, n_d + n_t), UNLIKELY)
