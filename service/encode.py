@@ -16,16 +16,23 @@ import numpy as np
 
 from .wire import pack
 
+Column = tuple[str, "np.ndarray | tuple[list[str], np.ndarray]"]
 
-def _layout(columns: Sequence[tuple[str, np.ndarray]], entries: int) -> tuple[np.dtype, bytes]:
+
+def _layout(columns: Sequence[Column], entries: int) -> tuple[np.dtype, bytes]:
     names, formats, offsets, template = [], [], [], pack_map_header(entries)
-    for key, col in columns:
+    for key, value in columns:
+        fields, col = value if isinstance(value, tuple) else (None, value)
         width = col.shape[1] if col.ndim == 2 else 0
         template += pack(key)
-        if col.ndim == 2:
+        if fields is not None:  # a map of these fields, one number each
+            template += pack_map_header(width)
+        elif col.ndim == 2:
             template += bytes([0x90 | width]) if width < 16 else b"\xdc" + width.to_bytes(2, "big")
         integer = col.dtype.kind in "iub"
         for k in range(max(width, 1)):
+            if fields is not None:
+                template += pack(fields[k])
             template += (b"\xd3" if integer else b"\xcb") + bytes(8)
             names.append(f"{key}.{k}")
             formats.append(">i8" if integer else ">f8")
@@ -39,17 +46,19 @@ def pack_map_header(entries: int) -> bytes:
     return bytes([0x80 | entries]) if entries < 16 else b"\xde" + entries.to_bytes(2, "big")
 
 
-def pack_rows(columns: Sequence[tuple[str, np.ndarray]], tails: Sequence[bytes],
+def pack_rows(columns: Sequence[Column], tails: Sequence[bytes],
               tail_entries: int) -> list[bytes]:
-    """One MessagePack map per row: the numeric `columns` ((N,) or (N, k) arrays, in this
-    key order) then the row's `tails` (packed key-value pairs, `tail_entries` of them)."""
+    """One MessagePack map per row: the numeric `columns` ((N,) or (N, k) arrays, or
+    (k field names, (N, k) array) for a map of numbers, in this key order) then the
+    row's `tails` (packed key-value pairs, `tail_entries` of them)."""
     n = len(tails)
     if not n:
         return []
     dtype, template = _layout(columns, len(columns) + tail_entries)
     raw = np.frombuffer(template * n, dtype=np.uint8).copy()
     rec = raw.view(dtype)  # writes go through to raw; the markers between stay
-    for key, col in columns:
+    for key, value in columns:
+        col = value[1] if isinstance(value, tuple) else value
         for k in range(col.shape[1] if col.ndim == 2 else 1):
             rec[f"{key}.{k}"] = col[:, k] if col.ndim == 2 else col
     buf, size = raw.tobytes(), dtype.itemsize
@@ -121,6 +130,7 @@ def _bin_header(size: int) -> bytes:
 
 
 _TRACK_STRINGS = PackedStrings(("id", "model"))
+_TRACK_IDS = PackedStrings(("id",))
 
 
 def pack_tracks(t: np.ndarray, ids: Sequence[str], pos: np.ndarray, vel: np.ndarray,
@@ -128,11 +138,18 @@ def pack_tracks(t: np.ndarray, ids: Sequence[str], pos: np.ndarray, vel: np.ndar
                 updates: np.ndarray) -> list[bytes]:
     """The `tracks/<id>` bodies of many tracks: {t, pos, vel, x, P (row-major), nis,
     updates, id, model}; a model is a name or a map (IMM mode probabilities)."""
+    columns: list[Column] = [("t", t), ("pos", pos), ("vel", vel), ("x", x), ("P", p),
+                             ("nis", nis), ("updates", updates)]
+    first = models[0] if len(models) else None
+    if type(first) is dict and all(type(m) is dict and m.keys() == first.keys()
+                                   for m in models):  # every track the same modes
+        mu = np.array([list(m.values()) for m in models], dtype=float)
+        return pack_rows([*columns, ("model", (list(first), mu))],
+                         [_TRACK_IDS((i,)) for i in ids], 1)
     tails = [_TRACK_STRINGS((i, m)) if isinstance(m, str) else
              pack("id") + pack(i) + pack("model") + pack(m)
              for i, m in zip(ids, models, strict=True)]
-    return pack_rows([("t", t), ("pos", pos), ("vel", vel), ("x", x), ("P", p), ("nis", nis),
-                      ("updates", updates)], tails, 2)
+    return pack_rows(columns, tails, 2)
 
 
 def _f64(a: np.ndarray) -> bytes:

@@ -26,7 +26,7 @@ import zenoh
 from . import __version__, defaults
 from .estimation.measurements import MeasurementBatch
 from .outputs import MSGPACK, Publisher
-from .tracking.bulk import track_columns
+from .tracking.bulk import Rows, track_columns
 from .tracking.clock import Lockstep, Realtime
 from .tracking.reorder import ReorderBuffer
 from .tracking.timeline import Timeline
@@ -34,19 +34,18 @@ from .tracking.tracker import Tracker
 from .wire import (
     PROTOCOL_VERSION,
     Keys,
-    Measurement,
     PlotScan,
     Rejected,
     pack,
     parse_clock,
-    parse_measurement,
     parse_plots,
     parse_scan_columns,
+    parse_singles,
     unpack,
 )
 
 log = logging.getLogger("track-service")
-MAX_BATCH = 256  # inputs per worker step: bounds how long a due frame waits
+MAX_BATCH = 4096  # inputs per worker step: bounds how long a due frame waits
 CHANNEL = 1 << 13  # measurements Zenoh holds for the worker before it pushes back (bounds memory)
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
 
@@ -197,18 +196,29 @@ class TrackService:
 
     # ------------------------------------------------------------ inputs
     def _process(self, batch: list[tuple]) -> None:
+        """Take a batch of inputs in order: each run of single measurements together
+        (`_take_singles`), anything else alone; the measurements waiting are applied
+        before anything that must see them (and at the end)."""
         if batch:
             self.out.look()  # who listens to display/ and tracks/ (cheap unless due)
-        pending: list[Measurement] = []
-        seen = (None, -np.inf)  # (arrival stamp, newest t) last given to the clock
-        for item in batch:
+        pending: list[Rows] = []
+        i = 0
+        while i < len(batch):
+            j = i + 1
+            if batch[i][0] == "meas":
+                while j < len(batch) and batch[j][0] == "meas":
+                    j += 1
             try:
-                seen = self._take(item, pending, seen)
+                if j > i + 1 or batch[i][0] == "meas":
+                    self._take_singles(batch[i:j], pending)
+                else:
+                    self._take(batch[i], pending)
             except Exception as exc:  # a fault of ours: report it, keep the batch going
-                self._internal(item, exc, pending)
+                self._internal(batch[i], exc, pending)
+            i = j
         self._flush(pending)
 
-    def _internal(self, item: tuple, exc: Exception, pending: list[Measurement]) -> None:
+    def _internal(self, item: tuple, exc: Exception, pending: list[Rows]) -> None:
         """An input the service failed on (a bug, never a bad input): logged with its
         traceback, reported on errors/ (code `internal`), counted; the measurements
         waiting are applied (or, if they failed, dropped and reported), a query answered."""
@@ -227,28 +237,17 @@ class TrackService:
             except Exception:
                 log.exception("query left unanswered")
 
-    def _take(self, item: tuple, pending: list[Measurement], seen: tuple) -> tuple:
-        """One input of the worker's batch; returns `seen` (see `_process`)."""
+    def _take(self, item: tuple, pending: list[Rows]) -> None:
+        """One input of the worker's batch other than a single measurement."""
         kind = item[0]
-        if kind == "meas":
-            m = self._validate(item[1], item[2])
-            if m is None or not self._admit(m.t, item[3], item[1], m.sensor, pending):
-                return seen
-            if self.realtime:
-                if item[3] != seen[0] or m.t > seen[1]:  # else it cannot move the offset
-                    self.clock.observe(m.t, item[3])
-                    seen = (item[3], m.t)
-            else:
-                self._frames_before(m.t, pending)
-            pending.append(m)
-        elif kind == "clock":
+        if kind == "clock":
             try:
                 t = parse_clock(item[2])
             except Rejected as exc:
                 self.out.reject(item[1], "clock", str(exc))
-                return seen
+                return
             if not self._admit(t, item[3], item[1], "clock", pending):
-                return seen
+                return
             if len(self.reorder):  # nothing older will come: the held scans go
                 self._flush(pending)
                 for _, (key, scan) in self.reorder.advance(t, flush=True):
@@ -265,24 +264,105 @@ class TrackService:
         elif kind in ("tracks", "status", "frame", "display"):
             self._flush(pending)
             self._answer(kind, item[1])
-        return seen
 
-    def _validate(self, key: str, payload: bytes) -> Measurement | None:
-        chunks = self.keys.chunks_after(key, "meas")
-        sensor = chunks[0] if chunks and chunks[0] else "unknown"
-        try:
+    def _take_singles(self, items: list[tuple], pending: list[Rows]) -> None:
+        """Single measurements taken together, in order, as each alone would be: checked
+        as columns (`wire.parse_singles`; a bad one reported on its own key), their
+        `seq` counted, the time policy and the clock applied, and the good ones left
+        waiting in `pending` (a lockstep frame due before one goes out before it)."""
+        keys, sensors, targets, payloads, walls = [], [], [], [], []
+        for _, key, payload, wall in items:
+            chunks = self.keys.chunks_after(key, "meas")
             if len(chunks) != 2:
-                raise Rejected("measurement key must be <ns>/meas/<sensor>/<target>")
-            m = parse_measurement(chunks[0], chunks[1], payload, self.noise)
-        except Rejected as exc:
-            self.out.reject(key, sensor, str(exc))
-            return None
-        if m.seq is not None:
-            last = self.last_seq.get(m.sensor)
-            if last is not None and m.seq > last + 1:
-                self.count.meas_lost += m.seq - last - 1
-            self.last_seq[m.sensor] = m.seq if last is None else max(last, m.seq)
-        return m
+                self.out.reject(key, chunks[0] if chunks and chunks[0] else "unknown",
+                                "measurement key must be <ns>/meas/<sensor>/<target>")
+                continue
+            keys.append(key)
+            sensors.append(chunks[0])
+            targets.append(chunks[1])
+            payloads.append(payload)
+            walls.append(wall)
+        got = parse_singles(sensors, targets, payloads, self.noise)
+        bad = iter(got.rejected)
+        later = next(bad, None)
+
+        def reject_before(upto: float) -> None:  # bad ones reported in message order
+            nonlocal later
+            while later is not None and later[0] < upto:
+                self.out.reject(keys[later[0]], sensors[later[0]], later[1])
+                later = next(bad, None)
+
+        last_seq = self.last_seq
+        for sensor, seq in zip(sensors, got.seqs, strict=True):
+            if seq is not None:
+                last = last_seq.get(sensor)
+                if last is not None and seq > last + 1:
+                    self.count.meas_lost += seq - last - 1
+                last_seq[sensor] = seq if last is None else max(last, seq)
+        for index, cols in got.parts:
+            rows = Rows([sensors[i] for i in index], cols.ids, MeasurementBatch.of_scan(cols))
+            at, near = [keys[i] for i in index], [walls[i] for i in index]
+            if self._near(rows.batch.t, near):  # one admission for all: the same outcome
+                reject_before(index[-1])
+                self._admit(float(rows.batch.t.max()), near[-1], at[-1], rows.sensors[-1],
+                            pending)
+                self._wait(rows, near, pending)
+                continue
+            for i, x in enumerate(rows.batch.t.tolist()):  # else each in turn, as alone
+                reject_before(index[i])
+                if self._admit(x, near[i], at[i], rows.sensors[i], pending):
+                    self._wait(rows.rows(i, i + 1), near[i:i + 1], pending)
+        reject_before(math.inf)
+
+    def _near(self, t: np.ndarray, walls: list[float]) -> bool:
+        """Whether inputs of times t received at `walls` are all within --max-jump of the
+        picture's time and of each other (then the time policy takes each of them)."""
+        lo, hi = float(t.min()), float(t.max())
+        if self.realtime:
+            off = self.clock.offset
+            if off is not None:
+                lo, hi = min(lo, min(walls) + off), max(hi, max(walls) + off)
+        elif self.picture_t is not None:
+            lo, hi = min(lo, self.picture_t), max(hi, self.picture_t)
+        return hi - lo <= self.timeline.max_jump
+
+    def _wait(self, rows: Rows, walls: list[float], pending: list[Rows]) -> None:
+        """Taken measurements wait in `pending`; the realtime clock learns from them, a
+        lockstep frame due before one goes out before it."""
+        if self.realtime:
+            self._observe(rows.batch.t, walls)
+            pending.append(rows)
+        else:
+            self._wait_lockstep(rows, pending)
+
+    def _observe(self, t: np.ndarray, walls: list[float]) -> None:
+        """The realtime clock learns from inputs of times t received at `walls` (the
+        newest time of each arrival stamp: what observing each would leave)."""
+        newest: dict[float, float] = {}
+        for x, w in zip(t.tolist(), walls, strict=True):
+            if x > newest.get(w, -math.inf):
+                newest[w] = x
+        for w, x in newest.items():
+            self.clock.observe(x, w)
+
+    def _wait_lockstep(self, rows: Rows, pending: list[Rows]) -> None:
+        """Lockstep: the frames due before each measurement go out before it (and after
+        those before it): `rows` wait in `pending` in pieces cut where frames fall due."""
+        t = rows.batch.t.tolist()
+        start = 0
+        for i, x in enumerate(t):
+            if i == 0 or self._frame_due(x):
+                if i > start:
+                    pending.append(rows.rows(start, i))
+                    start = i
+                self._frames_before(x, pending)
+        pending.append(rows.rows(start, len(t)) if start else rows)
+
+    def _frame_due(self, t: float) -> bool:
+        """Whether a lockstep frame is due before an input of time t."""
+        held = self.reorder.oldest()
+        x = t if held is None else min(t, held)
+        return self.clock.due_soon(x - self.tracker.config.display.lag)
 
     def _parsed(self, key: str, kind: str, what: str, parse: Any, payload: bytes
                 ) -> tuple[str, Any]:
@@ -299,7 +379,7 @@ class TrackService:
             return sensor, None
 
     def _take_labelled(self, key: str, payload: bytes, wall: float,
-                       pending: list[Measurement]) -> None:
+                       pending: list[Rows]) -> None:
         """A batched labelled scan (`scan/<sensor>`): its rows mean what single messages
         would (each bad row reported alone, the time policy per row's time) and are
         applied in one pass over the columns (`tracking.bulk`), after the measurements
@@ -331,7 +411,7 @@ class TrackService:
         self.out.batch(sensor, ids, outcome)
 
     def _admit_rows(self, t: np.ndarray, wall: float, key: str, sensor: str,
-                    pending: list[Measurement]) -> np.ndarray | None:
+                    pending: list[Rows]) -> np.ndarray | None:
         """The time policy for the rows of a batched scan, times t: None when every row
         is taken (all within --max-jump of the picture's time: one admission for all),
         else the mask of the rows taken (the policy once per distinct time, in time
@@ -376,7 +456,7 @@ class TrackService:
             self._apply_scan(k, s)
 
     def _admit(self, t: float, wall: float, key: str, sensor: str,
-               pending: list[Measurement]) -> bool:
+               pending: list[Rows]) -> bool:
         """The time policy (`tracking.timeline`, docs/protocol.md §6.1) for an input of
         time t received at `wall`: False when it was refused (and reported)."""
         if self.realtime:
@@ -395,7 +475,7 @@ class TrackService:
             self.picture_t = t
         return True
 
-    def _new_timeline(self, t: float, now: float | None, pending: list[Measurement]) -> None:
+    def _new_timeline(self, t: float, now: float | None, pending: list[Rows]) -> None:
         """Move the picture to time t: the old timeline's inputs go first, the lockstep
         clock starts afresh (no frames for the gap); forward, the tracks stale at t are
         deleted, backward, the tracks of the abandoned later timeline (they would never
@@ -420,16 +500,23 @@ class TrackService:
         self.count.scans_applied += 1
         self.out.states(outcomes, key)
 
-    def _flush(self, pending: list[Measurement]) -> None:
+    def _flush(self, pending: list[Rows]) -> None:
+        """Apply the measurements waiting, in order, in one pass over their columns
+        (`tracking.bulk`, as a batched scan's rows; one pass per dimension when they mix
+        2-D and 3-D)."""
         if not pending:
             return
-        outcomes, deleted = self.tracker.track(pending)
-        self.out.deleted(deleted)
-        self.out.states(outcomes)
+        want = self.out.wanted if self.out.wants_states else None
+        pause = self._frame_between if self.realtime else None
+        for rows in Rows.joined(pending):
+            outcome = track_columns(self.tracker, rows.ids, rows.sensors, rows.batch, want,
+                                    pause)
+            self.out.deleted(outcome.deleted)
+            self.out.batch(rows.sensors, rows.ids, outcome)
         pending.clear()
 
     # ------------------------------------------------------------ outputs
-    def _frames_before(self, t: float, pending: list[Measurement]) -> None:
+    def _frames_before(self, t: float, pending: list[Rows]) -> None:
         held = self.reorder.oldest()  # frames wait for the scans the reorder buffer holds
         if held is not None:
             t = min(t, held)

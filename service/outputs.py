@@ -130,12 +130,13 @@ class Publisher:
         """Whether anyone listens to `tracks/` or `states` (else no state is put)."""
         return not self.track_listeners.none or self.pub_states.matching_status.matching
 
-    def batch(self, sensor: str, ids: list[str], outcome: BatchOutcome) -> None:
-        """Count and report the outcome of a batched scan's rows (`ids`: the rows' target
-        ids; a rejection is reported on the row's own `meas/` key, as for a single
-        message) and put the states of the tracks it updated."""
+    def batch(self, sensor: str | list[str], ids: list[str], outcome: BatchOutcome) -> None:
+        """Count and report the outcome of labelled rows (`ids`: the rows' target ids,
+        `sensor`: of all rows or of each; a rejection is reported on the row's own `meas/`
+        key, as for a single message) and put the states of the tracks they updated."""
         for row, reason in outcome.rejected:
-            self.reject(self.keys.meas(sensor, ids[row]), sensor, reason)
+            sn = sensor if isinstance(sensor, str) else sensor[row]
+            self.reject(self.keys.meas(sn, ids[row]), sn, reason)
         self.count.meas_accepted += outcome.accepted
         self.put_states(outcome.states)
 

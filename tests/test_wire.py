@@ -33,17 +33,21 @@ def test_pack_tracks_decodes_to_the_same_maps_as_pack():
     n, k = 3, 6
     t, x, p = rng.random(n) * 100, rng.normal(size=(n, k)), rng.normal(size=(n, k * k))
     pos, vel = x[:, :3], x[:, 3:]
-    models = ["cv", {"cv": 0.7, "ct+": 0.3}, "ca"]
     ids = ["a", "b-2", "c_3"]
     nis, updates = rng.random(n), np.array([1, 2, 70000])
-    got = pack_tracks(t, ids, pos, vel, x, p, models, nis, updates)
-    for i in range(n):
-        want = {"t": float(t[i]), "id": ids[i], "pos": pos[i].tolist(), "vel": vel[i].tolist(),
-                "x": x[i].tolist(), "P": p[i].tolist(), "model": models[i],
-                "nis": float(nis[i]), "updates": int(updates[i])}
-        body = unpack(got[i])
-        assert body == unpack(pack(want))
-        assert type(body["updates"]) is int and list(body)[0] == "t"
+    imm = [{"quiet": 0.5, "cv": 0.25, "ca": 0.25}, {"quiet": 1e-300, "cv": 1.0, "ca": 0.0},
+           {"quiet": 0.1, "cv": 0.2, "ca": 0.7}]  # every track the same modes: one layout
+    for models in (["cv", {"cv": 0.7, "ct+": 0.3}, "ca"], imm):
+        got = pack_tracks(t, ids, pos, vel, x, p, models, nis, updates)
+        for i in range(n):
+            want = {"t": float(t[i]), "id": ids[i], "pos": pos[i].tolist(),
+                    "vel": vel[i].tolist(), "x": x[i].tolist(), "P": p[i].tolist(),
+                    "model": models[i], "nis": float(nis[i]), "updates": int(updates[i])}
+            body = unpack(got[i])
+            assert body == unpack(pack(want))
+            assert type(body["updates"]) is int and list(body)[0] == "t"
+            if models is imm:
+                assert list(body["model"]) == ["quiet", "cv", "ca"]  # the modes in order
 
 
 def test_pack_frame_decodes_to_the_same_map_as_pack():

@@ -73,6 +73,17 @@ class MeasurementBatch:
                                                          rec.sensor_pos, rec.polar)
         return cls(column(scan.t), polar, values, sigmas, origin)
 
+    @classmethod
+    def joined(cls, parts: Sequence[MeasurementBatch]) -> MeasurementBatch:
+        """The measurements of `parts` (of one dimension), in order."""
+        if len(parts) == 1:
+            return parts[0]
+        return cls(np.concatenate([p.t for p in parts]),
+                   np.concatenate([p.polar for p in parts]),
+                   np.asfortranarray(np.concatenate([p.values for p in parts])),
+                   np.asfortranarray(np.concatenate([p.sigmas for p in parts])),
+                   np.concatenate([p.origin for p in parts]))
+
     def __len__(self) -> int:
         return len(self.t)
 

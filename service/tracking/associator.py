@@ -88,13 +88,15 @@ class LabelAssociator:
         order: a target measured twice in a batch is updated twice, in turn."""
         return split_repeats([m.target for m in meas])
 
-    def associate_columns(self, store: TrackStore, ids: Sequence[str], sensor: str,
-                          t: np.ndarray, dim: int
+    def associate_columns(self, store: TrackStore, ids: Sequence[str],
+                          sensor: str | Sequence[str], t: np.ndarray, dim: int
                           ) -> tuple[np.ndarray, np.ndarray, list[int], dict[int, str]]:
-        """`associate` for one sensor's measurements of dimension `dim` given as columns
-        (ids, times t), each target at most once: the indices of the measurements that
-        update a track and those tracks' rows (in `store.layout(dim)`), the indices of the
-        new targets and the rejected ones with their reasons (the same as `associate`'s)."""
+        """`associate` for measurements of dimension `dim` given as columns (ids, times t;
+        `sensor`: of all of them, or of each), each target at most once: the indices of
+        the measurements that update a track and those tracks' rows (in
+        `store.layout(dim)`), the indices of the new targets and the rejected ones with
+        their reasons (the same as `associate`'s)."""
+        sensors = repeat(sensor) if isinstance(sensor, str) else sensor
         where, last = store.where, self.last
         arrays = store.layouts.get(dim)
         hits = list(map(where.get, ids))
@@ -124,15 +126,15 @@ class LabelAssociator:
                     if late[j]:
                         rejected[i] = (f"out of sequence: t={mt[j]:.6f} is before the track's "
                                        f"last update at t={tt[j]:.6f}")
-                    elif last.get(ids[i]) == sensor:
-                        rejected[i] = (f"duplicate: sensor {sensor} already measured this "
+                    elif last.get(ids[i]) == (sn := _at(sensor, i)):
+                        rejected[i] = (f"duplicate: sensor {sn} already measured this "
                                        f"target at t={mt[j]:.6f}")
                 keep = np.array([i not in rejected for i in upd], dtype=bool)
                 ui, ri = ui[keep], ri[keep]
         if not rejected:
-            last.update(zip(ids, repeat(sensor)))
+            last.update(zip(ids, sensors, strict=False))  # sensors may repeat one
         else:
-            last.update((ids[i], sensor) for i in (*ui.tolist(), *new))
+            last.update((ids[i], _at(sensor, i)) for i in (*ui.tolist(), *new))
         return ui, ri, new, rejected
 
     def associate(self, store: TrackStore, scan: Sequence[Measurement],
@@ -159,6 +161,11 @@ class LabelAssociator:
                 hyp.tracks.setdefault(m.dim, []).append(m.target)
                 last[m.target] = m.sensor
         return hyp
+
+
+def _at(sensor: str | Sequence[str], i: int) -> str:
+    """The sensor of measurement i (`sensor`: of all, or of each)."""
+    return sensor if isinstance(sensor, str) else sensor[i]
 
 
 def split_repeats(keys: Sequence[str]) -> list[list[int]]:

@@ -1,4 +1,5 @@
-"""A batched labelled scan (`<ns>/scan/<sensor>`) in one pass over its columns.
+"""Labelled measurements in one pass over their columns: a batched scan
+(`<ns>/scan/<sensor>`), or the single messages the service's worker takes together.
 
 The same steps as `Tracker.track` on the scan's rows as single measurements (label
 association, update, deletion, initiation; a target measured twice in the scan is updated
@@ -38,6 +39,42 @@ def all_states(ids: list[str]) -> None:
 
 
 @dataclass
+class Rows:
+    """Labelled measurements of one dimension as columns, waiting to be applied: each
+    row's sensor and target id, and the measurements."""
+
+    sensors: list[str]
+    ids: list[str]
+    batch: MeasurementBatch
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def take(self, index: np.ndarray) -> Rows:
+        """The rows at `index`, in that order."""
+        pick = index.tolist()
+        return Rows([self.sensors[i] for i in pick], [self.ids[i] for i in pick],
+                    self.batch.take(index))
+
+    def rows(self, lo: int, hi: int) -> Rows:
+        """Rows lo to hi - 1."""
+        return Rows(self.sensors[lo:hi], self.ids[lo:hi], self.batch.rows(lo, hi))
+
+    @staticmethod
+    def joined(parts: list[Rows]) -> list[Rows]:
+        """`parts` in order, consecutive ones of one dimension joined into one."""
+        out: list[list[Rows]] = []
+        for r in parts:
+            if out and out[-1][0].batch.dim == r.batch.dim:
+                out[-1].append(r)
+            else:
+                out.append([r])
+        return [g[0] if len(g) == 1 else
+                Rows([s for r in g for s in r.sensors], [k for r in g for k in r.ids],
+                     MeasurementBatch.joined([r.batch for r in g])) for g in out]
+
+
+@dataclass
 class BatchOutcome:
     """What became of a batch's rows: how many were applied, why the others were not,
     the tracks deleted on the way and (when asked) the states of the tracks updated or
@@ -49,10 +86,11 @@ class BatchOutcome:
     states: list[States] = field(default_factory=list)
 
 
-def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str, batch: MeasurementBatch,
-                  want: Want | None = all_states, pause: Callable[[], None] | None = None
-                  ) -> BatchOutcome:
-    """Apply the measurements `batch` of one sensor, row i labelled ids[i], in order.
+def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str | Sequence[str],
+                  batch: MeasurementBatch, want: Want | None = all_states,
+                  pause: Callable[[], None] | None = None) -> BatchOutcome:
+    """Apply the measurements `batch`, row i labelled ids[i], in order (`sensor`: the
+    sensor of every row, or of each).
     `want`: which of the tracks updated (given their ids) to return the states of, for
     the `tracks/` and `states` outputs (None: none). `pause`: called between parts of
     `PART` rows of an update (a realtime service publishes a due frame there; a row's
@@ -72,7 +110,8 @@ def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str, batch: Meas
         whole = len(idx) == len(ids)
         sub_ids = ids if whole else [ids[i] for i in idx]
         sub = batch if whole else batch.take(idx)
-        upd, rows, new, bad = tracker.associator.associate_columns(store, sub_ids, sensor,
+        sub_sensor = sensor if whole or isinstance(sensor, str) else [sensor[i] for i in idx]
+        upd, rows, new, bad = tracker.associator.associate_columns(store, sub_ids, sub_sensor,
                                                                    sub.t, dim)
         if len(upd):
             arrays = store.layout(dim)

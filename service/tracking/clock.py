@@ -36,6 +36,10 @@ class Lockstep:
         self.next_n = last + 1
         return due
 
+    def due_soon(self, t: float) -> bool:
+        """Whether `due_before(t)` would give an instant (without taking it)."""
+        return self.next_n is not None and math.ceil((t - TOL) * self.rate) - 1 >= self.next_n
+
     def restart(self, t: float) -> None:
         """A new timeline at time t (`timeline.Timeline`): the next input starts the
         frames again as the first one did; the instants of a gap forward are skipped."""

@@ -49,6 +49,7 @@ from .session import (
     wait_for_tracker,
     zenoh_config,
 )
+from .singles import Singles, parse_singles
 
 __all__ = [
     "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "CONNECT_RETRY", "DEFAULT_ENDPOINT", "DEFAULT_NS",
@@ -57,7 +58,8 @@ __all__ = [
     "LabelledScan", "Measurement", "PlotScan", "Rejected", "add_zenoh_args", "bad_rows",
     "check_size", "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port",
     "open_session", "pack", "parse_clock", "parse_full", "parse_measurement", "parse_plots",
-    "parse_scan", "parse_scan_columns", "ScanColumns", "patient", "peer_config", "quick_retry",
+    "parse_scan", "parse_scan_columns", "parse_singles", "ScanColumns", "Singles", "patient",
+    "peer_config", "quick_retry",
     "reason_code", "unpack",
     "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
 ]
