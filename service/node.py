@@ -20,13 +20,12 @@ import threading
 import time
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from . import __version__, defaults
-from .estimation.measurements import MeasurementBatch
+from .inputs import Inputs
 from .outputs import MSGPACK, Publisher
-from .tracking.bulk import Rows, track_columns
+from .tracking.bulk import Rows
 from .tracking.clock import Lockstep, Realtime
 from .tracking.reorder import ReorderBuffer
 from .tracking.timeline import Timeline
@@ -35,12 +34,7 @@ from .wire import (
     PROTOCOL_VERSION,
     Keys,
     PlotScan,
-    Rejected,
     pack,
-    parse_clock,
-    parse_plots,
-    parse_scan_columns,
-    parse_singles,
     unpack,
 )
 
@@ -61,7 +55,7 @@ def _meas_time(item: tuple) -> float:
         return -math.inf
 
 
-class TrackService:
+class TrackService(Inputs):
     """One tracker instance on one Zenoh session."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, tracker: Tracker, *,
@@ -236,284 +230,6 @@ class TrackService:
                 self._answer(item[0], item[1])
             except Exception:
                 log.exception("query left unanswered")
-
-    def _take(self, item: tuple, pending: list[Rows]) -> None:
-        """One input of the worker's batch other than a single measurement."""
-        kind = item[0]
-        if kind == "clock":
-            try:
-                t = parse_clock(item[2])
-            except Rejected as exc:
-                self.out.reject(item[1], "clock", str(exc))
-                return
-            if not self._admit(t, item[3], item[1], "clock", pending):
-                return
-            if len(self.reorder):  # nothing older will come: the held scans go
-                self._flush(pending)
-                for _, (key, scan) in self.reorder.advance(t, flush=True):
-                    self._apply_scan(key, scan)
-            if self.realtime:
-                self.clock.observe(t, item[3])
-            else:
-                self._frames_before(t, pending)
-        elif kind == "scan":
-            self._take_labelled(item[1], item[2], item[3], pending)
-        elif kind == "plots":
-            self._flush(pending)  # the labelled ones received before it go first
-            self._take_scan(item[1], item[2], item[3])
-        elif kind in ("tracks", "status", "frame", "display"):
-            self._flush(pending)
-            self._answer(kind, item[1])
-
-    def _take_singles(self, items: list[tuple], pending: list[Rows]) -> None:
-        """Single measurements taken together, in order, as each alone would be: checked
-        as columns (`wire.parse_singles`; a bad one reported on its own key), their
-        `seq` counted, the time policy and the clock applied, and the good ones left
-        waiting in `pending` (a lockstep frame due before one goes out before it)."""
-        keys, sensors, targets, payloads, walls = [], [], [], [], []
-        for _, key, payload, wall in items:
-            chunks = self.keys.chunks_after(key, "meas")
-            if len(chunks) != 2:
-                self.out.reject(key, chunks[0] if chunks and chunks[0] else "unknown",
-                                "measurement key must be <ns>/meas/<sensor>/<target>")
-                continue
-            keys.append(key)
-            sensors.append(chunks[0])
-            targets.append(chunks[1])
-            payloads.append(payload)
-            walls.append(wall)
-        got = parse_singles(sensors, targets, payloads, self.noise)
-        bad = iter(got.rejected)
-        later = next(bad, None)
-
-        def reject_before(upto: float) -> None:  # bad ones reported in message order
-            nonlocal later
-            while later is not None and later[0] < upto:
-                self.out.reject(keys[later[0]], sensors[later[0]], later[1])
-                later = next(bad, None)
-
-        last_seq = self.last_seq
-        for sensor, seq in zip(sensors, got.seqs, strict=True):
-            if seq is not None:
-                last = last_seq.get(sensor)
-                if last is not None and seq > last + 1:
-                    self.count.meas_lost += seq - last - 1
-                last_seq[sensor] = seq if last is None else max(last, seq)
-        for index, cols in got.parts:
-            rows = Rows([sensors[i] for i in index], cols.ids, MeasurementBatch.of_scan(cols))
-            at, near = [keys[i] for i in index], [walls[i] for i in index]
-            if self._near(rows.batch.t, near):  # one admission for all: the same outcome
-                reject_before(index[-1])
-                self._admit(float(rows.batch.t.max()), near[-1], at[-1], rows.sensors[-1],
-                            pending)
-                self._wait(rows, near, pending)
-                continue
-            for i, x in enumerate(rows.batch.t.tolist()):  # else each in turn, as alone
-                reject_before(index[i])
-                if self._admit(x, near[i], at[i], rows.sensors[i], pending):
-                    self._wait(rows.rows(i, i + 1), near[i:i + 1], pending)
-        reject_before(math.inf)
-
-    def _near(self, t: np.ndarray, walls: list[float]) -> bool:
-        """Whether inputs of times t received at `walls` are all within --max-jump of the
-        picture's time and of each other (then the time policy takes each of them)."""
-        lo, hi = float(t.min()), float(t.max())
-        if self.realtime:
-            off = self.clock.offset
-            if off is not None:
-                lo, hi = min(lo, min(walls) + off), max(hi, max(walls) + off)
-        elif self.picture_t is not None:
-            lo, hi = min(lo, self.picture_t), max(hi, self.picture_t)
-        return hi - lo <= self.timeline.max_jump
-
-    def _wait(self, rows: Rows, walls: list[float], pending: list[Rows]) -> None:
-        """Taken measurements wait in `pending`; the realtime clock learns from them, a
-        lockstep frame due before one goes out before it."""
-        if self.realtime:
-            self._observe(rows.batch.t, walls)
-            pending.append(rows)
-        else:
-            self._wait_lockstep(rows, pending)
-
-    def _observe(self, t: np.ndarray, walls: list[float]) -> None:
-        """The realtime clock learns from inputs of times t received at `walls` (the
-        newest time of each arrival stamp: what observing each would leave)."""
-        newest: dict[float, float] = {}
-        for x, w in zip(t.tolist(), walls, strict=True):
-            if x > newest.get(w, -math.inf):
-                newest[w] = x
-        for w, x in newest.items():
-            self.clock.observe(x, w)
-
-    def _wait_lockstep(self, rows: Rows, pending: list[Rows]) -> None:
-        """Lockstep: the frames due before each measurement go out before it (and after
-        those before it): `rows` wait in `pending` in pieces cut where frames fall due."""
-        t = rows.batch.t.tolist()
-        start = 0
-        for i, x in enumerate(t):
-            if i == 0 or self._frame_due(x):
-                if i > start:
-                    pending.append(rows.rows(start, i))
-                    start = i
-                self._frames_before(x, pending)
-        pending.append(rows.rows(start, len(t)) if start else rows)
-
-    def _frame_due(self, t: float) -> bool:
-        """Whether a lockstep frame is due before an input of time t."""
-        held = self.reorder.oldest()
-        x = t if held is None else min(t, held)
-        return self.clock.due_soon(x - self.tracker.config.display.lag)
-
-    def _parsed(self, key: str, kind: str, what: str, parse: Any, payload: bytes
-                ) -> tuple[str, Any]:
-        """The sensor of a `<ns>/<kind>/<sensor>` key and its payload parsed by `parse`,
-        or the sensor and None once a rejection is reported."""
-        chunks = self.keys.chunks_after(key, kind)
-        sensor = chunks[0] if chunks and chunks[0] else "unknown"
-        try:
-            if len(chunks) != 1:
-                raise Rejected(f"{what} key must be <ns>/{kind}/<sensor>")
-            return sensor, parse(chunks[0], payload, self.noise)
-        except Rejected as exc:
-            self.out.reject(key, sensor, str(exc))
-            return sensor, None
-
-    def _take_labelled(self, key: str, payload: bytes, wall: float,
-                       pending: list[Rows]) -> None:
-        """A batched labelled scan (`scan/<sensor>`): its rows mean what single messages
-        would (each bad row reported alone, the time policy per row's time) and are
-        applied in one pass over the columns (`tracking.bulk`), after the measurements
-        received before it."""
-        sensor, scan = self._parsed(key, "scan", "batched scan", parse_scan_columns, payload)
-        if scan is None:
-            return
-        for _, reason in scan.rejected:
-            self.out.reject(key, sensor, reason)
-        if not scan.good:
-            return
-        batch = MeasurementBatch.of_scan(scan)
-        ids = scan.ids
-        keep = self._admit_rows(batch.t, wall, key, sensor, pending)
-        if keep is not None:
-            if not keep.any():
-                return
-            batch = batch.take(np.flatnonzero(keep))
-            ids = [i for i, k in zip(ids, keep.tolist(), strict=True) if k]
-        if self.realtime:
-            self.clock.observe(float(batch.t.max()), wall)
-        else:
-            self._frames_before(float(batch.t.min()), pending)
-        self._flush(pending)
-        outcome = track_columns(self.tracker, ids, sensor, batch,
-                                self.out.wanted if self.out.wants_states else None,
-                                self._frame_between if self.realtime else None)
-        self.out.deleted(outcome.deleted)
-        self.out.batch(sensor, ids, outcome)
-
-    def _admit_rows(self, t: np.ndarray, wall: float, key: str, sensor: str,
-                    pending: list[Rows]) -> np.ndarray | None:
-        """The time policy for the rows of a batched scan, times t: None when every row
-        is taken (all within --max-jump of the picture's time: one admission for all),
-        else the mask of the rows taken (the policy once per distinct time, in time
-        order, as single messages; a refusal reported once per time, every row counted)."""
-        lo, hi = float(t.min()), float(t.max())
-        if self.realtime:
-            off = self.clock.offset
-            now = None if off is None else wall + off
-        else:
-            now = self.picture_t
-        if now is not None and max(abs(lo - now), abs(hi - now)) <= self.timeline.max_jump:
-            self._admit(hi, wall, key, sensor, pending)  # taken: the picture moves to hi
-            return None
-        times = np.unique(t)
-        refused = [x for x in times.tolist() if not self._admit(x, wall, key, sensor, pending)]
-        if not refused:
-            return None
-        keep = ~np.isin(t, refused)
-        extra = int((~keep).sum()) - len(refused)
-        self.out.count.meas_rejected += extra
-        by = self.out.count.by_reason  # counted by code like the one reported
-        by["time_far"] = by.get("time_far", 0) + extra
-        return keep
-
-    def _take_scan(self, key: str, payload: bytes, wall: float) -> None:
-        """Check an unlabelled scan, report its bad detections, and let it wait in the
-        reorder buffer; apply the scans it releases."""
-        sensor, scan = self._parsed(key, "plots", "scan", parse_plots, payload)
-        if scan is None:
-            return
-        if not self._admit(scan.t, wall, key, sensor, []):
-            return  # far from the picture's time (before `late`: the worse fault)
-        late = self.reorder.late(scan.t, sensor)
-        if late:
-            self.out.reject(key, sensor, late)
-            return
-        for _, reason in scan.rejected:
-            self.out.reject(key, sensor, reason)
-        if self.realtime:
-            self.clock.observe(scan.t, wall)
-        for _, (k, s) in self.reorder.push(sensor, scan.t, (key, scan)):
-            self._apply_scan(k, s)
-
-    def _admit(self, t: float, wall: float, key: str, sensor: str,
-               pending: list[Rows]) -> bool:
-        """The time policy (`tracking.timeline`, docs/protocol.md §6.1) for an input of
-        time t received at `wall`: False when it was refused (and reported)."""
-        if self.realtime:
-            off = self.clock.offset
-            now = None if off is None else wall + off
-        else:
-            now = self.picture_t
-        # measurements waiting in `pending` count as tracks: they are about to be applied
-        reason, jump = self.timeline.admit(t, now, len(self.tracker) or len(pending))
-        if reason is not None:
-            self.out.reject(key, sensor, reason)
-            return False
-        if jump:
-            self._new_timeline(t, now, pending)  # realtime: its clock starts one itself
-        if not self.realtime and (self.picture_t is None or t > self.picture_t):
-            self.picture_t = t
-        return True
-
-    def _new_timeline(self, t: float, now: float | None, pending: list[Rows]) -> None:
-        """Move the picture to time t: the old timeline's inputs go first, the lockstep
-        clock starts afresh (no frames for the gap); forward, the tracks stale at t are
-        deleted, backward, the tracks of the abandoned later timeline (they would never
-        age out)."""
-        self._flush(pending)
-        for _, (k, s) in self.reorder.advance(math.inf, flush=True):
-            self._apply_scan(k, s)
-        self.reorder.reset()
-        if not self.realtime:
-            self.clock.restart(t)
-            self.picture_t = t
-        if now is not None and t < now:
-            self.out.deleted(self.tracker.drop_newer(t))
-        else:  # the tracks stale at the new time go before its first input
-            self.out.deleted(self.tracker.delete(t))
-
-    def _apply_scan(self, key: str, scan: PlotScan) -> None:
-        if not self.realtime:
-            self._frames_before(scan.t, [])
-        outcomes, deleted = self.tracker.track_scan(scan)
-        self.out.deleted(deleted)
-        self.count.scans_applied += 1
-        self.out.states(outcomes, key)
-
-    def _flush(self, pending: list[Rows]) -> None:
-        """Apply the measurements waiting, in order, in one pass over their columns
-        (`tracking.bulk`, as a batched scan's rows; one pass per dimension when they mix
-        2-D and 3-D)."""
-        if not pending:
-            return
-        want = self.out.wanted if self.out.wants_states else None
-        pause = self._frame_between if self.realtime else None
-        for rows in Rows.joined(pending):
-            outcome = track_columns(self.tracker, rows.ids, rows.sensors, rows.batch, want,
-                                    pause)
-            self.out.deleted(outcome.deleted)
-            self.out.batch(rows.sensors, rows.ids, outcome)
-        pending.clear()
 
     # ------------------------------------------------------------ outputs
     def _frames_before(self, t: float, pending: list[Rows]) -> None:
