@@ -125,9 +125,9 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
         score = {(int(a), int(b)): v for a, b, v in
                  zip(g.ti, g.dj, np.log(pd) + g.loglik - np.log(lam), strict=True)}
         miss = np.log1p(-pd)
-        row_of = {tid: i for i, tid in enumerate(g.arrays.ids[r] for r in g.rows)}
-        chosen = {(row_of[k], j) for j, k in zip(hyp.updates.get(2, []), hyp.tracks.get(2, []),
-                                                 strict=True)}
+        row_of = {r: i for i, r in enumerate(g.rows.tolist())}  # store row -> track index
+        rows = np.concatenate(hyp.rows.get(2, [np.zeros(0, int)])).tolist()
+        chosen = {(row_of[k], j) for j, k in zip(hyp.updates.get(2, []), rows, strict=True)}
 
         n_rows = len(g.rows)
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+from numpy._core.multiarray import c_einsum  # np.einsum's own kernel, without its wrapper
 
 BATCH = "n"  # the subscript of the batch axis in every contraction of the filter kernels
 
@@ -27,14 +28,17 @@ def _axes(subscripts: str) -> tuple[tuple[int, ...], int]:
 def einsum(subscripts: str, *operands: np.ndarray, out: np.ndarray | None = None
            ) -> np.ndarray:
     """np.einsum(subscripts, *operands, out=out) over a batch axis named `n` (explicit
-    `->` form), the same bits for a row whatever the batch's length."""
+    `->` form), the same bits for a row whatever the batch's length. Calls np.einsum's
+    C kernel directly (what np.einsum does without `optimize`, minus 3 us of Python)."""
     axes, res = _axes(subscripts)
     first = axes[0]
     if first < 0 or res < 0 or operands[0].shape[first] != 1:
-        return np.einsum(subscripts, *operands, out=out)
+        if out is None:
+            return c_einsum(subscripts, *operands)
+        return c_einsum(subscripts, *operands, out=out)
     doubled = [op if a < 0 else np.concatenate((op, op), axis=a)
                for a, op in zip(axes, operands, strict=True)]
-    row = np.take(np.einsum(subscripts, *doubled), [0], axis=res)
+    row = np.take(c_einsum(subscripts, *doubled), [0], axis=res)
     if out is None:
         return row
     out[...] = row

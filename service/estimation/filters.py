@@ -76,19 +76,32 @@ def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int
         dt = np.broadcast_to(dt, (n_rows,))
     q = np.asarray(q, dtype=float)
     xn, pn = np.empty((n_rows, n)), np.empty((n_rows, n, n))
-    nis, det, ok = np.empty(n_rows), np.empty(n_rows), np.empty(n_rows, dtype=bool)
+    nis, det = np.empty(n_rows), np.empty(n_rows)
+    ok = np.empty(n_rows, dtype=bool)
+    if n_rows <= scratch.CHUNK:  # one chunk (most calls): no slicing of anything
+        _step_chunk(x, p, dt, order, dim, q, batch, xn, pn, nis, det, ok)
+        return xn, pn, nis, ok
     for lo, hi in scratch.chunks(n_rows):
-        k = hi - lo
-        xs, ps = scratch.to_soa(x[lo:hi], "step.x"), scratch.to_soa(p[lo:hi], "step.p")
-        models.predict_soa(xs, ps, dt[lo:hi], order, dim, q[lo:hi] if q.ndim else q)
-        zs, rs = scratch.buffer("step.z", (dim,), k), scratch.buffer("step.r", (dim, dim), k)
-        cmkf_soa(batch.rows(lo, hi), xs[:dim], ps[:dim, :dim], zs, rs)
-        pout = scratch.buffer("step.pn", (n, n), k)
-        kalman.update_soa(xs, ps, zs, rs, pout, nis[lo:hi], det[lo:hi])
-        ok[lo:hi] = kalman.finite(xs, pout, nis[lo:hi], dim)
-        np.copyto(xn[lo:hi].T, xs)
-        np.copyto(scratch.batch_last(pn[lo:hi]), pout)
+        _step_chunk(x[lo:hi], p[lo:hi], dt[lo:hi], order, dim, q[lo:hi] if q.ndim else q,
+                    batch.rows(lo, hi), xn[lo:hi], pn[lo:hi], nis[lo:hi], det[lo:hi],
+                    ok[lo:hi])
     return xn, pn, nis, ok
+
+
+def _step_chunk(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+                q: np.ndarray, batch: MeasurementBatch, xn: np.ndarray, pn: np.ndarray,
+                nis: np.ndarray, det: np.ndarray, ok: np.ndarray) -> None:
+    """`cmkf_step` on one chunk of rows, into xn, pn, nis, det and ok."""
+    k, n = x.shape
+    xs, ps = scratch.to_soa(x, "step.x"), scratch.to_soa(p, "step.p")
+    models.predict_soa(xs, ps, dt, order, dim, q)
+    zs, rs = scratch.buffer("step.z", (dim,), k), scratch.buffer("step.r", (dim, dim), k)
+    cmkf_soa(batch, xs[:dim], ps[:dim, :dim], zs, rs)
+    pout = scratch.buffer("step.pn", (n, n), k)
+    kalman.update_soa(xs, ps, zs, rs, pout, nis, det)
+    ok[:] = kalman.finite(xs, pout, nis, dim)
+    np.copyto(xn.T, xs)
+    np.copyto(scratch.batch_last(pn), pout)
 
 
 def predict(x: np.ndarray, p: np.ndarray, f: np.ndarray, q: np.ndarray

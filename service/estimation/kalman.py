@@ -120,26 +120,26 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     axes (batch axis last), which keep each accumulation in one pass over the batch."""
     n, k = x.shape
     m = z.shape[0]
-    nu = np.subtract(z, x[:m], out=scratch.buffer("upd.nu", (m,), k))
+    # one buffer [P[:m] nu; K' S^-1 nu; E' .]: the Joseph operands [P[:m]; K'] and
+    # [K'; E'] are two overlapping slices of it, and K' and S^-1 nu come from one
+    # contraction S^-1 [P[:m] nu]
+    ops = scratch.buffer("upd.ops", (3 * m, n + 1), k)
+    nu = np.subtract(z, x[:m], out=ops[:m, n])
     s0 = np.add(p[:m, :m], r, out=scratch.buffer("upd.s", (m, m), k))  # S without the floor
     sinv = scratch.buffer("upd.si", (m, m), k)
     ldl_inverse(s0, sinv, det, S_FLOOR)
-    # one buffer [P[:m]; K'; E'] (3m, n): the Joseph operands [P[:m]; K'] and [K'; E']
-    # are two overlapping slices of it
-    ops = scratch.buffer("upd.ops", (3 * m, n), k)
-    up, lk = ops[:2 * m], ops[m:]
-    kt, et = ops[m:2 * m], ops[2 * m:]  # K' and E' (m, n)
-    ops[:m] = p[:m]
-    einsum("abn,bin->ain", sinv, p[:m], out=kt)
-    sn = einsum("abn,bn->an", sinv, nu, out=scratch.buffer("upd.sn", (m,), k))  # S^-1 nu
+    up, lk = ops[:2 * m, :n], ops[m:, :n]
+    kt, et = ops[m:2 * m, :n], ops[2 * m:, :n]  # K' and E' (m, n)
+    ops[:m, :n] = p[:m]
+    einsum("abn,bin->ain", sinv, ops[:m], out=ops[m:2 * m])  # [K' S^-1 nu]
+    sn = ops[m:2 * m, n]
     einsum("an,an->n", nu, sn, out=nis)
     x += einsum("ain,an->in", kt, nu, out=scratch.buffer("upd.dx", (n,), k))
     einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
     np.subtract(p[:m], et, out=et)
-    # P - [K E] [P[:m]; K'], its upper triangle row by row, then mirrored
-    for i in range(n):
-        row = einsum("an,ajn->jn", lk[:, i], up[:, i:], out=p_out[i, i:])
-        np.subtract(p[i, i:], row, out=row)
+    # P - [K E] [P[:m]; K'] in one contraction, its upper triangle mirrored
+    joseph = einsum("ain,ajn->ijn", lk, up, out=p_out)
+    np.subtract(p, joseph, out=p_out)
     for i in range(n - 1):
         p_out[i + 1:, i] = p_out[i, i + 1:]
 

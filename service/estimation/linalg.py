@@ -269,7 +269,7 @@ def _inverse2(s: np.ndarray, out: np.ndarray, det: np.ndarray, floor: float) -> 
     np.multiply(a, c, out=det)
     np.negative(s[1, 0], out=b)
     det -= np.square(b)
-    inv = np.divide(1.0, det) if det.all() else \
+    inv = np.divide(1.0, det) if np.count_nonzero(det) == len(det) else \
         np.divide(1.0, det, out=np.full_like(det, np.nan), where=det != 0)
     np.copyto(out[1, 0], b)
     out *= inv
@@ -285,7 +285,7 @@ def _ldl(s: np.ndarray, floor: float) -> tuple[dict, list, list]:
         for q in range(j):
             pj -= low[j, q] ** 2 * piv[q]
         piv.append(pj)
-        if pj.all():
+        if np.count_nonzero(pj) == pj.size:
             inv_piv.append(np.divide(1.0, pj))
         else:
             inv_piv.append(np.divide(1.0, pj, out=np.full_like(pj, np.nan), where=pj != 0))

@@ -132,7 +132,9 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
                 for e in range(b, order):
                     if (c, e) == (a, b) or (a == b and e < c):
                         continue
-                    coef = _phi(powers, a, c) * _phi(powers, b, e)
+                    # Phi[a, c] Phi[b, e], a factor Phi[a, a] = 1 left out (x 1 is exact)
+                    coef = powers[e - b] if c == a else powers[c - a] if e == b else \
+                        powers[c - a] * powers[e - b]
                     if a == b and c != e:  # Phi[a, c] Phi[a, e] (P_ce + P_ec), P_ec = P_ce'
                         term = np.add(p[blk[c], blk[e]], p[blk[c], blk[e]].transpose(1, 0, 2),
                                       out=tmp)
@@ -140,10 +142,11 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
                     else:
                         term = np.multiply(p[blk[c], blk[e]], coef, out=tmp)
                     acc += term
-    # + Q: q^2 g_a g_b, g_a = |dt|^(order - a) / (order - a)! (axis_noise)
-    gain = np.abs(dt)
+    # + Q: q^2 g_a g_b, g_a = |dt|^(order - a) / (order - a)! (axis_noise; the last one,
+    # |dt|^1 / 1!, is |dt| itself)
     g = np.empty((order, n_rows))
-    for a in range(order):
+    gain = np.abs(dt, out=g[order - 1])
+    for a in range(order - 1):
         np.divide(gain ** (order - a), math.factorial(order - a), out=g[a])
     qm = g[:, None] * g[None, :]  # (order, order, N): g_a g_b, then q^2 g_a g_b
     qm *= np.square(q)
@@ -152,10 +155,6 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
     for a in range(order):
         for b in range(a + 1, order):
             p[blk[b], blk[a]] = p[blk[a], blk[b]].transpose(1, 0, 2)
-
-
-def _phi(powers: list, a: int, c: int) -> np.ndarray | float:
-    return 1.0 if c == a else powers[c - a]
 
 
 def motion(kind: str, dt: np.ndarray, order: int, dim: int, q: float | np.ndarray,

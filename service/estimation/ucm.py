@@ -84,19 +84,25 @@ def cmkf_soa(batch: MeasurementBatch, pos: np.ndarray, cov: np.ndarray, z: np.nd
     with covariance cov (d, d, N) (common frame), batch axis last, into z (d, N) and
     R (d, d, N): polar ones by the UCM with R averaged over the prediction
     (`ucm_expected_soa`), Cartesian ones as given with R = diag(sigma^2)."""
-    d = pos.shape[0]
+    d, n = pos.shape
     polar = batch.polar
-    some = polar.any()
-    if some and polar.all():
+    count = np.count_nonzero(polar)
+    if count and count == n:
         _polar_soa(batch, pos, cov, z, r)
         return
-    cart = ~polar if some else slice(None)
+    if not count and r.flags.c_contiguous:  # all Cartesian: z, R = diag(sigma^2) whole
+        # (the diagonal of R as one strided view)
+        np.copyto(z, batch.values.T)
+        r.fill(0.0)
+        np.square(batch.sigmas.T, out=r.reshape(d * d, n)[::d + 1])
+        return
+    cart = ~polar
     z[:, cart] = batch.values[cart].T
     r[:, :, cart] = 0.0
     sig = batch.sigmas[cart]
     for i in range(d):
         r[i, i, cart] = sig[:, i] ** 2
-    if some:
+    if count:  # the polar ones
         idx = np.flatnonzero(polar)
         zp, rp = np.empty((d, len(idx))), np.empty((d, d, len(idx)))
         sub = MeasurementBatch(batch.t[idx], polar[idx], batch.values[idx],

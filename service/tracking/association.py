@@ -26,6 +26,7 @@ estimate, not through per-mode likelihoods (docs/architecture.md).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 from collections.abc import Sequence
@@ -129,11 +130,12 @@ class _ScanAssociator:
         z, r = convert(hyp.columns)
         gamma = gate_threshold(self.gate_probability, m0.dim)
         every = gate(arrays, rows, z, r, m0.t, self.q, gamma)
-        confirmed = arrays.confirmed[rows]
-        g = restrict(every, confirmed)
         ungated = len(scan) - np.count_nonzero(np.bincount(every.dj, minlength=len(scan)))
         lam = self.sensors.density(m0.sensor, z, ungated)
         pd = self.sensors.model(m0.sensor).pd
+        scores(every, pd, lam)  # once for both stages
+        confirmed = arrays.confirmed[rows]
+        g = restrict(every, confirmed)
         free = self.resolve(g, np.arange(len(scan)), pd, lam, hyp)
         free = gnn(restrict(every, ~confirmed, free), free, pd, lam, hyp)
         if len(free):
@@ -162,10 +164,13 @@ class _ScanAssociator:
 
 def scores(g: Gating, pd: float, lam: float) -> tuple[np.ndarray, float]:
     """The log-likelihood ratio of each gated pair, ln(Pd N(nu; 0, S) / lambda), and of a
-    track that detected nothing, ln(1 - Pd)."""
-    return np.log(pd) + g.loglik - np.log(lam), miss_score(pd)
+    track that detected nothing, ln(1 - Pd). Kept in g (and taken by `restrict`)."""
+    if g.score is None or g.score[:2] != (pd, lam):
+        g.score = (pd, lam, np.log(pd) + g.loglik - np.log(lam))
+    return g.score[2], miss_score(pd)
 
 
+@functools.lru_cache(maxsize=64)
 def miss_score(pd: float) -> float:
     return float(np.log1p(-pd)) if pd < 1 else -UNLIKELY
 
@@ -179,9 +184,8 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
     pairs = np.concatenate([single[score[single] > miss], *assign(g, multi, score, miss)])
     ti, dj = g.ti[pairs], g.dj[pairs]
     if len(pairs):
-        ids = g.arrays.ids
         hyp.updates.setdefault(g.arrays.dim, []).extend(index[dj].tolist())
-        hyp.tracks.setdefault(g.arrays.dim, []).extend(ids[r] for r in g.rows[ti].tolist())
+        hyp.rows.setdefault(g.arrays.dim, []).append(g.rows[ti])
     hit = np.zeros(len(g.rows), dtype=bool)
     hit[ti] = True
     gain = np.full(len(g.rows), miss)

@@ -53,6 +53,7 @@ class Hypotheses:
 
     updates: dict[int, list[int]] = field(default_factory=dict)  # by dimension: measurements
     tracks: dict[int, list[str]] = field(default_factory=dict)  # ... and the track each updates
+    rows: dict[int, list[np.ndarray]] = field(default_factory=dict)  # ... or its store rows
     weighted: list[WeightedUpdate] = field(default_factory=list)  # JPDA's updates
     unassociated: dict[int, list[int]] = field(default_factory=dict)  # by dimension: new
     rejected: dict[int, str] = field(default_factory=dict)  # index -> reason

@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy._core.multiarray import c_einsum
 
 from .. import defaults
 from ..estimation import kalman, models
@@ -106,7 +107,7 @@ def axis_traces(p: np.ndarray, order: int, dim: int) -> np.ndarray:
     """(N, order, order): the covariances summed over the spatial axes, block by block
     (derivative i with derivative j); the position variance of a prediction follows from
     them without the full matrix."""
-    return np.einsum("naibi->nab", p.reshape(-1, order, dim, order, dim))
+    return c_einsum("naibi->nab", p.reshape(-1, order, dim, order, dim))  # np.einsum's kernel
 
 
 def frame_before(t: np.ndarray, rate: float) -> np.ndarray:
@@ -248,13 +249,17 @@ class DisplayState:
         cols.grow(arrays.capacity)
         return cols
 
-    def initiate(self, arrays: TrackArrays, rows: np.ndarray) -> None:
-        """New tracks: nothing to blend, their first state as the previous one."""
+    def initiate(self, arrays: TrackArrays, rows: np.ndarray, x: np.ndarray | None = None,
+                 p: np.ndarray | None = None) -> None:
+        """New tracks: nothing to blend, their first state as the previous one (x, P:
+        their states and covariances, if the caller has them)."""
         cols = self.columns(arrays)
+        if x is None or p is None:
+            x, p = arrays.x[rows], arrays.p[rows]
         cols.offset[rows], cols.blend_period[rows] = 0.0, 0.0
         cols.blend_start[rows] = cols.prev_t[rows] = arrays.t[rows]
-        cols.prev_x[rows], cols.prev_p[rows] = arrays.x[rows], arrays.p[rows]
-        cols.axis_cov[rows] = axis_traces(arrays.p[rows], arrays.order, arrays.dim)
+        cols.prev_x[rows], cols.prev_p[rows] = x, p
+        cols.axis_cov[rows] = axis_traces(p, arrays.order, arrays.dim)
 
     def update(self, arrays: TrackArrays, rows: np.ndarray, t: np.ndarray, x: np.ndarray,
                p: np.ndarray) -> None:

@@ -15,7 +15,6 @@ first needs it: a service fed only labelled measurements never loads it (about 4
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,26 +27,59 @@ from .store import TrackArrays
 DENSE_PAIRS = 16_384  # tracks x detections below which `near` skips the KD-tree
 
 
-@dataclass
 class Gating:
     """The gated pairs of one scan in one layout. Tracks are `rows` of `arrays`
     (predicted to the scan time: position `mean`, position rows of the covariance
     `cross`, its position block `cov`), detections the scan's converted points
     `z` with covariances `r`. Pair k joins track `ti[k]` and detection `dj[k]`, with
-    squared Mahalanobis distance `d2[k]` and log-likelihood `loglik[k]` of the
-    innovation."""
+    squared Mahalanobis distance `d2[k]`, log-likelihood `loglik[k]` and innovation
+    `nu[k]`. A gating made by `restrict` takes mean, cross, r, d2, nu (which GNN never
+    reads) from the gating it was cut from on first use only."""
 
-    arrays: TrackArrays
-    rows: np.ndarray  # (T,) store rows of the candidate tracks
-    mean: np.ndarray  # (T, d) predicted positions
-    cross: np.ndarray  # (T, d, n) position rows of the predicted covariances
-    z: np.ndarray  # (D, d) converted detections
-    r: np.ndarray  # (D, d, d)
-    ti: np.ndarray  # (K,) track index of each pair (into rows)
-    dj: np.ndarray  # (K,) detection index
-    d2: np.ndarray  # (K,)
-    loglik: np.ndarray  # (K,)
-    nu: np.ndarray  # (K, d) innovations
+    def __init__(self, arrays: TrackArrays, rows: np.ndarray, mean: np.ndarray,
+                 cross: np.ndarray, z: np.ndarray, r: np.ndarray, ti: np.ndarray,
+                 dj: np.ndarray, d2: np.ndarray, loglik: np.ndarray, nu: np.ndarray) -> None:
+        self.arrays, self.rows, self.z, self.ti, self.dj = arrays, rows, z, ti, dj
+        # (T, d), (T, d, n), (D, d, d), (K,) x 2, (K, d)
+        self.__dict__.update(mean=mean, cross=cross, r=r, d2=d2, loglik=loglik, nu=nu)
+        self._cut: tuple | None = None  # restrict's (source, tracks, pairs, dets)
+        self.score: tuple | None = None  # `association.scores` of the pairs: (pd, lam, score)
+
+    @classmethod
+    def cut(cls, g: Gating, tracks: np.ndarray, z: np.ndarray, ti: np.ndarray,
+            dj: np.ndarray, pairs: np.ndarray, dets: np.ndarray | None) -> Gating:
+        """The gating of the tracks `tracks` (mask over g.rows) and pairs `pairs` (mask)
+        of g, and of its detections `dets` (None: all): the rest on first use."""
+        out = cls.__new__(cls)
+        out.arrays, out.rows, out.z, out.ti, out.dj = g.arrays, g.rows[tracks], z, ti, dj
+        out._cut = (g, tracks, pairs, dets)
+        out.score = None if g.score is None else (*g.score[:2], g.score[2][pairs])
+        return out
+
+    @functools.cached_property
+    def loglik(self) -> np.ndarray:
+        return self._cut[0].loglik[self._cut[2]]
+
+    @functools.cached_property
+    def mean(self) -> np.ndarray:
+        return self._cut[0].mean[self._cut[1]]
+
+    @functools.cached_property
+    def cross(self) -> np.ndarray:
+        return self._cut[0].cross[self._cut[1]]
+
+    @functools.cached_property
+    def r(self) -> np.ndarray:
+        g, dets = self._cut[0], self._cut[3]
+        return g.r if dets is None else g.r[dets]
+
+    @functools.cached_property
+    def d2(self) -> np.ndarray:
+        return self._cut[0].d2[self._cut[2]]
+
+    @functools.cached_property
+    def nu(self) -> np.ndarray:
+        return self._cut[0].nu[self._cut[2]]
 
     @property
     def cov(self) -> np.ndarray:
@@ -152,21 +184,23 @@ def clusters_reference(ti: np.ndarray, dj: np.ndarray, n_tracks: int,
 
 def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray | None = None) -> Gating:
     """The gating of a subset of the tracks (boolean mask over g.rows) and of the
-    detections (indices into g.z; None: all of them) of `g`, its pairs renumbered."""
-    t_new = np.full(len(g.rows), -1)
-    t_new[tracks] = np.arange(int(tracks.sum()))
-    ti = t_new[g.ti]
-    keep = ti >= 0
-    if dets is None:
-        dj, z, r = g.dj[keep], g.z, g.r
-    else:
-        d_new = np.full(len(g.z), -1)
-        d_new[dets] = np.arange(len(dets))
+    detections (ascending indices into g.z; None: all of them) of `g`, its pairs
+    renumbered."""
+    t_new = np.add.accumulate(tracks, dtype=np.intp)  # 1 + the new index of a kept track
+    keep = tracks[g.ti]
+    if dets is not None:
+        d_new = np.zeros(len(g.z), dtype=np.intp)
+        d_new[dets] = np.arange(1, len(dets) + 1)
         dj = d_new[g.dj]
-        keep &= dj >= 0
-        dj, z, r = dj[keep], g.z[dets], g.r[dets]
-    return Gating(g.arrays, g.rows[tracks], g.mean[tracks], g.cross[tracks], z, r, ti[keep],
-                  dj, g.d2[keep], g.loglik[keep], g.nu[keep])
+        keep &= dj > 0
+        dj = dj[keep]
+        dj -= 1
+        z = g.z[dets]
+    else:
+        dj, z = g.dj[keep], g.z
+    ti = t_new[g.ti[keep]]
+    ti -= 1
+    return Gating.cut(g, tracks, z, ti, dj, keep, dets)
 
 
 def singles(g: Gating) -> tuple[np.ndarray, np.ndarray]:

@@ -33,13 +33,18 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:
         by_layout.setdefault(id(s.arrays), []).append(s)
     for group in by_layout.values():
         a = group[0].arrays
-        rows, hit, gain = (np.concatenate([getattr(s, f) for s in group])
-                           for f in ("rows", "detected", "gain"))
-        a.hits[rows] = ((a.hits[rows] << 1) | hit) & mask
+        if len(group) == 1:
+            rows, hit, gain = group[0].rows, group[0].detected, group[0].gain
+        else:
+            rows, hit, gain = (np.concatenate([getattr(s, f) for s in group])
+                               for f in ("rows", "detected", "gain"))
+        hits = ((a.hits[rows] << 1) | hit) & mask
+        a.hits[rows] = hits
         a.scans[rows] += 1
         a.misses[rows] = np.where(hit, 0, a.misses[rows] + 1)
-        a.score[rows] += gain
-        a.confirmed[rows] |= (np.bitwise_count(a.hits[rows]) >= m) & (a.score[rows] >= threshold)
+        score = a.score[rows] + gain
+        a.score[rows] = score
+        a.confirmed[rows] |= (np.bitwise_count(hits) >= m) & (score >= threshold)
 
 
 class MofNDeleter:
@@ -54,11 +59,12 @@ class MofNDeleter:
         for arrays in store.layouts.values():
             rows, ids = arrays.live()
             plot = arrays.plot[rows]
-            if not plot.any():
+            if not np.count_nonzero(plot):
                 continue
             misses, confirmed = arrays.misses[rows], arrays.confirmed[rows]
-            d = arrays.dim
-            var = arrays.p[rows, :d, :d].trace(axis1=1, axis2=2)
+            d, n = arrays.dim, arrays.n
+            diag = arrays.p.reshape(len(arrays.p), n * n)[:, :d * (n + 1):n + 1]
+            var = np.add.reduce(diag[rows], axis=1)  # the trace of the position block
             gone = np.where(confirmed, misses >= self.misses, misses > self.n - self.m)
             gone |= var > self.sigma**2
             out += [ids[i] for i in (plot & gone).nonzero()[0].tolist()]

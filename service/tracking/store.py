@@ -179,14 +179,17 @@ class TrackStore:
             arrays.remove(rows)
 
     def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray,
-               labels: list) -> States:
+               labels: list, x: np.ndarray | None = None, p: np.ndarray | None = None
+               ) -> States:
         """The filtered states of rows of one layout, as columns (`labels`: the filter's
-        model label of each row)."""
+        model label of each row; x (N, n), P (N, n, n): their states and covariances as
+        new arrays, if the caller has them, else taken from the store)."""
         r = np.asarray(rows, dtype=int)
         d, n = arrays.dim, len(r)
-        x = arrays.x[r]
+        if x is None or p is None:
+            x, p = arrays.x[r], arrays.p[r]
         pos, vel = np.zeros((n, 3)), np.zeros((n, 3))
         pos[:, :d], vel[:, :d] = x[:, :d], x[:, d:2 * d]
         ids = arrays.ids
         return States([ids[i] for i in r.tolist()], arrays.t[r], pos, vel,  # type: ignore[misc]
-                      x, arrays.p[r].reshape(n, -1), labels, arrays.nis[r], arrays.updates[r])
+                      x, p.reshape(n, -1), labels, arrays.nis[r], arrays.updates[r])

@@ -134,7 +134,9 @@ class Tracker:
         for i, reason in hypotheses.rejected.items():
             scan[i].reason = reason
         for dim, idx in hypotheses.updates.items():
-            self.update(dim, [scan[i] for i in idx], hypotheses.tracks[dim],
+            rows = hypotheses.rows.get(dim)
+            self.update(dim, [scan[i] for i in idx],
+                        hypotheses.tracks[dim] if rows is None else np.concatenate(rows),
                         hypotheses.batch(meas, dim, idx))
         for weighted in hypotheses.weighted:
             self.update_weighted(weighted, scan, now)
@@ -147,27 +149,34 @@ class Tracker:
         return deleted
 
     # ------------------------------------------------------------ the steps
-    def update(self, dim: int, scan: list[Outcome], tracks: list[str],
+    def update(self, dim: int, scan: list[Outcome], tracks: list[str] | np.ndarray,
                batch: MeasurementBatch) -> None:
-        """Predict and update `tracks` (of one layout) with their measurements (`batch`:
-        the same as columns)."""
+        """Predict and update `tracks` (of one layout: ids, or their rows) with their
+        measurements (`batch`: the same as columns)."""
         store = self.store
         arrays = store.layout(dim)
-        rows = np.array([store.where[k][1] for k in tracks], dtype=int)
-        good, ok, nis = self.update_rows(arrays, rows, batch)
-        self._settle(scan, arrays, good, [(None, float(v)) if k else
+        rows = tracks if isinstance(tracks, np.ndarray) else \
+            np.array([store.where[k][1] for k in tracks], dtype=int)
+        good, ok, nis, xn, pn = self._update_rows(arrays, rows, batch)
+        self._settle(scan, arrays, good, [(None, v) if k else
                                           ("update gave a non-finite state", np.nan)
-                                          for k, v in zip(ok, nis, strict=True)])
+                                          for k, v in zip(ok.tolist(), nis.tolist(),
+                                                          strict=True)], xn, pn)
 
     def update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predict and update `rows` of `arrays` with `batch` (row i with measurement i):
         the rows updated (those whose result is finite), the mask of them and every NIS."""
+        return self._update_rows(arrays, rows, batch)[:3]
+
+    def _update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
+                     ) -> tuple[np.ndarray, ...]:
+        """`update_rows`, and the new states and covariances of the rows updated."""
         t = batch.t
         conversion = EKFConversion(batch) if self.conversion == "ekf" else \
             CMKFConversion(batch)  # the filter core converts a CMKF batch in its kernel
         xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows], conversion)
-        every = bool(ok.all())
+        every = np.count_nonzero(ok) == len(ok)
         good = rows if every else rows[ok]
         if not every:
             xn, pn, nis_ok, t = xn[ok], pn[ok], nis[ok], t[ok]
@@ -177,7 +186,7 @@ class Tracker:
         arrays.x[good], arrays.p[good], arrays.nis[good] = xn, pn, nis_ok
         arrays.t[good] = t
         arrays.updates[good] += 1
-        return good, ok, nis
+        return good, ok, nis, xn, pn
 
     def update_weighted(self, w: WeightedUpdate, scan: Sequence[Outcome], t: float) -> None:
         """Update tracks each with the equivalent measurement of its weighted detections
@@ -188,12 +197,12 @@ class Tracker:
                                               EquivalentConversion(w.z, w.r, w.mass))
         pn = pn + w.spread
         self.updater.inflate(arrays, rows[ok], w.spread[ok])
-        good = rows[ok]
-        self.display.update(arrays, good, times[ok], xn[ok], pn[ok])
-        arrays.x[good], arrays.p[good], arrays.nis[good] = xn[ok], pn[ok], nis[ok]
+        good, xn, pn = rows[ok], xn[ok], pn[ok]
+        self.display.update(arrays, good, times[ok], xn, pn)
+        arrays.x[good], arrays.p[good], arrays.nis[good] = xn, pn, nis[ok]
         arrays.t[good] = t
         arrays.updates[good] += 1
-        block = self.states(arrays, good)
+        block = self.states(arrays, good, xn, pn)
         for out in scan:  # every detection shares the block of the tracks it updated
             if out.states is None:
                 out.states = block
@@ -239,14 +248,18 @@ class Tracker:
             arrays.confirmed[rows] = self.config.confirm_m <= 1 and \
                 self.config.confirm_score <= 0
         self.updater.initiate(arrays, rows)
-        self.display.initiate(arrays, rows)
-        self._settle(scan, arrays, rows, [(r, 0.0 if r is None else np.nan) for r in reasons])
+        x, p = arrays.x[rows], arrays.p[rows]
+        self.display.initiate(arrays, rows, x, p)
+        self._settle(scan, arrays, rows, [(r, 0.0 if r is None else np.nan) for r in reasons],
+                     x, p)
 
     def _settle(self, scan: list[Outcome], arrays: TrackArrays, good: np.ndarray,
-                results: list[tuple[str | None, float]]) -> None:
+                results: list[tuple[str | None, float]], x: np.ndarray | None = None,
+                p: np.ndarray | None = None) -> None:
         """Record each measurement's reason and NIS, and the accepted ones' new states
-        (one block of columns for all of them)."""
-        block = self.states(arrays, good)
+        (one block of columns for all of them; x, P: their states and covariances, when
+        the caller has them as new arrays)."""
+        block = self.states(arrays, good, x, p)
         for out, (reason, nis) in zip(scan, results, strict=True):
             out.reason, out.nis = reason, nis
             if reason is None:
@@ -262,10 +275,12 @@ class Tracker:
         return out
 
     # ------------------------------------------------------------ queries
-    def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray) -> States:
-        """The filtered states of rows of one layout, as columns."""
+    def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray,
+               x: np.ndarray | None = None, p: np.ndarray | None = None) -> States:
+        """The filtered states of rows of one layout, as columns (x, P: those rows'
+        states and covariances, new arrays, if the caller has them)."""
         r = np.asarray(rows, dtype=int)
-        return self.store.states(arrays, r, self.updater.labels(arrays, r))
+        return self.store.states(arrays, r, self.updater.labels(arrays, r), x, p)
 
     def state(self, track_id: str) -> dict:
         """The filtered state of one track (the `tracks/<id>` message body)."""
