@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .estimation.measurements import MeasurementBatch
-from .tracking.bulk import Rows, track_columns
+from .tracking.bulk import BatchOutcome, Rows, track_columns
 from .wire import (
     PlotScan,
     Rejected,
@@ -319,10 +319,17 @@ class Inputs:
         if not pending:
             return
         want = self.out.wanted if self.out.wants_states else None
-        pause = self._frame_between if self.realtime else None
+        pause = self._between_parts if self.realtime else None
         for rows in Rows.joined(pending):
             outcome = track_columns(self.tracker, rows.ids, rows.sensors, rows.batch, want,
                                     pause)
             self.out.deleted(outcome.deleted)
             self.out.batch(rows.sensors, rows.ids, outcome)
         pending.clear()
+
+    def _between_parts(self, outcome: BatchOutcome) -> None:
+        """Realtime, between parts of an update: the states of the tracks updated so far
+        go out, then the frame due, if any."""
+        self.out.put_states(outcome.states)
+        outcome.states.clear()
+        self._frame_between()

@@ -236,7 +236,7 @@ def test_an_update_in_parts_gives_the_same_tracks(monkeypatch):
         cols = parse_scan_columns("s", pack(msg), NOISE)
         a = track_columns(whole, cols.ids, "s", MeasurementBatch.of_scan(cols))
         b = track_columns(parts, cols.ids, "s", MeasurementBatch.of_scan(cols),
-                          pause=lambda: pauses.append(len(parts)))
+                          pause=lambda so_far: pauses.append(len(so_far.states)))
         assert a.rejected == b.rejected and a.accepted == b.accepted
     assert len(pauses) >= 3 * 4  # 30 rows in parts of 7: 4 pauses per scan after the first
     for track_id, (arr, row) in whole.store.where.items():

@@ -88,13 +88,14 @@ class BatchOutcome:
 
 def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str | Sequence[str],
                   batch: MeasurementBatch, want: Want | None = all_states,
-                  pause: Callable[[], None] | None = None) -> BatchOutcome:
+                  pause: Callable[[BatchOutcome], None] | None = None) -> BatchOutcome:
     """Apply the measurements `batch`, row i labelled ids[i], in order (`sensor`: the
     sensor of every row, or of each).
     `want`: which of the tracks updated (given their ids) to return the states of, for
     the `tracks/` and `states` outputs (None: none). `pause`: called between parts of
-    `PART` rows of an update (a realtime service publishes a due frame there; a row's
-    update does not depend on the others, so the parts give the same result)."""
+    `PART` rows of an update with the outcome so far (a realtime service puts the states
+    of the part done and a due frame there; a row's update does not depend on the
+    others, so the parts give the same result)."""
     out = BatchOutcome()
 
     def keep(arrays: TrackArrays, rows: np.ndarray) -> None:
@@ -120,7 +121,7 @@ def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str | Sequence[s
             cut = len(rows) if pause is None else PART
             for lo in range(0, len(rows), cut):
                 if lo:
-                    pause()  # type: ignore[misc]
+                    pause(out)  # type: ignore[misc]
                 part = upd[lo:lo + cut]
                 good, ok, _ = tracker.update_rows(arrays, rows[lo:lo + cut], sub.take(part))
                 for j in np.flatnonzero(~ok).tolist():
