@@ -106,6 +106,7 @@ def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,
     ok = np.ones(k, dtype=bool)
     z = scratch.buffer("imm.z", (d,), k)
     nis_j, det_j = scratch.buffer("imm.nis", (), k), scratch.buffer("imm.det", (), k)
+    prior = []  # each mode's mixed initial condition, predicted
     for j, (_, kind, q, _) in enumerate(imm.modes):
         ca = kind == "ca"
         s = n if ca else 2 * d  # a CV mode's filter runs on (position, velocity)
@@ -113,7 +114,9 @@ def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,
         models.predict_soa(x0, p0, dt, 3 if ca else 2, d, q)
         np.copyto(xpos[j], x0[:d])
         np.copyto(ppos[j], p0[:d, :d])
-        cmkf_soa(batch, x0[:d], p0[:d, :d], z, rs[j])  # R averaged over this prediction
+        prior.append((x0, p0, s))
+    _convert(batch, xpos, ppos, z, rs)  # each mode's R averaged over its own prediction
+    for j, (x0, p0, s) in enumerate(prior):
         pout = pu[j, :s, :s]
         if s == n:
             kalman.update_soa(x0, p0, z, rs[j], pout, nis_j, det_j)
@@ -140,6 +143,27 @@ def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,
     return xu, pu, mu_new, x, p, nis, ok
 
 
+def _convert(batch: MeasurementBatch, xpos: np.ndarray, ppos: np.ndarray, z: np.ndarray,
+             rs: np.ndarray) -> None:
+    """The converted measurements z (d, k) and, for each mode j, R (d, d, k) averaged over
+    its predicted position xpos[j] (d, k), ppos[j] (d, d, k): one call of the conversion
+    for all the modes (M copies of the batch; a row's result does not depend on the
+    others, so it is the same as one call per mode)."""
+    m, d, k = xpos.shape
+    if m == 1:
+        cmkf_soa(batch, xpos[0], ppos[0], z, rs[0])
+        return
+    pos = scratch.buffer("imm.cpos", (d, m), k).reshape(d, m * k)
+    cov = scratch.buffer("imm.ccov", (d, d, m), k).reshape(d, d, m * k)
+    np.copyto(pos.reshape(d, m, k), xpos.transpose(1, 0, 2))
+    np.copyto(cov.reshape(d, d, m, k), ppos.transpose(1, 2, 0, 3))
+    zz = scratch.buffer("imm.cz", (d, m), k).reshape(d, m * k)
+    rr = scratch.buffer("imm.cr", (d, d, m), k).reshape(d, d, m * k)
+    cmkf_soa(batch.tiled(m), pos, cov, zz, rr)
+    np.copyto(z, zz[:, :k])
+    np.copyto(rs, rr.reshape(d, d, m, k).transpose(2, 0, 1, 3))
+
+
 def _mixed(mx: np.ndarray, mp: np.ndarray, w: np.ndarray, j: int, s: int, acc: slice,
            padded: list[bool]) -> tuple[np.ndarray, np.ndarray]:
     """The mixed initial condition of mode j, its first s components: x0 = sum_i w_ij x_i,
@@ -147,8 +171,8 @@ def _mixed(mx: np.ndarray, mp: np.ndarray, w: np.ndarray, j: int, s: int, acc: s
     acceleration mixed into j with one) x_i's acceleration is j's and P_i's acceleration
     block is j's, its cross terms zero (Granstrom et al. 2015)."""
     m, n, k = mx.shape
-    x0 = scratch.buffer(f"imm.x0.{s}", (s,), k)
-    p0 = scratch.buffer(f"imm.p0.{s}", (s, s), k)
+    x0 = scratch.buffer(f"imm.x0.{j}", (s,), k)  # each mode's own: all are kept
+    p0 = scratch.buffer(f"imm.p0.{j}", (s, s), k)
     xi = scratch.buffer(f"imm.xi.{s}", (s,), k)
     pi_ = scratch.buffer(f"imm.pi.{s}", (s, s), k)
     dv = scratch.buffer(f"imm.dv.{s}", (s,), k)

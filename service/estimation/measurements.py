@@ -103,6 +103,13 @@ class MeasurementBatch:
         return MeasurementBatch(self.t[i], self.polar[i], np.asfortranarray(self.values[i]),
                                 np.asfortranarray(self.sigmas[i]), self.origin[i], point)
 
+    def tiled(self, m: int) -> MeasurementBatch:
+        """The batch m times over, one copy after another."""
+        return MeasurementBatch(np.tile(self.t, m), np.tile(self.polar, m),
+                                np.asfortranarray(np.tile(self.values, (m, 1))),
+                                np.asfortranarray(np.tile(self.sigmas, (m, 1))),
+                                np.tile(self.origin, (m, 1)))
+
     def rows(self, lo: int, hi: int) -> MeasurementBatch:
         point = None if self.point is None else (self.point[0][lo:hi], self.point[1][lo:hi])
         return MeasurementBatch(self.t[lo:hi], self.polar[lo:hi], self.values[lo:hi],
