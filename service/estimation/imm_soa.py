@@ -33,6 +33,7 @@ from .measurements import MeasurementBatch
 from .ucm import cmkf_soa
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+WHOLE = 2048  # rows up to which a mixture's spread is summed a whole matrix per call
 
 
 def applies(imm: Any) -> bool:
@@ -221,10 +222,17 @@ def _moments(x: np.ndarray, p: np.ndarray, w: np.ndarray, name: str
 
 def _spread(acc: np.ndarray, x: np.ndarray, p: np.ndarray, mean: np.ndarray,
             w: np.ndarray, dv: np.ndarray, tmp: np.ndarray) -> None:
-    """acc += w (P + (x - mean)(x - mean)'), upper triangle only (row by row), batch
-    axis last; every entry gets the same operations whatever the number of rows."""
+    """acc += w (P + (x - mean)(x - mean)'), batch axis last, its upper triangle (the
+    caller mirrors it into the lower one); every entry of it gets the same operations
+    whatever the number of rows."""
     np.subtract(x, mean, out=dv)
-    for a in range(len(dv)):
+    if dv.shape[-1] <= WHOLE:  # few rows: four calls on the whole matrix
+        np.multiply(dv[:, None], dv[None, :], out=tmp)
+        tmp += p
+        tmp *= w
+        acc += tmp
+        return
+    for a in range(len(dv)):  # many: the upper triangle only, row by row (less memory)
         t = tmp[a, a:]
         np.multiply(dv[a:], dv[a], out=t)
         t += p[a, a:]
