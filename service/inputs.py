@@ -92,26 +92,26 @@ class Inputs:
         as columns (`wire.parse_singles`; a bad one reported on its own key), their
         `seq` counted, the time policy and the clock applied, and the good ones left
         waiting in `pending` (a lockstep frame due before one goes out before it)."""
-        keys, sensors, targets, payloads, walls = [], [], [], [], []
-        for _, key, payload, wall in items:
-            chunks = self.keys.chunks_after(key, "meas")
-            if len(chunks) != 2:
-                self.out.reject(key, chunks[0] if chunks and chunks[0] else "unknown",
-                                "measurement key must be <ns>/meas/<sensor>/<target>")
-                continue
-            keys.append(key)
-            sensors.append(chunks[0])
-            targets.append(chunks[1])
-            payloads.append(payload)
-            walls.append(wall)
-        got = parse_singles(sensors, targets, payloads, self.noise)
-        bad = iter(got.rejected)
+        prefix = f"{self.keys.ns}/meas/"
+        cut = len(prefix)
+        split = [it[1][cut:].split("/") if it[1].startswith(prefix) else [] for it in items]
+        fine = [i for i, chunks in enumerate(split) if len(chunks) == 2]
+        keys = [items[i][1] for i in fine]
+        sensors, targets = [split[i][0] for i in fine], [split[i][1] for i in fine]
+        walls = [items[i][3] for i in fine]
+        got = parse_singles(sensors, targets, [items[i][2] for i in fine], self.noise)
+        # the bad ones, reported in message order: bad keys, then what parse_singles found
+        bad = iter(sorted([(i, items[i][1], split[i][0] if split[i] and split[i][0] else
+                            "unknown", "measurement key must be <ns>/meas/<sensor>/<target>")
+                           for i in range(len(items)) if len(split[i]) != 2]
+                          + [(fine[i], keys[i], sensors[i], why) for i, why in got.rejected]))
         later = next(bad, None)
 
-        def reject_before(upto: float) -> None:  # bad ones reported in message order
+        def reject_before(upto: float) -> None:  # message index upto (in `fine`) and after
             nonlocal later
-            while later is not None and later[0] < upto:
-                self.out.reject(keys[later[0]], sensors[later[0]], later[1])
+            at = fine[int(upto)] if upto < len(fine) else math.inf
+            while later is not None and later[0] < at:
+                self.out.reject(*later[1:])
                 later = next(bad, None)
 
         last_seq = self.last_seq
