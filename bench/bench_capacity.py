@@ -719,6 +719,10 @@ def main(argv: list[str] | None = None) -> None:
                    help="instead of the sweep: CPU per row of batched scans of 10,000 rows "
                         "(check, one-pass apply) against the filter core, and the frame, at "
                         "N tracks (default 10,000 and 100,000; bench/throughput.py)")
+    p.add_argument("--single-cost", type=int, nargs="*", default=None, metavar="N",
+                   help="instead of the sweep: the worker's CPU per single labelled message "
+                        "at N targets, against the echo's, in one process (default 5,000 "
+                        "and 10,000; bench/single_cost.py)")
     p.add_argument("--sample", type=int, default=1000,
                    help="at most this many targets' tracks/ and meas/ keys subscribed")
     p.add_argument("--display-sample", type=int, default=10,
@@ -769,6 +773,11 @@ def main(argv: list[str] | None = None) -> None:
         from throughput import frame_cost  # bench/throughput.py
 
         frame_cost(args.encode or [10_000, 100_000], log)
+        return
+    if args.single_cost is not None:
+        from single_cost import single_cost  # bench/single_cost.py
+
+        single_cost(args.single_cost or [5_000, 10_000], log)
         return
     if args.scan_cost is not None:
         from throughput import scan_cost  # bench/throughput.py

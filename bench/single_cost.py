@@ -1,0 +1,99 @@
+"""CPU of the service's worker per single labelled message, against the echo's, in one
+process (bench/bench_capacity.py --single-cost N).
+
+A `TrackService` (no flags: the default IMM) on a real Zenoh session, a consumer process
+subscribed to `<ns>/tracks/**` (so every state is put, as in the throughput benchmark),
+and N swarm targets' single radar messages handed to the worker's `_process` in batches
+of `node.MAX_BATCH`, as the worker takes them from its channel in a burst: thread CPU time
+per message over scans 2 to 5. The echo's work on the same messages (decode, a small
+reply put, bench/echo.py) is timed the same way in the same run. Zenoh's receive path
+is outside both figures (the same for both processes); the put is inside both.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import zenoh
+
+CONSUMER = """
+import sys, zenoh
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("scouting/multicast/enabled", "false")
+conf.insert_json5("connect/endpoints", '["{ep}"]')
+s = zenoh.open(conf)
+n = [0]
+sub = s.declare_subscriber("{key}", zenoh.handlers.Callback(
+    lambda x: n.__setitem__(0, n[0] + 1), indirect=False))
+print("ready", flush=True)
+sys.stdin.readline()
+print(n[0], flush=True)
+"""
+
+
+def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
+    from service.node import MAX_BATCH, TrackService
+    from service.tracking.tracker import Tracker
+    from service.wire import Keys, free_port, pack, unpack
+
+    clock = time.thread_time
+    log(f"single-message cost: the worker's CPU per message (no flags, batches of "
+        f"{MAX_BATCH}, a consumer of tracks/**) against the echo's, scans 2-{scans}")
+    log(f"{'N':>8} {'service us':>10} {'echo us':>8} {'x echo':>7} {'answered':>9}")
+    for n in sizes:
+        ep = f"tcp/127.0.0.1:{free_port()}"
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("listen/endpoints", f'["{ep}"]')
+        session = zenoh.open(conf)
+        keys = Keys(f"sc{n}")
+        consumer = subprocess.Popen(
+            [sys.executable, "-c", CONSUMER.format(ep=ep, key=keys.tracks("**"))],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        try:
+            consumer.stdout.readline()  # type: ignore[union-attr]
+            svc = TrackService(session, keys, Tracker(), clock="realtime")
+            end = time.monotonic() + 10
+            while svc.out.track_listeners.none and time.monotonic() < end:
+                svc.out.track_listeners.look()
+                time.sleep(0.05)
+            rng = np.random.default_rng(0)
+            r, az = rng.uniform(5e3, 8e4, n), rng.uniform(-3, 3, n)
+            t0 = time.time()
+            ours, echo = [], []
+            for k in range(scans):
+                items = [("meas", keys.meas("radar1", f"swarm-{i:06d}"), pack(
+                    {"t": t0 + k, "r": float(r[i]) + 10 * k, "az": float(az[i]), "el": 0.1,
+                     "sr": 20.0, "saz": 0.003, "sel": 0.003, "seq": k * n + i}), time.time())
+                         for i in range(n)]
+                c0 = clock()
+                for lo in range(0, n, MAX_BATCH):
+                    svc._process(items[lo:lo + MAX_BATCH])
+                ours.append(clock() - c0)
+                c0 = clock()  # the echo: decode, reply {t, id} on tracks/<target>
+                for _, key, payload, _ in items:
+                    msg = unpack(payload)
+                    target = key.rsplit("/", 1)[1]
+                    session.put(keys.tracks(target), pack({"t": msg["t"], "id": target}),
+                                congestion_control=zenoh.CongestionControl.BLOCK)
+                echo.append(clock() - c0)
+            time.sleep(1.0)
+            consumer.stdin.write("\n")  # type: ignore[union-attr]
+            consumer.stdin.flush()  # type: ignore[union-attr]
+            got = int(consumer.stdout.readline())  # type: ignore[union-attr]
+            a, b = (float(np.median(x[1:])) / n * 1e6 for x in (ours, echo))
+            log(f"{n:>8} {a:>10.1f} {b:>8.1f} {a / b:>7.2f} {got:>9}")
+            svc.out.close()
+        finally:
+            consumer.kill()
+            consumer.wait()
+            session.close()
+    log("  service us: the worker's thread CPU per message (check, IMM update, tracks/ "
+        "body and put); echo us: bench/echo.py's work per message (decode, small reply "
+        "put); answered: tracks/ messages the consumer received (service and echo)")
