@@ -39,7 +39,7 @@ from .wire import (
 )
 
 log = logging.getLogger("track-service")
-MAX_BATCH = 2048  # inputs per worker step: bounds how long a due frame waits
+MAX_BATCH = 1024  # inputs per worker step: bounds how long a due frame waits
 CHANNEL = 1 << 13  # measurements Zenoh holds for the worker before it pushes back (bounds memory)
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
 
