@@ -28,6 +28,9 @@ class MeasurementBatch:
     # the conversion at the measured points, z (N, d) and R (N, d, d), once computed
     # (`ucm.at_point`): gating and initiation share it
     point: tuple[np.ndarray, np.ndarray] | None = None
+    # or, for a batch taken from another (`take`), that one's conversion and the rows
+    # taken: `at_point` takes them when first asked (a filter update never asks)
+    point_of: tuple[tuple[np.ndarray, np.ndarray], np.ndarray] | None = None
 
     @classmethod
     def of(cls, meas: Sequence[Measurement], dim: int) -> MeasurementBatch:
@@ -99,9 +102,11 @@ class MeasurementBatch:
     def take(self, index: Sequence[int] | np.ndarray) -> MeasurementBatch:
         """The measurements at `index`, in that order."""
         i = np.asarray(index, dtype=int)
-        point = None if self.point is None else (self.point[0][i], self.point[1][i])
-        return MeasurementBatch(self.t[i], self.polar[i], np.asfortranarray(self.values[i]),
-                                np.asfortranarray(self.sigmas[i]), self.origin[i], point)
+        point_of = None if self.point is None else (self.point, i)
+        # the column-major (N, d) columns taken as columns of their (d, N) transposes:
+        # the result is column-major without a second copy
+        return MeasurementBatch(self.t[i], self.polar[i], self.values.T.take(i, 1).T,
+                                self.sigmas.T.take(i, 1).T, self.origin[i], None, point_of)
 
     def tiled(self, m: int) -> MeasurementBatch:
         """The batch m times over, one copy after another."""
@@ -112,5 +117,7 @@ class MeasurementBatch:
 
     def rows(self, lo: int, hi: int) -> MeasurementBatch:
         point = None if self.point is None else (self.point[0][lo:hi], self.point[1][lo:hi])
+        point_of = None if self.point_of is None else (self.point_of[0],
+                                                       self.point_of[1][lo:hi])
         return MeasurementBatch(self.t[lo:hi], self.polar[lo:hi], self.values[lo:hi],
-                                self.sigmas[lo:hi], self.origin[lo:hi], point)
+                                self.sigmas[lo:hi], self.origin[lo:hi], point, point_of)

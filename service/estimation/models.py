@@ -84,25 +84,31 @@ def predict_position(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, d
     is sum_e Phi[b, e] A[:, e] + Q[0, b]."""
     dt = np.asarray(dt, dtype=float)
     n_rows, n = x.shape
-    coef = [None] + [(dt ** k / math.factorial(k))[:, None] for k in range(1, order)]
+    # Phi[0, k] = dt^k / k! as columns (dt^1 / 1! is dt itself)
+    coef = [None, dt[:, None]] + [(dt ** k / math.factorial(k))[:, None]
+                                  for k in range(2, order)]
     blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
-    mean = x[:, blk[0]].copy()
-    a = p[:, blk[0], :].copy()
-    for c in range(1, order):
+    mean = np.add(x[:, blk[0]], coef[1] * x[:, blk[1]]) if order > 1 else x[:, blk[0]].copy()
+    a = np.add(p[:, blk[0], :], coef[1][:, :, None] * p[:, blk[1], :]) if order > 1 else \
+        p[:, blk[0], :].copy()
+    for c in range(2, order):
         mean += coef[c] * x[:, blk[c]]
         a += coef[c][:, :, None] * p[:, blk[c], :]
     rows = np.empty((n_rows, dim, n))
     gain = np.abs(dt)
-    g = [gain ** (order - k) / math.factorial(order - k) for k in range(order)]
+    g = [gain ** (order - k) / math.factorial(order - k) for k in range(order - 1)] + [gain]
     noise = np.square(q) * g[0]
+    flat = rows.reshape(n_rows, dim * n)
     for b in range(order):
         acc = rows[:, :, blk[b]]
-        acc[...] = a[:, :, blk[b]]
-        for e in range(b + 1, order):
+        if b + 1 < order:
+            np.add(a[:, :, blk[b]], coef[1][:, :, None] * a[:, :, blk[b + 1]], out=acc)
+        else:
+            acc[...] = a[:, :, blk[b]]
+        for e in range(b + 2, order):
             acc += coef[e - b][:, :, None] * a[:, :, blk[e]]
-        qb = noise * g[b]
-        for i in range(dim):
-            acc[:, i, i] += qb
+        # + Q[0, b] on the diagonal of block b: entries (i, b dim + i), a strided view
+        flat[:, b * dim:b * dim + (dim - 1) * (n + 1) + 1:n + 1] += (noise * g[b])[:, None]
     return mean, rows
 
 
@@ -147,7 +153,9 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
     g = np.empty((order, n_rows))
     gain = np.abs(dt, out=g[order - 1])
     for a in range(order - 1):
-        np.divide(gain ** (order - a), math.factorial(order - a), out=g[a])
+        k = order - a  # |dt|^k (a square as np.square: what ** 2 runs) / k!
+        np.square(gain, out=g[a]) if k == 2 else np.power(gain, k, out=g[a])
+        g[a] /= math.factorial(k)
     qm = g[:, None] * g[None, :]  # (order, order, N): g_a g_b, then q^2 g_a g_b
     qm *= np.square(q)
     for k in range(dim):  # the entries (a dim + k, b dim + k) of every block

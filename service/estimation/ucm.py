@@ -74,7 +74,11 @@ def at_point(batch: MeasurementBatch) -> tuple[np.ndarray, np.ndarray]:
     """`cmkf_arrays(batch, None)`, the conversion at the measured points (gating,
     initiation), computed once per batch and kept in `batch.point`."""
     if batch.point is None:
-        batch.point = cmkf_arrays(batch, None)
+        if batch.point_of is not None:  # rows of a batch converted before
+            (z, r), rows = batch.point_of
+            batch.point = z[rows], r[rows]
+        else:
+            batch.point = cmkf_arrays(batch, None)
     return batch.point
 
 

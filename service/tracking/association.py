@@ -188,7 +188,8 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
         hyp.rows.setdefault(g.arrays.dim, []).append(g.rows[ti])
     hit = np.zeros(len(g.rows), dtype=bool)
     hit[ti] = True
-    gain = np.full(len(g.rows), miss)
+    gain = np.empty(len(g.rows))
+    gain.fill(miss)
     gain[ti] = score[pairs]
     hyp.seen.append(Seen(g.arrays, g.rows, hit, gain))
     free = np.ones(len(index), dtype=bool)
@@ -208,7 +209,7 @@ def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list
 
     if not len(multi):
         return []
-    groups, k, cl = [multi], multi, np.zeros(len(multi), dtype=int)
+    groups, k, cl = [multi], multi, None
     tpos, nt = _number(g.ti[k], cl, len(g.rows), 1)
     if nt[0] > PACK:  # too many tracks for one block: cut it into clusters
         groups = split(g, multi)
@@ -216,18 +217,27 @@ def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list
         cl = np.repeat(np.arange(len(groups)), [len(x) for x in groups])
         tpos, nt = _number(g.ti[k], cl, len(g.rows), len(groups))
     dpos, nd = _number(g.dj[k], cl, len(g.z), len(groups))
-    pack = (np.cumsum(nt) - nt) // PACK  # clusters packed by their first track
-    ends = np.append(np.flatnonzero(pack[1:] != pack[:-1]), len(pack) - 1)
-    t_end, d_end = np.cumsum(nt)[ends], np.cumsum(nd)[ends]
-    p_end = np.cumsum([len(x) for x in groups])[ends]
+    acc = np.add.accumulate
+    t_cum, d_cum = acc(nt), acc(nd)
+    if t_cum[-1] <= PACK:  # one block
+        t_end, d_end, p_end = t_cum[-1:], d_cum[-1:], [len(k)]
+    else:
+        pack = (t_cum - nt) // PACK  # clusters packed by their first track
+        ends = np.concatenate([(pack[1:] != pack[:-1]).nonzero()[0], [len(pack) - 1]])
+        t_end, d_end = t_cum[ends], d_cum[ends]
+        p_end = acc([len(x) for x in groups])[ends].tolist()
     out, t0, d0, p0 = [], 0, 0, 0
-    for t1, d1, p1 in zip(t_end.tolist(), d_end.tolist(), p_end.tolist(), strict=True):
+    for t1, d1, p1 in zip(t_end.tolist(), d_end.tolist(), p_end, strict=True):
         n_t, n_d = t1 - t0, d1 - d0
-        ti, dj, kk = tpos[p0:p1] - t0, dpos[p0:p1] - d0, k[p0:p1]
-        cost = np.full((n_t, n_d + n_t), UNLIKELY)
+        ti, dj, kk = tpos[p0:p1], dpos[p0:p1], k[p0:p1]
+        if t0:
+            ti, dj = ti - t0, dj - d0
+        cost = np.empty((n_t, n_d + n_t))
+        cost.fill(UNLIKELY)
         cost[ti, dj] = -score[kk]
-        cost[np.arange(n_t), n_d + np.arange(n_t)] = -miss
-        pair = np.full((n_t, n_d), -1)
+        cost.reshape(-1)[n_d:n_t * (n_d + n_t):n_d + n_t + 1] = -miss  # the miss columns
+        pair = np.empty((n_t, n_d), dtype=np.intp)
+        pair.fill(-1)
         pair[ti, dj] = kk
         r, c = linear_sum_assignment(cost)
         hit = c < n_d
@@ -237,16 +247,20 @@ def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list
     return out
 
 
-def _number(node: np.ndarray, cl: np.ndarray, n_nodes: int, n_clusters: int
+def _number(node: np.ndarray, cl: np.ndarray | None, n_nodes: int, n_clusters: int
             ) -> tuple[np.ndarray, np.ndarray]:
     """Number the tracks (or detections) `node` of pairs of clusters `cl` (each node in
-    one cluster) consecutively in cluster order, then by node: each pair's number, and
-    the count of nodes per cluster."""
+    one cluster; None: all in one) consecutively in cluster order, then by node: each
+    pair's number, and the count of nodes per cluster."""
+    if cl is None:  # one cluster: the nodes present, numbered in order
+        present = np.zeros(n_nodes, dtype=np.intp)
+        present[node] = 1
+        number = np.add.accumulate(present)
+        return number[node] - 1, number[-1:]
     cluster = np.full(n_nodes, n_clusters)
     cluster[node] = cl
     present = cluster < n_clusters
-    order = np.argsort(cluster, kind="stable")[:int(present.sum())] if n_clusters > 1 \
-        else present.nonzero()[0]
+    order = np.argsort(cluster, kind="stable")[:int(present.sum())]
     number = np.empty(n_nodes, dtype=int)
     number[order] = np.arange(len(order))
     return number[node], np.bincount(cluster[order], minlength=n_clusters)

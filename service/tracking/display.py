@@ -256,9 +256,12 @@ class DisplayState:
         cols = self.columns(arrays)
         if x is None or p is None:
             x, p = arrays.x[rows], arrays.p[rows]
-        cols.offset[rows], cols.blend_period[rows] = 0.0, 0.0
-        cols.blend_start[rows] = cols.prev_t[rows] = arrays.t[rows]
-        cols.prev_x[rows], cols.prev_p[rows] = x, p
+        if self.config.blending:  # what only a blending display reads
+            cols.offset[rows], cols.blend_period[rows] = 0.0, 0.0
+            cols.blend_start[rows] = arrays.t[rows]
+        cols.prev_t[rows] = arrays.t[rows]
+        if self.config.lag > 0:  # the previous state is read only by the smoothing
+            cols.prev_x[rows], cols.prev_p[rows] = x, p
         cols.axis_cov[rows] = axis_traces(p, arrays.order, arrays.dim)
 
     def update(self, arrays: TrackArrays, rows: np.ndarray, t: np.ndarray, x: np.ndarray,

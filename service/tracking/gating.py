@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+from numpy._core.multiarray import c_einsum
 
 from ..estimation import models
 from ..estimation.linalg import ldl_inverse
@@ -24,6 +25,7 @@ from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import at_point
 from .store import TrackArrays
 
+LOG_2PI = np.log(2 * np.pi)
 DENSE_PAIRS = 16_384  # tracks x detections below which `near` skips the KD-tree
 
 
@@ -114,8 +116,11 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
         return Gating(arrays, rows, mean, cross, z, r, empty, empty, np.zeros(0), np.zeros(0),
                       np.zeros((0, d)))
     # the gate's largest semi-axis is sqrt(gamma lambda_max(S)) <= sqrt(gamma (tr P + tr R))
-    tr_r = r.trace(axis1=1, axis2=2).max()
-    radius = np.sqrt(gamma * (cov.trace(axis1=1, axis2=2) + tr_r))
+    # (the traces as sums over strided views of the diagonals)
+    n, m = cross.shape[2], len(z)
+    tr_r = np.maximum.reduce(np.add.reduce(r.reshape(m, d * d)[:, ::d + 1], axis=1))
+    tr_p = np.add.reduce(cross.reshape(len(rows), d * n)[:, :d * (n + 1):n + 1], axis=1)
+    radius = np.sqrt(gamma * (tr_p + tr_r))
     ti, dj = near(mean, z, radius)
     nu = z[dj] - mean[ti]
     s = cov[ti] + r[dj]
@@ -123,10 +128,10 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     sinv, det = np.empty((d, d, len(ti))), np.empty(len(ti))
     ldl_inverse(s.transpose(1, 2, 0), sinv, det)
     nut = nu.T
-    d2 = np.einsum("in,ijn,jn->n", nut, sinv, nut)
+    d2 = c_einsum("in,ijn,jn->n", nut, sinv, nut)  # np.einsum's kernel
     keep = (d2 <= gamma) & (det > 0)
     ti, dj, d2, nu, det = ti[keep], dj[keep], d2[keep], nu[keep], det[keep]
-    loglik = -0.5 * (d2 + np.log(det) + d * np.log(2 * np.pi))
+    loglik = -0.5 * (d2 + np.log(det) + d * LOG_2PI)
     return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu)
 
 
@@ -136,11 +141,11 @@ def near(mean: np.ndarray, z: np.ndarray, radius: np.ndarray) -> tuple[np.ndarra
     tracks x detections stays under `DENSE_PAIRS`, from the dense distance matrix (the
     same pairs; building and querying the tree costs more than the whole matrix then)."""
     if len(mean) * len(z) <= DENSE_PAIRS:
-        d2 = np.zeros((len(mean), len(z)))
-        for k in range(z.shape[1]):  # axis by axis: long inner loops, not runs of d
+        d2 = np.square(np.subtract.outer(mean[:, 0], z[:, 0]))
+        for k in range(1, z.shape[1]):  # axis by axis: long inner loops, not runs of d
             diff = np.subtract.outer(mean[:, k], z[:, k])
             d2 += np.square(diff, out=diff)
-        ti, dj = np.nonzero(d2 <= np.square(radius)[:, None])
+        ti, dj = (d2 <= np.square(radius)[:, None]).nonzero()
         return ti, dj
     from scipy.spatial import cKDTree
 
@@ -209,7 +214,7 @@ def singles(g: Gating) -> tuple[np.ndarray, np.ndarray]:
     if not len(g.ti):
         return g.ti, g.ti
     alone = (np.bincount(g.ti)[g.ti] == 1) & (np.bincount(g.dj)[g.dj] == 1)
-    return alone.nonzero()[0], (~alone).nonzero()[0]
+    return alone.nonzero()[0], (alone == 0).nonzero()[0]
 
 
 def split(g: Gating, multi: np.ndarray) -> list[np.ndarray]:

@@ -37,7 +37,8 @@ class SinglePointInitiator:
         `speed`: the velocity prior's std instead of `init_speed`."""
         arrays = store.layout(dim)
         z, r = at_point(batch)  # shared with the gate of an unlabelled scan
-        finite = np.isfinite(z).all(1) & np.isfinite(r).all((1, 2))
+        finite = np.logical_and.reduce(
+            np.isfinite(np.concatenate([z, r.reshape(len(r), dim * dim)], axis=1)), axis=1)
         speed = self.init_speed if speed is None else speed
         ok = finite.tolist()
         every = all(ok)

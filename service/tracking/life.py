@@ -63,8 +63,9 @@ class MofNDeleter:
                 continue
             misses, confirmed = arrays.misses[rows], arrays.confirmed[rows]
             d, n = arrays.dim, arrays.n
-            diag = arrays.p.reshape(len(arrays.p), n * n)[:, :d * (n + 1):n + 1]
-            var = np.add.reduce(diag[rows], axis=1)  # the trace of the position block
+            pr = arrays.p.reshape(len(arrays.p), n * n)[rows]
+            var = np.add.reduce(pr[:, :d * (n + 1):n + 1], axis=1)  # the trace of the
+            # position block (its diagonal, a strided view)
             gone = np.where(confirmed, misses >= self.misses, misses > self.n - self.m)
             gone |= var > self.sigma**2
             out += [ids[i] for i in (plot & gone).nonzero()[0].tolist()]

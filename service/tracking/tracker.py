@@ -269,6 +269,10 @@ class Tracker:
         """Ids `<sensor>-<n>` for new unlabelled tracks of these sensors, n counting per
         sensor from 1."""
         numbers, out = self.numbers, []
+        if sensors and sensors.count(sensors[0]) == len(sensors):  # one sensor (a scan)
+            s, n0 = sensors[0], numbers.get(sensors[0], 0)
+            numbers[s] = n0 + len(sensors)
+            return [f"{s}-{n}" for n in range(n0 + 1, n0 + 1 + len(sensors))]
         for sensor in sensors:
             n = numbers[sensor] = numbers.get(sensor, 0) + 1
             out.append(f"{sensor}-{n}")
