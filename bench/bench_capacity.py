@@ -709,6 +709,8 @@ def main(argv: list[str] | None = None) -> None:
                    help="instead of the sweep: measurements per second answered when a feed "
                         "of N targets sends as fast as it can, for the echo floor "
                         "(bench/echo.py) and the service with no flags and tuned, same run")
+    p.add_argument("--repeat", type=int, default=1, metavar="R",
+                   help="--throughput: the contenders in turn R times, medians printed")
     p.add_argument("--scaleout", type=int, default=0, metavar="N",
                    help="instead of the sweep: the --throughput flood through a router, one "
                         "service against two shards (bench/throughput.py)")

@@ -97,15 +97,22 @@ def throughput(args: argparse.Namespace, log: Any) -> None:
             ("service, --filter cv --no-display-keys", service + ["--filter", "cv",
                                                                   "--no-display-keys"], False),
             ("service, no flags, batched scans", service, True)]
+    reps = max(1, getattr(args, "repeat", 1))
     log(f"throughput: swarm of {n} targets, {scans} scans of {n} as fast as the feed can "
-        f"(--sectors 1); replies on tracks/** counted here")
-    log(f"{'contender':<44} {'answered':>9} {'of':>9} {'per s':>8} {'x echo':>7}")
-    floor = None
-    for name, cmd, batched in runs:
-        r = one(cmd, n, scans, batched, log)
-        floor = r["rate"] if floor is None else floor
-        log(f"{name:<44} {r['answered']:>9} {r['sent']:>9} {r['rate']:>8.0f} "
-            f"{r['rate'] / floor:>7.2f}")
+        f"(--sectors 1); replies on tracks/** counted here"
+        + (f"; the contenders in turn {reps} times, medians" if reps > 1 else ""))
+    log(f"{'contender':<44} {'answered':>9} {'of':>9} {'per s':>8} {'x echo':>7}"
+        + ("  rates of each round" if reps > 1 else ""))
+    rounds = [[one(cmd, n, scans, batched, log) for _, cmd, batched in runs]
+              for _ in range(reps)]  # in turn: a change of the machine's load hits all
+    floor = float(np.median([rs[0]["rate"] for rs in rounds]))
+    for k, (name, _, _) in enumerate(runs):
+        rates = [rs[k]["rate"] for rs in rounds]
+        rate = float(np.median(rates))
+        answered = min(rs[k]["answered"] for rs in rounds)
+        log(f"{name:<44} {answered:>9} {rounds[0][k]['sent']:>9} {rate:>8.0f} "
+            f"{rate / floor:>7.2f}" + ("  " + " ".join(f"{x:.0f}" for x in rates)
+                                        if reps > 1 else ""))
 
 
 def frame_cost(sizes: list[int], log: Any, reps: int = 20) -> None:
