@@ -140,11 +140,9 @@ def pack_tracks(t: np.ndarray, ids: Sequence[str], pos: np.ndarray, vel: np.ndar
     updates, id, model}; a model is a name or a map (IMM mode probabilities)."""
     columns: list[Column] = [("t", t), ("pos", pos), ("vel", vel), ("x", x), ("P", p),
                              ("nis", nis), ("updates", updates)]
-    first = models[0] if len(models) else None
-    if type(first) is dict and all(type(m) is dict and m.keys() == first.keys()
-                                   for m in models):  # every track the same modes
-        mu = np.array([list(m.values()) for m in models], dtype=float)
-        return pack_rows([*columns, ("model", (list(first), mu))],
+    mu = getattr(models, "mu", None)  # imm.ModeProbabilities: one map layout for all
+    if mu is not None:
+        return pack_rows([*columns, ("model", (list(models.names), mu))],  # type: ignore
                          [_TRACK_IDS((i,)) for i in ids], 1)
     tails = [_TRACK_STRINGS((i, m)) if isinstance(m, str) else
              pack("id") + pack(i) + pack("model") + pack(m)
@@ -165,7 +163,11 @@ def pack_states(st: Any) -> bytes:
     body: dict[str, Any] = {"t": _f64(st.t), "ids": list(st.ids), "n": int(st.x.shape[1]),
                             "pos": _f64(st.pos), "vel": _f64(st.vel), "x": _f64(st.x),
                             "P": _f64(st.p), "nis": _f64(st.nis), "updates": _f64(st.updates)}
-    if models and isinstance(models[0], dict):
+    mu = getattr(models, "mu", None)  # imm.ModeProbabilities
+    if mu is not None:
+        body["modes"] = list(models.names)
+        body["mu"] = _f64(mu)
+    elif models and isinstance(models[0], dict):
         modes = list(models[0])
         body["modes"] = modes
         body["mu"] = _f64(np.array([[m[k] for k in modes] for m in models]))

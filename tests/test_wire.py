@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.encode import pack_displays, pack_frame, pack_tracks
+from service.estimation.imm import ModeProbabilities
 from service.wire import pack, unpack
 
 
@@ -35,8 +36,8 @@ def test_pack_tracks_decodes_to_the_same_maps_as_pack():
     pos, vel = x[:, :3], x[:, 3:]
     ids = ["a", "b-2", "c_3"]
     nis, updates = rng.random(n), np.array([1, 2, 70000])
-    imm = [{"quiet": 0.5, "cv": 0.25, "ca": 0.25}, {"quiet": 1e-300, "cv": 1.0, "ca": 0.0},
-           {"quiet": 0.1, "cv": 0.2, "ca": 0.7}]  # every track the same modes: one layout
+    imm = ModeProbabilities(["quiet", "cv", "ca"], np.array(  # the IMM's: one map layout
+        [[0.5, 0.25, 0.25], [1e-300, 1.0, 0.0], [0.1, 0.2, 0.7]]))
     for models in (["cv", {"cv": 0.7, "ct+": 0.3}, "ca"], imm):
         got = pack_tracks(t, ids, pos, vel, x, p, models, nis, updates)
         for i in range(n):

@@ -183,6 +183,26 @@ class IMM:
         update): every mode's covariance takes it too."""
         arrays.mode_p[rows] += dp[:, None]
 
-    def labels(self, arrays: Any, rows: np.ndarray) -> list[dict[str, float]]:
-        names = [name for name, *_ in self.modes]
-        return [dict(zip(names, mu, strict=True)) for mu in arrays.mode_prob[rows].tolist()]
+    def labels(self, arrays: Any, rows: np.ndarray) -> ModeProbabilities:
+        return ModeProbabilities([name for name, *_ in self.modes], arrays.mode_prob[rows])
+
+
+class ModeProbabilities(Sequence):
+    """Tracks' mode probabilities `mu` (N, M) under the mode names: track i's as a map
+    {name: probability} (`self[i]`, the `model` of its `tracks/` body), the array for
+    encoders that write all the tracks at once."""
+
+    def __init__(self, names: list[str], mu: np.ndarray) -> None:
+        self.names, self.mu = names, mu
+
+    def __len__(self) -> int:
+        return len(self.mu)
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return ModeProbabilities(self.names, self.mu[i])
+        return dict(zip(self.names, self.mu[i].tolist(), strict=True))
+
+    def take(self, rows: Sequence[int] | np.ndarray) -> ModeProbabilities:
+        """The tracks at `rows`, in that order."""
+        return ModeProbabilities(self.names, self.mu[np.asarray(rows, dtype=int)])

@@ -123,7 +123,7 @@ class States:
     vel: np.ndarray  # (N, 3)
     x: np.ndarray  # (N, n)
     p: np.ndarray  # (N, n * n), row-major
-    models: list  # per track: the filter's model label (str, or IMM mode probabilities)
+    models: Sequence  # per track: the model's name, or a map (imm.ModeProbabilities)
     nis: np.ndarray  # (N,)
     updates: np.ndarray  # (N,) int
 
@@ -136,9 +136,10 @@ class States:
     def select(self, rows: list[int]) -> States:
         """The tracks at `rows` (indices) only."""
         r = np.asarray(rows, dtype=int)
+        take = getattr(self.models, "take", None)  # IMM mode probabilities: as an array
         return States([self.ids[i] for i in rows], self.t[r], self.pos[r], self.vel[r],
-                      self.x[r], self.p[r], [self.models[i] for i in rows], self.nis[r],
-                      self.updates[r])
+                      self.x[r], self.p[r], take(r) if take else [self.models[i] for i in rows],
+                      self.nis[r], self.updates[r])
 
 
 class TrackStore:
