@@ -256,7 +256,6 @@ def _mixture_nis(xpos: np.ndarray, ppos: np.ndarray, rs: np.ndarray, c: np.ndarr
     np.multiply(rs[0], c[0], out=rbar)
     for j in range(1, len(rs)):
         rbar += rs[j] * c[j]
-    nis, det = np.empty(k), np.empty(k)
-    xs = mean.copy()
-    kalman.update_soa(xs, cov, z, rbar, scratch.buffer("imm.nis.po", (d, d), k), nis, det)
+    nis = np.empty(k)
+    kalman.nis_soa(mean, cov, z, rbar, nis)
     return nis

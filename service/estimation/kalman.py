@@ -104,6 +104,21 @@ def loglik(nis: np.ndarray, det: np.ndarray, m: int) -> np.ndarray:
     return out
 
 
+def nis_soa(pos: np.ndarray, cov: np.ndarray, z: np.ndarray, r: np.ndarray,
+            nis: np.ndarray) -> None:
+    """The NIS of z (m, N) against a predicted position pos (m, N) with covariance
+    cov (m, m, N) and measurement noise R (m, m, N), batch axis last, into nis (N,):
+    nu' S^-1 nu with S = cov + R (+ S_FLOOR I), as `update_soa` computes it, without the
+    update."""
+    m, k = z.shape
+    nu = np.subtract(z, pos, out=scratch.buffer("nis.nu", (m,), k))
+    s0 = np.add(cov, r, out=scratch.buffer("nis.s", (m, m), k))
+    sinv = scratch.buffer("nis.si", (m, m), k)
+    ldl_inverse(s0, sinv, scratch.buffer("nis.det", (), k), S_FLOOR)
+    sn = einsum("abn,bn->an", sinv, nu, out=scratch.buffer("nis.sn", (m,), k))
+    einsum("an,an->n", nu, sn, out=nis)
+
+
 def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out: np.ndarray,
                nis: np.ndarray, det: np.ndarray) -> None:
     """The CMKF update (H = [I 0]) with the batch axis last: x (n, N) in place, symmetric
