@@ -79,37 +79,59 @@ def predict(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
 def predict_position(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
                      q: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The position part of `predict`: the predicted position (N, dim) and the position
-    rows of the predicted covariance (N, dim, n), without the rest (what a gate needs).
-    With F = kron(Phi, I): A = sum_c Phi[0, c] P[c, :] (blocks), then block b of the rows
-    is sum_e Phi[b, e] A[:, e] + Q[0, b]."""
-    dt = np.asarray(dt, dtype=float)
+    rows of the predicted covariance (N, dim, n), without the rest (what a gate needs):
+    `predict_position_soa` on batch-last copies (the results are views of batch-last
+    arrays)."""
+    x, p = np.asarray(x, dtype=float), np.asarray(p, dtype=float)
     n_rows, n = x.shape
-    # Phi[0, k] = dt^k / k! as columns (dt^1 / 1! is dt itself)
-    coef = [None, dt[:, None]] + [(dt ** k / math.factorial(k))[:, None]
-                                  for k in range(2, order)]
+    mean, rows = np.empty((dim, n_rows)), np.empty((dim, n, n_rows))
+    predict_position_soa(np.ascontiguousarray(x.T), scratch.batch_last(p)[:dim * order],
+                         np.broadcast_to(np.asarray(dt, dtype=float), (n_rows,)), order, dim,
+                         q, mean, rows)
+    return mean.T, rows.transpose(2, 0, 1)
+
+
+def predict_position_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+                         q: float | np.ndarray, mean: np.ndarray, rows: np.ndarray) -> None:
+    """The position part of `predict_soa`, batch axis last: x (n, N), P (n, n, N) ->
+    the predicted position mean (dim, N) and the position rows of the predicted
+    covariance rows (dim, n, N) (contiguous). With F = kron(Phi, I):
+    A = sum_c Phi[0, c] P[c, :] (blocks), then block b of the rows is
+    sum_e Phi[b, e] A[:, e] + Q[0, b] (Q on the diagonal of each block)."""
+    n, n_rows = x.shape
+    dt = np.asarray(dt, dtype=float)
+    # Phi[0, k] = dt^k / k! (dt^1 / 1! is dt itself)
+    coef = [None, dt] + [dt ** k / math.factorial(k) for k in range(2, order)]
     blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
-    mean = np.add(x[:, blk[0]], coef[1] * x[:, blk[1]]) if order > 1 else x[:, blk[0]].copy()
-    a = np.add(p[:, blk[0], :], coef[1][:, :, None] * p[:, blk[1], :]) if order > 1 else \
-        p[:, blk[0], :].copy()
+    if order > 1:
+        # dt repeated over the rows of a block row: the products with the (contiguous)
+        # block rows of x and P are then plain element-wise passes, not broadcasts
+        dts = np.empty((dim * n, n_rows))
+        dts[:] = dt
+        np.add(x[blk[0]], np.multiply(dts[:dim], x[blk[1]]), out=mean)
+        flat_p = p.reshape(n * n, n_rows)
+        a = np.add(flat_p[:dim * n], np.multiply(dts, flat_p[dim * n:2 * dim * n]))
+        a = a.reshape(dim, n, n_rows)
+    else:
+        np.copyto(mean, x[blk[0]])
+        a = p[blk[0]].copy()
     for c in range(2, order):
-        mean += coef[c] * x[:, blk[c]]
-        a += coef[c][:, :, None] * p[:, blk[c], :]
-    rows = np.empty((n_rows, dim, n))
+        mean += coef[c] * x[blk[c]]
+        a += coef[c] * p[blk[c]]
     gain = np.abs(dt)
     g = [gain ** (order - k) / math.factorial(order - k) for k in range(order - 1)] + [gain]
     noise = np.square(q) * g[0]
-    flat = rows.reshape(n_rows, dim * n)
+    flat = rows.reshape(dim * n, n_rows)
     for b in range(order):
-        acc = rows[:, :, blk[b]]
+        acc = rows[:, blk[b]]
         if b + 1 < order:
-            np.add(a[:, :, blk[b]], coef[1][:, :, None] * a[:, :, blk[b + 1]], out=acc)
+            np.add(a[:, blk[b]], coef[1] * a[:, blk[b + 1]], out=acc)
         else:
-            acc[...] = a[:, :, blk[b]]
+            np.copyto(acc, a[:, blk[b]])
         for e in range(b + 2, order):
-            acc += coef[e - b][:, :, None] * a[:, :, blk[e]]
+            acc += coef[e - b] * a[:, blk[e]]
         # + Q[0, b] on the diagonal of block b: entries (i, b dim + i), a strided view
-        flat[:, b * dim:b * dim + (dim - 1) * (n + 1) + 1:n + 1] += (noise * g[b])[:, None]
-    return mean, rows
+        flat[b * dim:b * dim + (dim - 1) * (n + 1) + 1:n + 1] += noise * g[b]
 
 
 def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,

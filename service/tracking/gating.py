@@ -19,7 +19,7 @@ import functools
 import numpy as np
 from numpy._core.multiarray import c_einsum
 
-from ..estimation import models
+from ..estimation import models, scratch
 from ..estimation.linalg import ldl_inverse
 from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import at_point
@@ -107,27 +107,34 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
          q: float, gamma: float) -> Gating:
     """Predict the tracks `rows` to `t` and find their pairs with the converted detections
     z, R (`convert`) within the gate `gamma`."""
-    d, o = arrays.dim, arrays.order
-    mean, cross = models.predict_position(arrays.x[rows], arrays.p[rows], t - arrays.t[rows],
-                                          o, d, q)
-    cov = cross[:, :, :d]
+    d, o, n = arrays.dim, arrays.order, arrays.n
+    # the prediction batch axis last (long inner loops), into new arrays: the Gating
+    # keeps them, as row-major views
+    index, k = scratch.span(rows), len(rows)
+    mean_s, cross_s = np.empty((d, k)), np.empty((d, n, k))
+    if k:
+        xs, ps = scratch.to_soa(arrays.x[index], "gate.x"), scratch.to_soa(arrays.p[index],
+                                                                         "gate.p")
+        models.predict_position_soa(xs, ps, t - arrays.t[index], o, d, q, mean_s, cross_s)
+    mean, cross = mean_s.T, cross_s.transpose(2, 0, 1)  # (T, d), (T, d, n)
     empty = np.zeros(0, dtype=int)
-    if not len(rows) or not len(z):
+    if not k or not len(z):
         return Gating(arrays, rows, mean, cross, z, r, empty, empty, np.zeros(0), np.zeros(0),
                       np.zeros((0, d)))
     # the gate's largest semi-axis is sqrt(gamma lambda_max(S)) <= sqrt(gamma (tr P + tr R))
     # (the traces as sums over strided views of the diagonals)
-    n, m = cross.shape[2], len(z)
+    m = len(z)
     tr_r = np.maximum.reduce(np.add.reduce(r.reshape(m, d * d)[:, ::d + 1], axis=1))
-    tr_p = np.add.reduce(cross.reshape(len(rows), d * n)[:, :d * (n + 1):n + 1], axis=1)
+    tr_p = np.add.reduce(cross_s.reshape(d * n, k)[:d * (n + 1):n + 1], axis=0)
     radius = np.sqrt(gamma * (tr_p + tr_r))
     ti, dj = near(mean, z, radius)
-    nu = z[dj] - mean[ti]
-    s = cov[ti] + r[dj]
+    nu = np.empty((len(ti), d))  # (K, d), read through its transpose as before
+    nut = nu.T
+    np.subtract(z.T.take(dj, 1), mean_s.take(ti, 1), out=nut)
+    s = np.add(cross_s[:, :d].take(ti, 2), r.transpose(1, 2, 0).take(dj, 2))  # (d, d, K)
     # S^-1 and det S of every pair at once, batch axis last (`linalg.ldl_inverse`)
     sinv, det = np.empty((d, d, len(ti))), np.empty(len(ti))
-    ldl_inverse(s.transpose(1, 2, 0), sinv, det)
-    nut = nu.T
+    ldl_inverse(s, sinv, det)
     d2 = c_einsum("in,ijn,jn->n", nut, sinv, nut)  # np.einsum's kernel
     keep = (d2 <= gamma) & (det > 0)
     ti, dj, d2, nu, det = ti[keep], dj[keep], d2[keep], nu[keep], det[keep]
