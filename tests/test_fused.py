@@ -67,6 +67,24 @@ def test_update_contractions_fused_give_the_same_bits(m, order, rows):
         assert same_bits(a, b)
 
 
+@pytest.mark.parametrize(("order", "dim", "rows"), [(2, 2, 17), (2, 3, 1), (3, 2, 2),
+                                                    (3, 3, 40)])
+def test_prediction_block_by_block_gives_the_same_bits(order, dim, rows):
+    rng = np.random.default_rng(order * 10 + dim)
+    n = order * dim
+    x = rng.normal(size=(rows, n)) * 1e3
+    p = spd(rng, rows, n, 20.0)
+    p[:, dim:, :dim] += 1e-9 * rng.normal(size=(rows, n - dim, dim))  # not quite symmetric
+    dt = rng.uniform(-1.0, 3.0, rows)
+    q = rng.uniform(0.5, 2.0, rows)
+    xs, ps = x.T.copy(), p.transpose(1, 2, 0).copy()  # copies (one row: a view is contiguous)
+    models.predict_soa(xs, ps, dt, order, dim, q)
+    xb, out = x.T.copy(), np.empty((n, n, rows))
+    blocks = models.to_blocks(p, order, dim, np.empty((order, order, dim, dim, rows)))
+    models.predict_blocks(xb, blocks, dt, order, dim, q, out)
+    assert same_bits(xb, xs) and same_bits(out, ps)
+
+
 def batch_of(values: np.ndarray, sigmas: np.ndarray, polar: np.ndarray) -> MeasurementBatch:
     k = len(values)
     return MeasurementBatch(np.zeros(k), polar, np.asfortranarray(values),

@@ -93,8 +93,11 @@ def _step_chunk(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
                 nis: np.ndarray, det: np.ndarray, ok: np.ndarray) -> None:
     """`cmkf_step` on one chunk of rows, into xn, pn, nis, det and ok."""
     k, n = x.shape
-    xs, ps = scratch.to_soa(x, "step.x"), scratch.to_soa(p, "step.p")
-    models.predict_soa(xs, ps, dt, order, dim, q)
+    xs = scratch.to_soa(x, "step.x")
+    blocks = models.to_blocks(p, order, dim, scratch.buffer("step.pb", (order, order, dim,
+                                                                      dim), k))
+    ps = scratch.buffer("step.p", (n, n), k)
+    models.predict_blocks(xs, blocks, dt, order, dim, q, ps)
     zs, rs = scratch.buffer("step.z", (dim,), k), scratch.buffer("step.r", (dim, dim), k)
     cmkf_soa(batch, xs[:dim], ps[:dim, :dim], zs, rs)
     pout = scratch.buffer("step.pn", (n, n), k)

@@ -10,6 +10,7 @@ deviation `q` held constant over each step.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -185,6 +186,82 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
     for a in range(order):
         for b in range(a + 1, order):
             p[blk[b], blk[a]] = p[blk[a], blk[b]].transpose(1, 0, 2)
+
+
+def predict_blocks(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
+                   q: float | np.ndarray, out: np.ndarray) -> None:
+    """`predict_soa` with P given block by block: p (order, order, dim, dim, N), the
+    dim x dim block (a, b) of the covariance contiguous in p[a, b] (from `to_blocks`), so
+    that products and sums of whole blocks are plain element-wise passes over contiguous
+    memory, and with the loops over blocks planned once per layout (`_block_plan`): at
+    20 rows the Python around the passes costs as much as the passes. x (n, N) in place;
+    the predicted P into out (n, n, N), the usual batch-last layout. The same operations
+    in the same order as `predict_soa`, so the same bits (tests/test_fused.py)."""
+    n_rows = x.shape[1]
+    dt = np.asarray(dt, dtype=float)
+    x_steps, p_steps, mirror = _block_plan(order, dim)
+    # Phi[a, a+k] = dt^k / k! repeated over a block's entries (tiles[k]; tiles[0] is
+    # work space), so that multiplications by them are plain passes, not broadcasts
+    work = scratch.buffer("predb", (order + 2, dim, dim), n_rows)
+    tiles, tmp, coefs = work[:order], work[order], work[order + 1]
+    tiles[1] = dt
+    for k in range(2, order):  # dt^k / k! (a square as np.square: what ** 2 runs)
+        np.square(tiles[1], out=tiles[k]) if k == 2 else np.power(tiles[1], k, out=tiles[k])
+        tiles[k] /= math.factorial(k)
+    for xa, xc, k in x_steps:
+        x[xa] += np.multiply(x[xc], tiles[k, 0], out=tmp[0])
+    for a, b, c, e, k1, k2, pair in p_steps:
+        coef = tiles[k1] if k2 == 0 else np.multiply(tiles[k1], tiles[k2], out=coefs)
+        if pair:  # Phi[a, c] Phi[a, e] (P_ce + P_ec), P_ec = P_ce'
+            term = np.add(p[c, e], p[c, e].transpose(1, 0, 2), out=tmp)
+            term *= coef
+        else:
+            term = np.multiply(p[c, e], coef, out=tmp)
+        p[a, b] += term
+    # + Q: q^2 g_a g_b on the diagonal of every block (a, b), g_a = |dt|^(order-a) / (order-a)!
+    g = np.empty((order, n_rows))
+    gain = np.abs(dt, out=g[order - 1])
+    for a in range(order - 1):
+        k = order - a
+        np.square(gain, out=g[a]) if k == 2 else np.power(gain, k, out=g[a])
+        g[a] /= math.factorial(k)
+    qm = g[:, None] * g[None, :]
+    qm *= np.square(q)
+    p.reshape(order * order, dim * dim, n_rows)[:, ::dim + 1] += \
+        qm.reshape(order * order, 1, n_rows)  # the diagonals of all blocks at once
+    for a, b in mirror:
+        p[b, a] = p[a, b].transpose(1, 0, 2)
+    np.copyto(out.reshape(order, dim, order, dim, n_rows), p.transpose(0, 2, 1, 3, 4))
+
+
+@functools.lru_cache(maxsize=16)
+def _block_plan(order: int, dim: int) -> tuple[tuple, tuple, tuple]:
+    """The steps of `predict_soa`'s loops, once per layout: x blocks (a += c times
+    Phi[a, c]), P blocks (block (a, b) += P_ce times Phi[a, c] Phi[b, e], as the indices
+    k of the two factors Phi[., . + k] (0: a factor 1 left out, exact) and whether the
+    term pairs P_ce with P_ce' (a diagonal block)), and the blocks mirrored."""
+    blk = [slice(i * dim, (i + 1) * dim) for i in range(order)]
+    x_steps = tuple((blk[a], blk[c], c - a) for a in range(order)
+                    for c in range(a + 1, order))
+    p_steps = []
+    for a in range(order):
+        for b in range(a, order):
+            for c in range(a, order):
+                for e in range(b, order):
+                    if (c, e) == (a, b) or (a == b and e < c):
+                        continue
+                    k1, k2 = (e - b, 0) if c == a else (c - a, 0) if e == b else \
+                        (c - a, e - b)
+                    p_steps.append((a, b, c, e, k1, k2, a == b and c != e))
+    mirror = tuple((a, b) for a in range(order) for b in range(a + 1, order))
+    return x_steps, tuple(p_steps), mirror
+
+
+def to_blocks(p: np.ndarray, order: int, dim: int, out: np.ndarray) -> np.ndarray:
+    """Row-major covariances p (N, n, n) into out (order, order, dim, dim, N), block by
+    block (`predict_blocks`)."""
+    np.copyto(out, p.reshape(len(p), order, dim, order, dim).transpose(1, 3, 2, 4, 0))
+    return out
 
 
 def motion(kind: str, dt: np.ndarray, order: int, dim: int, q: float | np.ndarray,
