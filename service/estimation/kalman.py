@@ -139,9 +139,10 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     # [K'; E'] are two overlapping slices of it, and K' and S^-1 nu come from one
     # contraction S^-1 [P[:m] nu]
     ops = scratch.buffer("upd.ops", (3 * m, n + 1), k)
+    work = scratch.buffer("upd.w", (2 * m * m + n,), k)  # S0, S^-1 and dx, one buffer
+    s0, sinv = work[:m * m].reshape(m, m, k), work[m * m:2 * m * m].reshape(m, m, k)
     nu = np.subtract(z, x[:m], out=ops[:m, n])
-    s0 = np.add(p[:m, :m], r, out=scratch.buffer("upd.s", (m, m), k))  # S without the floor
-    sinv = scratch.buffer("upd.si", (m, m), k)
+    np.add(p[:m, :m], r, out=s0)  # S without the floor
     ldl_inverse(s0, sinv, det, S_FLOOR)
     up, lk = ops[:2 * m, :n], ops[m:, :n]
     kt, et = ops[m:2 * m, :n], ops[2 * m:, :n]  # K' and E' (m, n)
@@ -149,7 +150,7 @@ def update_soa(x: np.ndarray, p: np.ndarray, z: np.ndarray, r: np.ndarray, p_out
     einsum("abn,bin->ain", sinv, ops[:m], out=ops[m:2 * m])  # [K' S^-1 nu]
     sn = ops[m:2 * m, n]
     einsum("an,an->n", nu, sn, out=nis)
-    x += einsum("ain,an->in", kt, nu, out=scratch.buffer("upd.dx", (n,), k))
+    x += einsum("ain,an->in", kt, nu, out=work[2 * m * m:])
     einsum("ban,bin->ain", s0, kt, out=et)  # E' = P[:m] - S0 K'
     np.subtract(p[:m], et, out=et)
     # P - [K E] [P[:m]; K'] in one contraction, its upper triangle mirrored

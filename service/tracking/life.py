@@ -36,8 +36,9 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:
         if len(group) == 1:
             rows, hit, gain = group[0].rows, group[0].detected, group[0].gain
         else:
-            rows, hit, gain = (np.concatenate([getattr(s, f) for s in group])
-                               for f in ("rows", "detected", "gain"))
+            rows = np.concatenate([s.rows for s in group])
+            hit = np.concatenate([s.detected for s in group])
+            gain = np.concatenate([s.gain for s in group])
         hits = ((a.hits[rows] << 1) | hit) & mask
         a.hits[rows] = hits
         a.scans[rows] += 1

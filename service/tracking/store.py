@@ -172,9 +172,13 @@ class TrackStore:
         return arrays, rows
 
     def remove(self, ids: Iterable[str]) -> None:
+        pop = self.where.pop
+        gone = [pop(track_id) for track_id in ids]
+        if len(self.layouts) == 1 and gone:  # one layout: all its rows at once
+            gone[0][0].remove([row for _, row in gone])
+            return
         by_layout: dict[int, tuple[TrackArrays, list[int]]] = {}
-        for track_id in ids:
-            arrays, row = self.where.pop(track_id)
+        for arrays, row in gone:
             by_layout.setdefault(id(arrays), (arrays, []))[1].append(row)
         for arrays, rows in by_layout.values():
             arrays.remove(rows)

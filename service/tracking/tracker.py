@@ -158,6 +158,11 @@ class Tracker:
         rows = tracks if isinstance(tracks, np.ndarray) else \
             np.array([store.where[k][1] for k in tracks], dtype=int)
         good, ok, nis, xn, pn = self._update_rows(arrays, rows, batch)
+        if len(good) == len(rows):  # every row updated (the usual case)
+            block = self.states(arrays, good, xn, pn)
+            for out, v in zip(scan, nis.tolist(), strict=True):
+                out.reason, out.nis, out.states = None, v, block
+            return
         self._settle(scan, arrays, good, [(None, v) if k else
                                           ("update gave a non-finite state", np.nan)
                                           for k, v in zip(ok.tolist(), nis.tolist(),
