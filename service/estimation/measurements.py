@@ -41,7 +41,7 @@ class MeasurementBatch:
             return cls(np.zeros(0), np.zeros(0, bool), np.zeros((0, dim), order="F"),
                        np.zeros((0, dim), order="F"), np.zeros((0, 3)))
         vals, sigs = [m.values for m in meas], [m.sigmas for m in meas]
-        if any(len(v) != dim for v in vals) or any(len(v) != dim for v in sigs):
+        if set(map(len, vals)) | set(map(len, sigs)) != {dim}:
             raise ValueError(f"measurements of mixed dimensions in one {dim}-D batch")
         # flat lists axis by axis (much faster than from a list of tuples): (d, N)
         # arrays, whose transposes are the column-major (N, d) columns

@@ -60,7 +60,11 @@ def chunks(n: int) -> list[tuple[int, int]]:
 def batch_last(a: np.ndarray) -> np.ndarray:
     """The view of rows (k, *shape) as (*shape, k) (np.moveaxis(a, 0, -1), without its
     Python-level argument handling: kernels call it on every chunk)."""
-    return a.transpose(*range(1, a.ndim), 0)
+    return a.transpose(_LAST[a.ndim]) if a.ndim < len(_LAST) else \
+        a.transpose(*range(1, a.ndim), 0)
+
+
+_LAST = [(), (0,)] + [(*range(1, d), 0) for d in range(2, 6)]  # batch_last's axes by ndim
 
 
 def to_soa(a: np.ndarray, name: str) -> np.ndarray:
