@@ -22,11 +22,8 @@ import zenoh
 
 CONSUMER = """
 import sys, zenoh
-conf = zenoh.Config()
-conf.insert_json5("mode", '"peer"')
-conf.insert_json5("scouting/multicast/enabled", "false")
-conf.insert_json5("connect/endpoints", '["{ep}"]')
-s = zenoh.open(conf)
+from service.wire import peer_config
+s = zenoh.open(peer_config("{ep}"))
 n = [0]
 sub = s.declare_subscriber("{key}", zenoh.handlers.Callback(
     lambda x: n.__setitem__(0, n[0] + 1), indirect=False))

@@ -167,10 +167,6 @@ def pack_states(st: Any) -> bytes:
     if mu is not None:
         body["modes"] = list(models.names)
         body["mu"] = _f64(mu)
-    elif models and isinstance(models[0], dict):
-        modes = list(models[0])
-        body["modes"] = modes
-        body["mu"] = _f64(np.array([[m[k] for k in modes] for m in models]))
     elif models:
         body["model"] = models[0] if len(set(models)) == 1 else list(models)
     return pack(body)

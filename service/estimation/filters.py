@@ -60,7 +60,7 @@ class SingleModelFilter:
     def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the covariances of rows: nothing more is kept."""
 
-    def labels(self, arrays: Any, rows: np.ndarray) -> list[str | dict[str, float]]:
+    def labels(self, arrays: Any, rows: np.ndarray) -> list[str]:
         return [self.kind] * len(rows)
 
 

@@ -151,9 +151,6 @@ def _convert(batch: MeasurementBatch, xpos: np.ndarray, ppos: np.ndarray, z: np.
     for all the modes (M copies of the batch; a row's result does not depend on the
     others, so it is the same as one call per mode)."""
     m, d, k = xpos.shape
-    if m == 1:
-        cmkf_soa(batch, xpos[0], ppos[0], z, rs[0])
-        return
     pos = scratch.buffer("imm.cpos", (d, m), k).reshape(d, m * k)
     cov = scratch.buffer("imm.ccov", (d, d, m), k).reshape(d, d, m * k)
     np.copyto(pos.reshape(d, m, k), xpos.transpose(1, 0, 2))

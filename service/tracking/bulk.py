@@ -50,12 +50,6 @@ class Rows:
     def __len__(self) -> int:
         return len(self.ids)
 
-    def take(self, index: np.ndarray) -> Rows:
-        """The rows at `index`, in that order."""
-        pick = index.tolist()
-        return Rows([self.sensors[i] for i in pick], [self.ids[i] for i in pick],
-                    self.batch.take(index))
-
     def rows(self, lo: int, hi: int) -> Rows:
         """Rows lo to hi - 1."""
         return Rows(self.sensors[lo:hi], self.ids[lo:hi], self.batch.rows(lo, hi))

@@ -126,6 +126,6 @@ def _columns(run: list[int], dim: int, good: dict[int, None], records: dict[int,
             return [col[at[i]] if i in good else 0.0 for i in run]
         t = [records[i].t if i in records else cols[0][at[i]] for i in run]
         vals = [column(c) for c in range(1, 7)] if dim == 3 else [[0.0] * k] * (2 * dim)
-    values, sigmas = vals[:dim], vals[3:3 + dim] if dim == 3 else vals[dim:]
+    values, sigmas = vals[:dim], vals[dim:]
     return ScanColumns(sensors[run[0]], k, list(range(k)), [targets[i] for i in run], t, dim,
                        True, values, sigmas, (0.0, 0.0, 0.0), fixed, [])
