@@ -100,38 +100,53 @@ def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,
     w /= np.maximum(c, 1e-300)[None]
     xu = scratch.buffer("imm.xu", (m, n), k)
     pu = scratch.buffer("imm.pu", (m, n, n), k)
-    xpos = scratch.buffer("imm.xpos", (m, d), k)  # each mode's predicted position
-    ppos = scratch.buffer("imm.ppos", (m, d, d), k)  # ... and its covariance
-    rs = scratch.buffer("imm.r", (m, d, d), k)
+    # each mode's predicted position and its covariance, mode-major columns (j k + row):
+    # the conversion's input for all modes in one call
+    pos = scratch.buffer("imm.cpos", (d, m), k)
+    cov = scratch.buffer("imm.ccov", (d, d, m), k)
     lik = scratch.buffer("imm.lik", (m,), k)
     ok = np.ones(k, dtype=bool)
-    z = scratch.buffer("imm.z", (d,), k)
-    nis_j, det_j = scratch.buffer("imm.nis", (), k), scratch.buffer("imm.det", (), k)
-    prior = []  # each mode's mixed initial condition, predicted
-    for j, (_, kind, q, _) in enumerate(imm.modes):
-        ca = kind == "ca"
+    groups = []  # the modes of one kind run the filter core together, mode-major columns
+    for kind, members in _groups(kinds):
+        ca, g = kind == "ca", len(members)
         s = n if ca else 2 * d  # a CV mode's filter runs on (position, velocity)
-        x0, p0 = _mixed(mx, mp, w, j, s, acc, [ca and kd != "ca" for kd in kinds])
-        models.predict_soa(x0, p0, dt, 3 if ca else 2, d, q)
-        np.copyto(xpos[j], x0[:d])
-        np.copyto(ppos[j], p0[:d, :d])
-        prior.append((x0, p0, s))
-    _convert(batch, xpos, ppos, z, rs)  # each mode's R averaged over its own prediction
-    for j, (x0, p0, s) in enumerate(prior):
-        pout = pu[j, :s, :s]
-        if s == n:
-            kalman.update_soa(x0, p0, z, rs[j], pout, nis_j, det_j)
-        else:
-            po = scratch.buffer("imm.po", (s, s), k)
-            kalman.update_soa(x0, p0, z, rs[j], po, nis_j, det_j)
-            np.copyto(pout, po)
-        np.copyto(xu[j, :s], x0)
-        if s < n:  # a CV mode: no acceleration, none in its covariance
-            xu[j, s:] = 0.0
-            pu[j, s:] = 0.0
-            pu[j, :s, s:] = 0.0
-        ok &= kalman.finite(x0, pout, nis_j, d)
-        lik[j] = kalman.loglik(nis_j, det_j, d)
+        xg = scratch.buffer(f"imm.xg.{kind}", (s,), g * k)
+        pg = scratch.buffer(f"imm.pg.{kind}", (s, s), g * k)
+        for a, j in enumerate(members):  # each mode's mixed initial condition
+            cols = slice(a * k, (a + 1) * k)
+            _mixed(mx, mp, w, j, acc, [ca and kd != "ca" for kd in kinds], xg[:, cols],
+                   pg[:, :, cols])
+        qs = [imm.modes[j][2] for j in members]
+        q = qs[0] if g == 1 else np.repeat(np.asarray(qs, dtype=float), k)
+        models.predict_soa(xg, pg, dt if g == 1 else np.tile(dt, g), 3 if ca else 2, d, q)
+        for a, j in enumerate(members):
+            np.copyto(pos[:, j], xg[:d, a * k:(a + 1) * k])
+            np.copyto(cov[:, :, j], pg[:d, :d, a * k:(a + 1) * k])
+        groups.append((members, xg, pg, s))
+    # the converted measurement (the same for every mode) and each mode's R averaged over
+    # its own prediction, mode-major columns
+    zz, rr = _convert(batch, pos.reshape(d, m * k), cov.reshape(d, d, m * k))
+    for members, xg, pg, s in groups:
+        g, lo = len(members), members[0] * k
+        cols = slice(lo, lo + g * k) if members == list(range(members[0], members[0] + g)) \
+            else np.concatenate([np.arange(j * k, (j + 1) * k) for j in members])
+        direct = g == 1 and s == n  # a lone CA mode: its posterior straight into pu
+        po = pu[members[0]] if direct else scratch.buffer(f"imm.po.{s}", (s, s), g * k)
+        nis_g, det_g = scratch.buffer("imm.nis", (), g * k), scratch.buffer("imm.det", (), g * k)
+        kalman.update_soa(xg, pg, zz[:, cols], rr[:, :, cols], po, nis_g, det_g)
+        ok_g = kalman.finite(xg, po, nis_g, d)
+        lik_g = kalman.loglik(nis_g, det_g, d)
+        for a, j in enumerate(members):
+            c_ = slice(a * k, (a + 1) * k)
+            np.copyto(xu[j, :s], xg[:, c_])
+            if not direct:
+                np.copyto(pu[j, :s, :s], po[:, :, c_])
+            if s < n:  # a CV mode: no acceleration, none in its covariance
+                xu[j, s:] = 0.0
+                pu[j, s:] = 0.0
+                pu[j, :s, s:] = 0.0
+            ok &= ok_g[c_]
+            lik[j] = lik_g[c_]
     # mode probabilities: c_j times the likelihood, normalised (logs, largest first)
     with np.errstate(invalid="ignore"):  # a non-finite row is flagged below
         logw = np.log(np.maximum(c, 1e-300)) + lik
@@ -140,37 +155,42 @@ def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,
         mu_new /= mu_new.sum(0)
     ok &= np.isfinite(mu_new).all(0)
     x, p = _moments(xu, pu, np.where(np.isfinite(mu_new), mu_new, 0.0), "imm.comb")
-    nis = _mixture_nis(xpos, ppos, rs, c, z)
+    nis = _mixture_nis(pos.transpose(1, 0, 2), cov.transpose(2, 0, 1, 3),
+                       rr.reshape(d, d, m, k).transpose(2, 0, 1, 3), c, zz[:, :k])
     return xu, pu, mu_new, x, p, nis, ok
 
 
-def _convert(batch: MeasurementBatch, xpos: np.ndarray, ppos: np.ndarray, z: np.ndarray,
-             rs: np.ndarray) -> None:
-    """The converted measurements z (d, k) and, for each mode j, R (d, d, k) averaged over
-    its predicted position xpos[j] (d, k), ppos[j] (d, d, k): one call of the conversion
-    for all the modes (M copies of the batch; a row's result does not depend on the
-    others, so it is the same as one call per mode)."""
-    m, d, k = xpos.shape
-    pos = scratch.buffer("imm.cpos", (d, m), k).reshape(d, m * k)
-    cov = scratch.buffer("imm.ccov", (d, d, m), k).reshape(d, d, m * k)
-    np.copyto(pos.reshape(d, m, k), xpos.transpose(1, 0, 2))
-    np.copyto(cov.reshape(d, d, m, k), ppos.transpose(1, 2, 0, 3))
-    zz = scratch.buffer("imm.cz", (d, m), k).reshape(d, m * k)
-    rr = scratch.buffer("imm.cr", (d, d, m), k).reshape(d, d, m * k)
-    cmkf_soa(batch.tiled(m), pos, cov, zz, rr)
-    np.copyto(z, zz[:, :k])
-    np.copyto(rs, rr.reshape(d, d, m, k).transpose(2, 0, 1, 3))
+def _groups(kinds: list[str]) -> list[tuple[str, list[int]]]:
+    """The modes by kind, in order of first appearance: [(kind, [mode indices])]."""
+    out: dict[str, list[int]] = {}
+    for j, kind in enumerate(kinds):
+        out.setdefault(kind, []).append(j)
+    return list(out.items())
 
 
-def _mixed(mx: np.ndarray, mp: np.ndarray, w: np.ndarray, j: int, s: int, acc: slice,
-           padded: list[bool]) -> tuple[np.ndarray, np.ndarray]:
+def _convert(batch: MeasurementBatch, pos: np.ndarray, cov: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The converted measurements z (d, M k) and R (d, d, M k) of the M modes' predicted
+    positions pos (d, M k) with covariances cov (d, d, M k), mode-major columns: each
+    mode's R averaged over its own prediction, in one call of the conversion (M copies of
+    the batch; a row's result does not depend on the others, so it is the same as one
+    call per mode)."""
+    d, mk = pos.shape
+    zz = scratch.buffer("imm.cz", (d,), mk)
+    rr = scratch.buffer("imm.cr", (d, d), mk)
+    cmkf_soa(batch.tiled(mk // len(batch.t)), pos, cov, zz, rr)
+    return zz, rr
+
+
+def _mixed(mx: np.ndarray, mp: np.ndarray, w: np.ndarray, j: int, acc: slice,
+           padded: list[bool], x0: np.ndarray, p0: np.ndarray) -> None:
     """The mixed initial condition of mode j, its first s components: x0 = sum_i w_ij x_i,
     P0 = sum_i w_ij (P_i + (x_i - x0)(x_i - x0)'), where for a padded pair (i without an
     acceleration mixed into j with one) x_i's acceleration is j's and P_i's acceleration
-    block is j's, its cross terms zero (Granstrom et al. 2015)."""
+    block is j's, its cross terms zero (Granstrom et al. 2015). Into x0 (s, k),
+    p0 (s, s, k)."""
     m, n, k = mx.shape
-    x0 = scratch.buffer(f"imm.x0.{j}", (s,), k)  # each mode's own: all are kept
-    p0 = scratch.buffer(f"imm.p0.{j}", (s, s), k)
+    s = len(x0)
     xi = scratch.buffer(f"imm.xi.{s}", (s,), k)
     pi_ = scratch.buffer(f"imm.pi.{s}", (s, s), k)
     dv = scratch.buffer(f"imm.dv.{s}", (s,), k)
@@ -195,7 +215,6 @@ def _mixed(mx: np.ndarray, mp: np.ndarray, w: np.ndarray, j: int, s: int, acc: s
         xs, ps = source(i)
         _spread(p0, xs, ps, x0, w[i, j], dv, tmp)
     _mirror(p0)
-    return x0, p0
 
 
 def _moments(x: np.ndarray, p: np.ndarray, w: np.ndarray, name: str
