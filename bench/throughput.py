@@ -12,8 +12,11 @@ and the ratio to the echo floor is printed. With --batched the feed sends scans
 (`scan/<sensor>`, one per second of 10,000 rows), which the echo does not read: the
 batched line is the service alone.
 
-`frame_cost`: the worker's time to publish one frame at N tracks, in this process: the
-tracker's snapshot (prediction of every track to the instant) and `pack_frame`.
+`frame_cost`: the worker's CPU per frame at N tracks of the default IMM, in this process
+on a real Zenoh session: the empty step (coast, delete), the snapshot (every track drawn
+at the instant) and `Publisher.frame` (check, `pack_frame`, put), as
+`TrackService._publish_frame` runs them, with a sector of the tracks updated between
+frames.
 """
 
 from __future__ import annotations
@@ -115,37 +118,75 @@ def throughput(args: argparse.Namespace, log: Any) -> None:
                                         if reps > 1 else ""))
 
 
-def frame_cost(sizes: list[int], log: Any, reps: int = 20) -> None:
-    """Snapshot + pack_frame at N tracks (the per-frame work of the worker)."""
-    from service.encode import pack_frame
+def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
+    """The worker's CPU (thread time) per frame at N tracks of the default IMM, as
+    `TrackService._publish_frame` spends it on a real Zenoh session: the empty step that
+    coasts and deletes (`tracker.step([], now=t)`), the snapshot (every track drawn at
+    the instant) and `Publisher.frame` (the finiteness check, `pack_frame`, the put; no
+    subscriber). The tracks are a swarm updated in three passes (as single_cost.step_cost
+    makes them), and between two frames a thirtieth of them (a sector at 1 Hz) takes a
+    measurement, untimed, as in service: the frame's work includes what those updates
+    leave for it. Medians over `frames` frames."""
+    from service.node import TrackService
+    from service.tracking.bulk import track_columns
     from service.tracking.tracker import Tracker
-    from service.wire import Measurement, pack
 
-    log("frame cost: snapshot (every track predicted to the instant) + pack_frame, "
-        f"median of {reps}, ms per frame")
-    log(f"{'N':>8} {'snapshot':>9} {'encode':>8} {'total':>8} {'% of 33 ms':>10}")
-    for n in sizes:
-        tracker = Tracker()
-        rng = np.random.default_rng(0)
-        ms = [Measurement("r", f"swarm-{i:06d}", 0.0, 3, True,
-                          (float(r), float(a), 0.1), (20.0, 0.003, 0.003), (0.0, 0.0, 0.0),
-                          None) for i, (r, a) in enumerate(zip(rng.uniform(5e3, 8e4, n),
-                                                              rng.uniform(-3, 3, n),
-                                                              strict=True))]
-        tracker.track(ms)
-        snap_t, enc_t = [], []
-        ids = pack(tracker.snapshot(0.5, detail=False).ids)  # packed once while no track
-        for k in range(reps):                                 # comes or goes (as the service)
-            t = 0.5 + k / 30
-            t0 = time.perf_counter()
-            snap = tracker.snapshot(t, detail=False)
-            t1 = time.perf_counter()
-            pack_frame(t, ids, snap.pos, snap.vel, snap.sigma, snap.codes)
-            t2 = time.perf_counter()
-            snap_t.append(t1 - t0)
-            enc_t.append(t2 - t1)
-        a, b = np.median(snap_t) * 1e3, np.median(enc_t) * 1e3
-        log(f"{n:>8} {a:>9.2f} {b:>8.2f} {a + b:>8.2f} {(a + b) / (1e3 / 30) * 100:>10.1f}")
+    clock = time.thread_time
+    log(f"frame cost: the worker's CPU per frame (thread time), default IMM, tracks "
+        f"updated; a thirtieth of them updated between frames; median of {frames} frames, "
+        "ms")
+    log(f"{'N':>8} {'step':>7} {'snapshot':>9} {'publish':>8} {'total':>8} {'% of 33 ms':>10}")
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{free_port()}"]')
+    session = zenoh.open(conf)
+    try:
+        for n in sizes:
+            rng = np.random.default_rng(0)
+            r, az = rng.uniform(5e3, 8e4, n), rng.uniform(-3, 3, n)
+            ids = [f"swarm-{i:06d}" for i in range(n)]
+
+            tracker = Tracker()
+            for t in (0.0, 1.0, 2.0):
+                track_columns(tracker, ids, "r", _swarm_batch(t, r, az, range(n)), want=None)
+            svc = TrackService(session, Keys(f"fc{os.getpid()}{n}"), tracker, clock="realtime")
+            sector = max(1, n // 30)
+            spent: list[tuple[float, float, float]] = []
+            for k in range(frames + 1):
+                t = 3.0 + k / 30
+                lo = (k * sector) % n
+                rows = range(lo, min(n, lo + sector))
+                track_columns(tracker, ids[rows.start:rows.stop], "r",
+                              _swarm_batch(t - 0.01, r, az, rows), want=None)
+                c0 = clock()
+                svc.out.deleted(tracker.step([], now=t))  # as TrackService._publish_frame
+                c1 = clock()
+                snap = tracker.snapshot(t, detail=False)
+                c2 = clock()
+                svc.out.frame(t, snap)
+                c3 = clock()
+                if k:  # the first frame reads every track once
+                    spent.append((c1 - c0, c2 - c1, c3 - c2))
+            svc.out.close()
+            a, b, c = (float(np.median(x)) * 1e3 for x in zip(*spent, strict=True))
+            total = float(np.median([sum(x) for x in spent])) * 1e3
+            log(f"{n:>8} {a:>7.2f} {b:>9.2f} {c:>8.2f} {total:>8.2f} "
+                f"{total / (1e3 / 30) * 100:>10.1f}")
+    finally:
+        session.close()
+    log("  step: tracker.step([], now=t) (coast, delete); snapshot: tracker.snapshot(t); "
+        "publish: Publisher.frame (check, pack_frame, put); total: median of the sums")
+
+
+def _swarm_batch(t: float, r: np.ndarray, az: np.ndarray, rows: range) -> Any:
+    """Radar measurements of swarm targets `rows` at time t (moving 10 m/s outwards)."""
+    from service.estimation.measurements import MeasurementBatch
+    from service.wire import Measurement
+
+    return MeasurementBatch.of([Measurement(
+        "r", f"swarm-{i:06d}", t, 3, True, (float(r[i]) + 10 * t, float(az[i]), 0.1),
+        (20.0, 0.003, 0.003), (0.0, 0.0, 0.0), None) for i in rows], 3)
 
 
 def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:

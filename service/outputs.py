@@ -10,6 +10,7 @@ while someone subscribes it. Every put and reply carries the Zenoh encoding
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -75,7 +76,7 @@ class Publisher:
         self.track_keys: dict[str, tuple[zenoh.KeyExpr, zenoh.KeyExpr]] = {}
         self.frame_ids: tuple[list[str] | None, bytes] = (None, b"")  # ids, packed
         # the latest instant's frame and snapshot: late joiners get them by query
-        self.latest: tuple[bytearray | None, Snapshot | None] = (None, None)
+        self.latest: tuple[bytes | None, Snapshot | None] = (None, None)
         self.latest_bodies: tuple[Snapshot | None, list[bytes]] = (None, [])
 
     def reject(self, key: str, sensor: str, reason: str) -> None:
@@ -214,9 +215,10 @@ class Publisher:
 
     def _finite(self, snap: Snapshot) -> Snapshot:
         """Withhold (and count) any track whose displayed state is not finite."""
-        if (np.isfinite(snap.pos).all() and np.isfinite(snap.vel).all()
-                and np.isfinite(snap.sigma).all()):
-            return snap  # the usual case, checked without per-row reductions
+        if math.isfinite(float(np.sum(snap.pos)) + float(np.sum(snap.vel))
+                         + float(np.sum(snap.sigma))):
+            return snap  # the usual case: one sum per array (a NaN or an infinity makes
+            # it non-finite; so may an overflow of finite values, checked row by row)
         ok = (np.isfinite(snap.pos).all(1) & np.isfinite(snap.vel).all(1)
               & np.isfinite(snap.sigma))
         self.count.states_withheld += int((~ok).sum())

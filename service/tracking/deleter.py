@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from .store import TrackStore
 
 
@@ -16,6 +18,9 @@ class UpdateTimeDeleter:
         """Ids of the tracks to delete at time `now` (the store is not changed)."""
         out: list[str] = []
         for arrays in store.layouts.values():
+            oldest = np.min(arrays.t, where=arrays.alive, initial=np.inf)
+            if not now - oldest > self.delete_after:  # none due (every frame asks): one
+                continue  # pass, no gather (now - t grows as t falls: the oldest decides)
             rows, ids = arrays.live()
             old = (now - arrays.t[rows] > self.delete_after).nonzero()[0]
             out += [ids[i] for i in old.tolist()]

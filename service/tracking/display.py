@@ -21,6 +21,7 @@ from ..estimation import kalman, models
 from ..estimation.scratch import span
 from ..wire import SHOWN, STATUSES
 from .clock import TOL
+from .frame import FrameColumns
 from .status import status_codes
 from .store import Columns, TrackArrays, TrackStore
 
@@ -236,6 +237,7 @@ class DisplayState:
     def __init__(self, config: DisplayConfig, q: float) -> None:
         self.config, self.q = config, q
         self.cols: dict[int, Columns] = {}
+        self.frames: dict[int, FrameColumns] = {}  # the frames' inputs (`frame`)
         self._ids_cache: tuple[tuple, list[str], list] | None = None
 
     def columns(self, arrays: TrackArrays) -> Columns:
@@ -254,6 +256,7 @@ class DisplayState:
         """New tracks: nothing to blend, their first state as the previous one (x, P:
         their states and covariances, if the caller has them)."""
         cols = self.columns(arrays)
+        self._forget(arrays, rows)
         if x is None or p is None:
             x, p = arrays.x[rows], arrays.p[rows]
         if self.config.blending:  # what only a blending display reads
@@ -271,6 +274,7 @@ class DisplayState:
         between what was drawn at the last display instant before t and where the new
         estimate puts the track then."""
         c, cols = self.config, self.columns(arrays)
+        self._forget(arrays, rows)
         o, d = arrays.order, arrays.dim
         axis_cov = axis_traces(p, o, d)
         if c.blending:  # anchor the blend at the last frame drawn before the correction
@@ -287,6 +291,25 @@ class DisplayState:
             cols.prev_x[rows], cols.prev_p[rows] = arrays.x[rows], arrays.p[rows]
         cols.prev_t[rows] = arrays.t[rows]
         cols.axis_cov[rows] = axis_cov
+
+    def _forget(self, arrays: TrackArrays, rows: np.ndarray) -> None:
+        """Rows about to change: the frames read them again."""
+        frame = self.frames.get(arrays.dim)
+        if frame is not None:
+            frame.grow(arrays.capacity)
+            frame.forget(rows)
+
+    def _frame(self, arrays: TrackArrays, t: float) -> tuple[np.ndarray, ...]:
+        """A frame of one layout by `frame.FrameColumns` (plain prediction): pos, vel,
+        sigma, age, status codes and kinds of the live rows."""
+        frame = self.frames.get(arrays.dim)
+        if frame is None:
+            frame = self.frames[arrays.dim] = FrameColumns(arrays, self.config.coast_after)
+        pos, vel, sigma, age, codes = frame.draw(arrays, self.columns(arrays), t, self.q)
+        if arrays.plot[frame.index].any():  # tracks of unlabelled scans: their own status
+            codes = status_codes(arrays, frame.index, age, self.config.coast_after)
+            codes = codes.astype(np.uint8)
+        return pos, vel, sigma, age, codes, np.zeros(len(codes), np.uint8)
 
     def _drawn(self, arrays: TrackArrays, cols: Columns, rows: np.ndarray,
                t: np.ndarray | float
@@ -327,41 +350,49 @@ class DisplayState:
         parts: list[tuple[np.ndarray, ...]] = []
         status: list[str] = []
         shown: list[str] = []
-        code_parts: list[np.ndarray] = []
-        kind_parts: list[np.ndarray] = []
+        c = self.config
         for arrays in store.layouts.values():
             rows, layout_ids = arrays.live()
             if not len(rows):
                 continue
-            d = arrays.dim
-            p, v, var, kinds = self._drawn(arrays, self.columns(arrays), rows, t)
-            if p.shape[1] == 3:
-                pos, vel = p, v
+            if not c.blending and c.lag <= 0:  # plain prediction: the frames' fast form
+                part = self._frame(arrays, float(t))
             else:
-                pos = np.zeros((len(rows), 3))
-                vel = np.zeros((len(rows), 3))
-                pos[:, :d], vel[:, :d] = p, v
-            index = span(rows)
-            age = np.maximum(t - arrays.t[index], 0.0)
-            codes = status_codes(arrays, index, age, self.config.coast_after)
-            code_parts.append(codes.astype(np.uint8))
-            kind_parts.append(np.asarray(kinds, dtype=np.uint8))
+                part = self._drawn_part(arrays, rows, t)
+            codes, kinds = part[4], part[5]
             if detail:
                 status += [STATUSES[k] for k in codes.tolist()]
                 shown += [SHOWN[k] for k in kinds.tolist()]
             id_parts.append(layout_ids)
-            parts.append((pos, vel, np.sqrt(np.maximum(var, 0.0)), age))
+            parts.append(part)
         if not parts:
             e = np.zeros((0, 3))
             return Snapshot(t, [], e, e.copy(), np.zeros(0), np.zeros(0), [], [],
                             np.zeros(0, np.uint8), np.zeros(0, np.uint8))
         if len(parts) == 1:  # one layout (the usual case): no copies
-            (pos, vel, sig, age), codes, kinds = parts[0], code_parts[0], kind_parts[0]
+            pos, vel, sig, age, codes, kinds = parts[0]
         else:
-            pos, vel, sig, age = (np.concatenate(p) for p in zip(*parts, strict=True))
-            codes, kinds = np.concatenate(code_parts), np.concatenate(kind_parts)
+            pos, vel, sig, age, codes, kinds = (np.concatenate(p)
+                                                for p in zip(*parts, strict=True))
         return Snapshot(t, self._joined(id_parts), pos, vel, sig, age, status, shown, codes,
                         kinds)
+
+    def _drawn_part(self, arrays: TrackArrays, rows: np.ndarray, t: float
+                    ) -> tuple[np.ndarray, ...]:
+        """`_drawn` of one layout's live rows at t as `_frame` has them: pos, vel (N, 3),
+        sigma, age, status codes and kinds (uint8)."""
+        d = arrays.dim
+        p, v, var, kinds = self._drawn(arrays, self.columns(arrays), rows, t)
+        if p.shape[1] == 3:
+            pos, vel = p, v
+        else:
+            pos, vel = np.zeros((len(rows), 3)), np.zeros((len(rows), 3))
+            pos[:, :d], vel[:, :d] = p, v
+        index = span(rows)
+        age = np.maximum(t - arrays.t[index], 0.0)
+        codes = status_codes(arrays, index, age, self.config.coast_after)
+        return (pos, vel, np.sqrt(np.maximum(var, 0.0)), age, codes.astype(np.uint8),
+                np.asarray(kinds, dtype=np.uint8))
 
     def _joined(self, parts: list[list[str]]) -> list[str]:
         """The layouts' live ids in one list; the same list object while no track comes

@@ -58,10 +58,10 @@ class MofNDeleter:
     def delete_tracks(self, store: TrackStore, now: float) -> list[str]:
         out: list[str] = []
         for arrays in store.layouts.values():
+            if not np.any(arrays.plot, where=arrays.alive):  # no track of unlabelled scans
+                continue  # (every frame asks: one pass, no gather)
             rows, ids = arrays.live()
             plot = arrays.plot[rows]
-            if not np.count_nonzero(plot):
-                continue
             misses, confirmed = arrays.misses[rows], arrays.confirmed[rows]
             d, n = arrays.dim, arrays.n
             pr = arrays.p.reshape(len(arrays.p), n * n)[rows]

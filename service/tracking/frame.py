@@ -1,0 +1,170 @@
+"""The frames' fast form: every live track of a layout drawn at one instant (plain
+prediction, no blending, no lag: the default display), from the display's columns kept
+batch-last between frames.
+
+A frame reads, per track, its filtered state x, its time t, the six distinct sums of its
+covariance's axis blocks and, for its status, the age beyond which it coasts and whether
+it is established. Those change only when the track is updated or started, so
+`FrameColumns` keeps them batch-last (one contiguous row per quantity, one column per
+store row) and refreshes only the rows whose time differs from the store's (the rows the
+display's `initiate` and `update` mark, and any other row whose time moved): a frame then
+reads contiguous columns a chunk at a time instead of every row's 9 + 9 numbers strided.
+`DisplayState.snapshot` uses it; `display.predicted_at` and `status.status_codes` are the
+plain forms it equals (tests/test_frame.py): the positions, velocities, ages and status
+codes to the bit, the sigmas to 1e-12 relative (the noise term's |dt|^3 is a product
+here, not the 25 ns `pow` per row that `predicted_at` calls).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .status import COASTING
+from .store import Columns, TrackArrays
+
+CHUNK = 8192  # columns per pass: each pass's operands stay in the cache
+# the distinct entries of the (order x order) axis sums, row-major flat indices
+AXIS_ENTRIES = {3: (0, 1, 2, 4, 5, 8), 2: (0, 1, 3)}
+
+
+class FrameColumns:
+    """One layout's frame inputs, batch-last, by store row: x (n, cap), t (cap,), the
+    axis sums' distinct entries (k, cap), the coasting limit coast_after x the mean
+    interval between updates (cap,) and whether the track is established (cap,)."""
+
+    def __init__(self, arrays: TrackArrays, coast_after: float) -> None:
+        self.order, self.dim, self.coast_after = arrays.order, arrays.dim, coast_after
+        self.entries = AXIS_ENTRIES[arrays.order]
+        self.x = np.zeros((arrays.n, 0))
+        self.t = np.zeros(0)
+        self.a = np.zeros((len(self.entries), 0))
+        self.limit = np.zeros(0)
+        self.base = np.zeros(0, dtype=np.uint8)
+        self.rows: np.ndarray | None = None  # the live rows last drawn, and their span
+        self.index: slice | np.ndarray = slice(0, 0)
+
+    def grow(self, capacity: int) -> None:
+        old = len(self.t)
+        if capacity <= old:
+            return
+        for name in ("x", "a"):
+            a = getattr(self, name)
+            grown = np.zeros((len(a), capacity))
+            grown[:, :old] = a
+            setattr(self, name, grown)
+        self.t = np.concatenate([self.t, np.full(capacity - old, np.nan)])  # stale
+        self.limit = np.concatenate([self.limit, np.zeros(capacity - old)])
+        self.base = np.concatenate([self.base, np.zeros(capacity - old, np.uint8)])
+
+    def forget(self, rows: np.ndarray) -> None:
+        """Rows about to change: read them again at the next frame."""
+        self.t[rows] = np.nan
+
+    def refresh(self, arrays: TrackArrays, cols: Columns, rows: np.ndarray,
+                index: slice | np.ndarray) -> None:
+        """Read again the live rows whose time differs from the store's (NaN: marked)."""
+        self.grow(arrays.capacity)
+        same = self.t[index] == arrays.t[index]
+        if same.all():
+            return
+        stale = np.flatnonzero(~same)
+        r = stale + index.start if isinstance(index, slice) else rows[stale]
+        o = self.order
+        self.x[:, r] = arrays.x[r].T
+        self.a[:, r] = cols.axis_cov.reshape(-1, o * o)[r][:, self.entries].T
+        t, updates = arrays.t[r], arrays.updates[r]
+        # as status.status_codes: coasting once the age exceeds coast_after x interval
+        interval = np.where(updates > 1, (t - arrays.t_first[r])
+                            / np.maximum(updates - 1, 1), np.inf)
+        self.limit[r] = self.coast_after * interval
+        self.base[r] = updates >= o
+        self.t[r] = t
+
+    def span(self, rows: np.ndarray) -> slice | np.ndarray:
+        """`scratch.span` of the live rows, kept while they are the same array."""
+        if rows is not self.rows:
+            from ..estimation.scratch import span
+            self.rows, self.index = rows, span(rows)
+        return self.index
+
+    def draw(self, arrays: TrackArrays, cols: Columns, t: float, q: float
+             ) -> tuple[np.ndarray, ...]:
+        """pos, vel (N, 3), sigma, age (N,) and status codes (N,) uint8 of the live rows
+        at instant t (labelled tracks: the status of tracks of unlabelled scans is left
+        to the caller)."""
+        rows = arrays.live()[0]
+        index = self.span(rows)
+        self.refresh(arrays, cols, rows, index)
+        if isinstance(index, slice):
+            lo, hi, pick = index.start, index.stop, None
+        else:  # gaps: every row of the range, then the live ones
+            lo, hi, pick = int(rows[0]), int(rows[-1]) + 1, rows - int(rows[0])
+        m = hi - lo
+        width = 3
+        make = np.empty if self.dim == width else np.zeros
+        pos, vel = make((m, width)), make((m, width))
+        sigma, age, codes = np.empty(m), np.empty(m), np.empty(m, np.uint8)
+        scratch = np.empty((3 + 2 * self.dim, min(m, CHUNK)))
+        for a in range(lo, hi, CHUNK):
+            b, k = min(hi, a + CHUNK), a - lo
+            self._chunk(slice(a, b), t, q, pos[k:k + b - a], vel[k:k + b - a],
+                        sigma[k:k + b - a], age[k:k + b - a], codes[k:k + b - a], scratch)
+        if pick is not None:
+            return pos[pick], vel[pick], sigma[pick], age[pick], codes[pick]
+        return pos, vel, sigma, age, codes
+
+    def _chunk(self, sl: slice, t: float, q: float, pos: np.ndarray, vel: np.ndarray,
+               sigma: np.ndarray, age: np.ndarray, codes: np.ndarray,
+               scratch: np.ndarray) -> None:
+        """One chunk of columns: the operations of `display.predicted_at` in its order
+        (the same bits), on columns of the chunk, all axes in one pass each."""
+        d, o, m = self.dim, self.order, sl.stop - sl.start
+        x, a = self.x[:, sl], self.a[:, sl]
+        dt, h, g = scratch[0, :m], scratch[1, :m], scratch[2, :m]
+        p, v = scratch[3:3 + d, :m], scratch[3 + d:3 + 2 * d, :m]
+        np.subtract(t, self.t[sl], out=dt)
+        if o == 3:  # pos = x0 + dt (v + a dt / 2), vel = v + dt a
+            np.multiply(dt, 0.5, out=h)
+            np.multiply(x[2 * d:], h, out=p)
+            p += x[d:2 * d]
+            p *= dt
+            np.multiply(x[2 * d:], dt, out=v)
+            np.add(v, x[d:2 * d], out=vel[:, :d].T)
+        else:
+            np.multiply(x[d:2 * d], dt, out=p)
+            np.copyto(vel[:, :d].T, x[d:2 * d])
+        np.add(p, x[:d], out=pos[:, :d].T)
+        w = sigma  # the variance first, in place
+        if o == 3:  # A00 + dt (2 A01 + dt (A11 + A02 + dt (A12 + dt A22 / 4)))
+            np.multiply(h, 0.5, out=g)
+            np.multiply(a[5], g, out=w)
+            w += a[4]
+            w *= dt
+            w += a[3]
+            w += a[2]
+            w *= dt
+        else:  # A00 + dt (2 A01 + dt A11)
+            np.multiply(a[2], dt, out=w)
+        np.multiply(a[1], 2.0, out=g)
+        w += g
+        w *= dt
+        w += a[0]
+        # plus dim (q |dt|^o / o!)^2
+        np.multiply(dt, dt, out=g)
+        if o == 3:
+            np.multiply(g, g, out=h)
+            h *= g
+            h *= d * q * q / 36.0
+            w += h
+        else:
+            g /= 2
+            g *= q
+            np.square(g, out=g)
+            g *= d
+            w += g
+        np.maximum(w, 0.0, out=w)
+        np.sqrt(w, out=w)
+        np.maximum(dt, 0.0, out=age)
+        np.copyto(codes, self.base[sl])
+        np.copyto(codes, COASTING, where=age > self.limit[sl])
+
