@@ -118,65 +118,102 @@ def throughput(args: argparse.Namespace, log: Any) -> None:
                                         if reps > 1 else ""))
 
 
+FRAME_WATCHER = """
+import sys, zenoh
+from service.wire import peer_config
+s = zenoh.open(peer_config(sys.argv[1]))
+n = [0]
+sub = s.declare_subscriber(sys.argv[2], zenoh.handlers.Callback(
+    lambda x: n.__setitem__(0, n[0] + 1), indirect=False))
+print("ready", flush=True)
+sys.stdin.readline()
+print(n[0], flush=True)
+"""
+
+
 def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     """The worker's CPU (thread time) per frame at N tracks of the default IMM, as
     `TrackService._publish_frame` spends it on a real Zenoh session: the empty step that
     coasts and deletes (`tracker.step([], now=t)`), the snapshot (every track drawn at
-    the instant) and `Publisher.frame` (the finiteness check, `pack_frame`, the put; no
-    subscriber). The tracks are a swarm updated in three passes (as single_cost.step_cost
-    makes them), and between two frames a thirtieth of them (a sector at 1 Hz) takes a
-    measurement, untimed, as in service: the frame's work includes what those updates
-    leave for it. Medians over `frames` frames."""
+    the instant) and `Publisher.frame` (the finiteness check, `pack_frame`, the put). The
+    tracks are a swarm updated in three passes (as single_cost.step_cost makes them), and
+    between two frames a thirtieth of them (a sector at 1 Hz) takes a measurement,
+    untimed, as in service: the frame's work includes what those updates leave for it.
+    Medians over `frames` frames with nobody subscribed to `frame`, then as many with a
+    subscriber in another process (Zenoh's put then sends the body)."""
     from service.node import TrackService
     from service.tracking.bulk import track_columns
     from service.tracking.tracker import Tracker
 
     clock = time.thread_time
     log(f"frame cost: the worker's CPU per frame (thread time), default IMM, tracks "
-        f"updated; a thirtieth of them updated between frames; median of {frames} frames, "
+        f"updated; a thirtieth of them updated between frames; medians of {frames} frames, "
         "ms")
-    log(f"{'N':>8} {'step':>7} {'snapshot':>9} {'publish':>8} {'total':>8} {'% of 33 ms':>10}")
+    log(f"{'':>8} {'no subscriber':^36} {'a subscriber of frame':^28}")
+    log(f"{'N':>8} {'step':>7} {'snapshot':>9} {'publish':>8} {'total':>8} {'publish':>9} "
+        f"{'total':>8} {'% of 33 ms':>10}")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{free_port()}"]')
+    conf.insert_json5("listen/endpoints", f'["{endpoint}"]')
     session = zenoh.open(conf)
     try:
         for n in sizes:
             rng = np.random.default_rng(0)
             r, az = rng.uniform(5e3, 8e4, n), rng.uniform(-3, 3, n)
             ids = [f"swarm-{i:06d}" for i in range(n)]
-
             tracker = Tracker()
             for t in (0.0, 1.0, 2.0):
                 track_columns(tracker, ids, "r", _swarm_batch(t, r, az, range(n)), want=None)
-            svc = TrackService(session, Keys(f"fc{os.getpid()}{n}"), tracker, clock="realtime")
+            keys = Keys(f"fc{os.getpid()}{n}")
+            svc = TrackService(session, keys, tracker, clock="realtime")
             sector = max(1, n // 30)
-            spent: list[tuple[float, float, float]] = []
-            for k in range(frames + 1):
-                t = 3.0 + k / 30
-                lo = (k * sector) % n
-                rows = range(lo, min(n, lo + sector))
-                track_columns(tracker, ids[rows.start:rows.stop], "r",
-                              _swarm_batch(t - 0.01, r, az, rows), want=None)
-                c0 = clock()
-                svc.out.deleted(tracker.step([], now=t))  # as TrackService._publish_frame
-                c1 = clock()
-                snap = tracker.snapshot(t, detail=False)
-                c2 = clock()
-                svc.out.frame(t, snap)
-                c3 = clock()
-                if k:  # the first frame reads every track once
-                    spent.append((c1 - c0, c2 - c1, c3 - c2))
-            svc.out.close()
-            a, b, c = (float(np.median(x)) * 1e3 for x in zip(*spent, strict=True))
-            total = float(np.median([sum(x) for x in spent])) * 1e3
-            log(f"{n:>8} {a:>7.2f} {b:>9.2f} {c:>8.2f} {total:>8.2f} "
-                f"{total / (1e3 / 30) * 100:>10.1f}")
+            spent: list[list[tuple[float, float, float]]] = [[], []]
+            watcher = None
+            try:
+                for k in range(2 * frames + 2):
+                    if k == frames + 1:  # the second half: a display watches
+                        watcher = subprocess.Popen(
+                            [sys.executable, "-c", FRAME_WATCHER, endpoint, keys.frame],
+                            cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+                        watcher.stdout.readline()  # type: ignore[union-attr]
+                        end = time.monotonic() + 10
+                        while (not svc.out.pub_frame.matching_status.matching
+                               and time.monotonic() < end):
+                            time.sleep(0.01)
+                    t = 3.0 + k / 30
+                    lo = (k * sector) % n
+                    rows = range(lo, min(n, lo + sector))
+                    track_columns(tracker, ids[rows.start:rows.stop], "r",
+                                  _swarm_batch(t - 0.01, r, az, rows), want=None)
+                    c0 = clock()
+                    svc.out.deleted(tracker.step([], now=t))  # as TrackService._publish_frame
+                    c1 = clock()
+                    snap = tracker.snapshot(t, detail=False)
+                    c2 = clock()
+                    svc.out.frame(t, snap)
+                    c3 = clock()
+                    if k and k != frames + 1:  # not the first of each half
+                        spent[k > frames].append((c1 - c0, c2 - c1, c3 - c2))
+                    if watcher is not None:
+                        time.sleep(1 / 30)  # the link drains as between two real frames
+            finally:
+                if watcher is not None:
+                    watcher.kill()
+                    watcher.wait()
+                svc.out.close()
+            a, b, c = (float(np.median(x)) * 1e3 for x in zip(*spent[0], strict=True))
+            total = float(np.median([sum(x) for x in spent[0]])) * 1e3
+            c2 = float(np.median([x[2] for x in spent[1]])) * 1e3
+            total2 = float(np.median([sum(x) for x in spent[1]])) * 1e3
+            log(f"{n:>8} {a:>7.2f} {b:>9.2f} {c:>8.2f} {total:>8.2f} {c2:>9.2f} "
+                f"{total2:>8.2f} {total2 / (1e3 / 30) * 100:>10.1f}")
     finally:
         session.close()
     log("  step: tracker.step([], now=t) (coast, delete); snapshot: tracker.snapshot(t); "
-        "publish: Publisher.frame (check, pack_frame, put); total: median of the sums")
+        "publish: Publisher.frame (check, pack_frame, put); total: median of the sums; "
+        "% of the display period with a subscriber")
 
 
 def _swarm_batch(t: float, r: np.ndarray, az: np.ndarray, rows: range) -> Any:
