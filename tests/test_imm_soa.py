@@ -39,8 +39,10 @@ def close(a: np.ndarray, b: np.ndarray, rel: float) -> bool:
     return bool((np.abs(a - b) <= rel * scale).all())
 
 
-@pytest.mark.parametrize("dim", [3, 2])
-def test_batch_last_imm_is_the_textbook_imm(dim):
+@pytest.mark.parametrize("whole", [imm_soa.WHOLE, 16])  # 16: modes one at a time,
+@pytest.mark.parametrize("dim", [3, 2])  # the spread row by row
+def test_batch_last_imm_is_the_textbook_imm(dim, whole, monkeypatch):
+    monkeypatch.setattr(imm_soa, "WHOLE", whole)
     rng = np.random.default_rng(5)
     tracker = Tracker(TrackerConfig(filter=FilterSpec("imm")))
     imm = tracker.updater

@@ -107,11 +107,11 @@ def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,
     lik = scratch.buffer("imm.lik", (m,), k)
     ok = np.ones(k, dtype=bool)
     groups = []  # the modes of one kind run the filter core together, mode-major columns
-    for kind, members in _groups(kinds):
+    for kind, members in _groups(kinds, k):
         ca, g = kind == "ca", len(members)
         s = n if ca else 2 * d  # a CV mode's filter runs on (position, velocity)
-        xg = scratch.buffer(f"imm.xg.{kind}", (s,), g * k)
-        pg = scratch.buffer(f"imm.pg.{kind}", (s, s), g * k)
+        xg = scratch.buffer(f"imm.xg.{members[0]}", (s,), g * k)
+        pg = scratch.buffer(f"imm.pg.{members[0]}", (s, s), g * k)
         for a, j in enumerate(members):  # each mode's mixed initial condition
             cols = slice(a * k, (a + 1) * k)
             _mixed(mx, mp, w, j, acc, [ca and kd != "ca" for kd in kinds], xg[:, cols],
@@ -160,12 +160,16 @@ def _chunk(imm: Any, d: int, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray,
     return xu, pu, mu_new, x, p, nis, ok
 
 
-def _groups(kinds: list[str]) -> list[tuple[str, list[int]]]:
-    """The modes by kind, in order of first appearance: [(kind, [mode indices])]."""
+def _groups(kinds: list[str], k: int) -> list[tuple[str, list[int]]]:
+    """The modes that run the filter core together, [(kind, [mode indices])]: those of one
+    kind while their columns (modes x k rows) stay within WHOLE (fewer NumPy calls for
+    small chunks; beyond, one mode at a time keeps the work arrays in the cache: 5 %
+    faster at 10,000 rows), else each mode alone. Either way a row gets the same bits."""
     out: dict[str, list[int]] = {}
     for j, kind in enumerate(kinds):
         out.setdefault(kind, []).append(j)
-    return list(out.items())
+    return [(kind, group) for kind, members in out.items()
+            for group in ([members] if len(members) * k <= WHOLE else [[j] for j in members])]
 
 
 def _convert(batch: MeasurementBatch, pos: np.ndarray, cov: np.ndarray
