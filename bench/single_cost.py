@@ -36,7 +36,7 @@ print(n[0], flush=True)
 def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
     from service.node import MAX_BATCH, TrackService
     from service.tracking.tracker import Tracker
-    from service.wire import Keys, free_port, pack, unpack
+    from service.wire import Keys, free_port, listen_config, pack, unpack
 
     clock = time.thread_time
     log(f"single-message cost: the worker's CPU per message (no flags, batches of "
@@ -44,11 +44,7 @@ def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
     log(f"{'N':>8} {'service us':>10} {'echo us':>8} {'x echo':>7} {'answered':>9}")
     for n in sizes:
         ep = f"tcp/127.0.0.1:{free_port()}"
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"peer"')
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        conf.insert_json5("listen/endpoints", f'["{ep}"]')
-        session = zenoh.open(conf)
+        session = zenoh.open(listen_config(ep))
         keys = Keys(f"sc{n}")
         consumer = subprocess.Popen(
             [sys.executable, "-c", CONSUMER.format(ep=ep, key=keys.tracks("**"))],

@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from clients.procs import stop  # noqa: E402
-from service.wire import Keys, free_port, peer_config, wait_for_tracker  # noqa: E402
+from service.wire import Keys, free_port, listen_config, peer_config, wait_for_tracker  # noqa: E402
 
 
 class Replies:
@@ -153,11 +153,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     log(f"{'N':>8} {'step':>7} {'snapshot':>9} {'publish':>8} {'total':>8} {'publish':>9} "
         f"{'total':>8} {'% of 33 ms':>10}")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", f'["{endpoint}"]')
-    session = zenoh.open(conf)
+    session = zenoh.open(listen_config(endpoint))
     try:
         for n in sizes:
             rng = np.random.default_rng(0)

@@ -85,6 +85,18 @@ def peer_config(endpoint: str) -> Any:
     return quick_retry(conf)
 
 
+def listen_config(endpoint: str) -> Any:
+    """A peer that listens on `endpoint` (others connect to it), multicast scouting off:
+    the session of a service or benchmark that others are pointed at."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    return conf
+
+
 def quick_retry(conf: Any) -> Any:
     """`CONNECT_RETRY` as the config's `connect/retry`, unless the config sets one."""
     if json.loads(conf.get_json("connect/retry")) is None:
