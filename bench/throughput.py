@@ -137,8 +137,9 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     coasts and deletes (`tracker.step([], now=t)`), the snapshot (every track drawn at
     the instant) and `Publisher.frame` (the finiteness check, `pack_frame`, the put). The
     tracks are a swarm updated in three passes (as single_cost.step_cost makes them), and
-    between two frames a thirtieth of them (a sector at 1 Hz) takes a measurement,
-    untimed, as in service: the frame's work includes what those updates leave for it.
+    between two frames a thirtieth of them (a sector of azimuth at 1 Hz: rows scattered
+    over the store) takes a measurement, untimed, as in service: the frame's work
+    includes what those updates leave for it.
     Medians over `frames` frames with nobody subscribed to `frame`, then as many with a
     subscriber in another process (Zenoh's put then sends the body)."""
     from service.node import TrackService
@@ -165,6 +166,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
             keys = Keys(f"fc{os.getpid()}{n}")
             svc = TrackService(session, keys, tracker, clock="realtime")
             sector = max(1, n // 30)
+            by_azimuth = np.argsort(az)  # a sector's targets: rows all over the store
             spent: list[list[tuple[float, float, float]]] = [[], []]
             watcher = None
             try:
@@ -180,8 +182,8 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
                             time.sleep(0.01)
                     t = 3.0 + k / 30
                     lo = (k * sector) % n
-                    rows = range(lo, min(n, lo + sector))
-                    track_columns(tracker, ids[rows.start:rows.stop], "r",
+                    rows = np.sort(by_azimuth[lo:lo + sector]).tolist()
+                    track_columns(tracker, [ids[i] for i in rows], "r",
                                   _swarm_batch(t - 0.01, r, az, rows), want=None)
                     c0 = clock()
                     svc.out.deleted(tracker.step([], now=t))  # as TrackService._publish_frame
@@ -212,7 +214,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
         "% of the display period with a subscriber")
 
 
-def _swarm_batch(t: float, r: np.ndarray, az: np.ndarray, rows: range) -> Any:
+def _swarm_batch(t: float, r: np.ndarray, az: np.ndarray, rows: Any) -> Any:
     """Radar measurements of swarm targets `rows` at time t (moving 10 m/s outwards)."""
     from service.estimation.measurements import MeasurementBatch
     from service.wire import Measurement

@@ -256,7 +256,6 @@ class DisplayState:
         """New tracks: nothing to blend, their first state as the previous one (x, P:
         their states and covariances, if the caller has them)."""
         cols = self.columns(arrays)
-        self._forget(arrays, rows)
         if x is None or p is None:
             x, p = arrays.x[rows], arrays.p[rows]
         if self.config.blending:  # what only a blending display reads
@@ -265,7 +264,8 @@ class DisplayState:
         cols.prev_t[rows] = arrays.t[rows]
         if self.config.lag > 0:  # the previous state is read only by the smoothing
             cols.prev_x[rows], cols.prev_p[rows] = x, p
-        cols.axis_cov[rows] = axis_traces(p, arrays.order, arrays.dim)
+        cols.axis_cov[rows] = axis_cov = axis_traces(p, arrays.order, arrays.dim)
+        self._take(arrays, rows, x, axis_cov)
 
     def update(self, arrays: TrackArrays, rows: np.ndarray, t: np.ndarray, x: np.ndarray,
                p: np.ndarray) -> None:
@@ -274,9 +274,9 @@ class DisplayState:
         between what was drawn at the last display instant before t and where the new
         estimate puts the track then."""
         c, cols = self.config, self.columns(arrays)
-        self._forget(arrays, rows)
         o, d = arrays.order, arrays.dim
         axis_cov = axis_traces(p, o, d)
+        self._take(arrays, rows, x, axis_cov)
         if c.blending:  # anchor the blend at the last frame drawn before the correction
             before = frame_before(t, c.rate)
             drawn = self._drawn(arrays, cols, rows, before)[0]
@@ -292,12 +292,13 @@ class DisplayState:
         cols.prev_t[rows] = arrays.t[rows]
         cols.axis_cov[rows] = axis_cov
 
-    def _forget(self, arrays: TrackArrays, rows: np.ndarray) -> None:
-        """Rows about to change: the frames read them again."""
+    def _take(self, arrays: TrackArrays, rows: np.ndarray, x: np.ndarray,
+              axis_cov: np.ndarray) -> None:
+        """Rows about to take states x with these axis sums: the frames keep them."""
         frame = self.frames.get(arrays.dim)
         if frame is not None:
             frame.grow(arrays.capacity)
-            frame.forget(rows)
+            frame.take(rows, x, axis_cov)
 
     def _frame(self, arrays: TrackArrays, t: float) -> tuple[np.ndarray, ...]:
         """A frame of one layout by `frame.FrameColumns` (plain prediction): pos, vel,

@@ -6,9 +6,11 @@ A frame reads, per track, its filtered state x, its time t, the six distinct sum
 covariance's axis blocks and, for its status, the age beyond which it coasts and whether
 it is established. Those change only when the track is updated or started, so
 `FrameColumns` keeps them batch-last (one contiguous row per quantity, one column per
-store row) and refreshes only the rows whose time differs from the store's (the rows the
-display's `initiate` and `update` mark, and any other row whose time moved): a frame then
-reads contiguous columns a chunk at a time instead of every row's 9 + 9 numbers strided.
+store row): the display's `initiate` and `update` hand it the new states and axis sums
+as they make them (`take`), and a frame reads from the store only the time and status of
+the rows whose time differs from the one kept (all of a row that changed without the
+display: the safety net). A frame then reads contiguous columns a chunk at a time
+instead of every row's 9 + 9 numbers strided.
 `DisplayState.snapshot` uses it; `display.predicted_at` and `status.status_codes` are the
 plain forms it equals (tests/test_frame.py): the positions, velocities, ages and status
 codes to the bit, the sigmas to 1e-12 relative (the noise term's |dt|^3 is a product
@@ -41,6 +43,7 @@ class FrameColumns:
         self.a = np.zeros((len(self.entries), 0))
         self.limit = np.zeros(0)
         self.base = np.zeros(0, dtype=np.uint8)
+        self.taken = np.zeros(0, dtype=bool)  # x and a given by `take`, time not read
         self.rows: np.ndarray | None = None  # the live rows last drawn, and their span
         self.index: slice | np.ndarray = slice(0, 0)
 
@@ -53,36 +56,50 @@ class FrameColumns:
             grown = np.zeros((len(a), capacity))
             grown[:, :old] = a
             setattr(self, name, grown)
-        self.t = np.concatenate([self.t, np.full(capacity - old, np.nan)])  # stale
+        self.t = np.concatenate([self.t, np.full(capacity - old, np.nan)])  # not read yet
         self.limit = np.concatenate([self.limit, np.zeros(capacity - old)])
         self.base = np.concatenate([self.base, np.zeros(capacity - old, np.uint8)])
+        self.taken = np.concatenate([self.taken, np.zeros(capacity - old, bool)])
 
-    def forget(self, rows: np.ndarray) -> None:
-        """Rows about to change: read them again at the next frame."""
+    def take(self, rows: np.ndarray, x: np.ndarray, axis_cov: np.ndarray) -> None:
+        """Rows about to take states x (k, n) with covariance axis sums (k, order, order)
+        (the display's `initiate` and `update`): kept now, their time and status read at
+        the next frame."""
+        self.x[:, rows] = x.T
+        self.a[:, rows] = self._entries(axis_cov.reshape(len(x), -1))
         self.t[rows] = np.nan
+        self.taken[rows] = True
+
+    def _entries(self, axis_cov: np.ndarray) -> np.ndarray:
+        """(k, order * order) axis sums -> the distinct entries (n_entries, k) as kept."""
+        a = axis_cov[:, self.entries].T
+        a[1] *= 2.0  # 2 A01 and (order 3) A22 / 4 as the variance's Horner form takes them
+        if self.order == 3:  # (scalings by powers of two: exact)
+            a[5] *= 0.25
+        return a
 
     def refresh(self, arrays: TrackArrays, cols: Columns, rows: np.ndarray,
                 index: slice | np.ndarray) -> None:
-        """Read again the live rows whose time differs from the store's (NaN: marked)."""
+        """Read again the live rows whose time differs from the store's: their time and
+        status; their state and axis sums too unless `take` gave them (a row changed
+        behind the display's back, or never read)."""
         self.grow(arrays.capacity)
-        same = self.t[index] == arrays.t[index]
-        if same.all():
+        stale = np.flatnonzero(self.t[index] != arrays.t[index])
+        if not len(stale):
             return
-        stale = np.flatnonzero(~same)
         r = stale + index.start if isinstance(index, slice) else rows[stale]
-        o = self.order
-        self.x[:, r] = arrays.x[r].T
-        a = cols.axis_cov.reshape(-1, o * o)[r][:, self.entries].T
-        a[1] *= 2.0  # 2 A01 and (order 3) A22 / 4 as the variance's Horner form takes them
-        if o == 3:  # (scalings by powers of two: exact)
-            a[5] *= 0.25
-        self.a[:, r] = a
+        unseen = r[~self.taken[r]]
+        self.taken[r] = False
+        if len(unseen):
+            self.x[:, unseen] = arrays.x[unseen].T
+            o = self.order
+            self.a[:, unseen] = self._entries(cols.axis_cov.reshape(-1, o * o)[unseen])
         t, updates = arrays.t[r], arrays.updates[r]
         # as status.status_codes: coasting once the age exceeds coast_after x interval
         interval = np.where(updates > 1, (t - arrays.t_first[r])
                             / np.maximum(updates - 1, 1), np.inf)
         self.limit[r] = self.coast_after * interval
-        self.base[r] = updates >= o
+        self.base[r] = updates >= self.order
         self.t[r] = t
 
     def span(self, rows: np.ndarray) -> slice | np.ndarray:
