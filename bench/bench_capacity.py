@@ -715,8 +715,9 @@ def main(argv: list[str] | None = None) -> None:
                    help="instead of the sweep: the --throughput flood through a router, one "
                         "service against two shards (bench/throughput.py)")
     p.add_argument("--encode", type=int, nargs="*", default=None, metavar="N",
-                   help="instead of the sweep: time of the frame (snapshot + encoding) at N "
-                        "tracks (default 10,000 and 100,000)")
+                   help="instead of the sweep: the worker's CPU per frame (empty step, "
+                        "snapshot, Publisher.frame) at N IMM tracks, without and with a "
+                        "subscriber of frame (default 10,000 and 100,000)")
     p.add_argument("--scan-cost", type=int, nargs="*", default=None, metavar="N",
                    help="instead of the sweep: CPU per row of batched scans of 10,000 rows "
                         "(check, one-pass apply) against the filter core, and the frame, at "
