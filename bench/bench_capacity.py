@@ -726,6 +726,11 @@ def main(argv: list[str] | None = None) -> None:
                    help="instead of the sweep: the worker's CPU per single labelled message "
                         "at N targets, against the echo's, in one process (default 5,000 "
                         "and 10,000; bench/single_cost.py)")
+    p.add_argument("--pass-cost", type=int, nargs="*", default=None, metavar="K",
+                   help="instead of the sweep: the worker's CPU per pass of K single messages "
+                        "at 10,000 tracks by stage (take, parse, bulk, filter, outputs), the "
+                        "fixed and per-row parts (default K = 1 16 64 128 312 1024; "
+                        "bench/pass_cost.py)")
     p.add_argument("--sample", type=int, default=1000,
                    help="at most this many targets' tracks/ and meas/ keys subscribed")
     p.add_argument("--display-sample", type=int, default=10,
@@ -781,6 +786,11 @@ def main(argv: list[str] | None = None) -> None:
         from single_cost import single_cost  # bench/single_cost.py
 
         single_cost(args.single_cost or [5_000, 10_000], log)
+        return
+    if args.pass_cost is not None:
+        from pass_cost import pass_cost  # bench/pass_cost.py
+
+        pass_cost(args.pass_cost or [1, 16, 64, 128, 312, 1024], log)
         return
     if args.scan_cost is not None:
         from throughput import scan_cost  # bench/throughput.py

@@ -26,6 +26,8 @@ from .wire import (
     parse_singles,
 )
 
+KEYS_HELD = 1 << 20  # measurement keys whose chunks are remembered (`Inputs._meas_key`)
+
 if TYPE_CHECKING:
     from .outputs import Counters, Publisher
     from .tracking.clock import Lockstep, Realtime
@@ -48,6 +50,7 @@ class Inputs:
     timeline: Timeline
     noise: tuple[float, float, float, float]
     last_seq: dict[str, int]
+    meas_key_parts: dict[str, tuple[str, ...]]  # `_meas_key`
     picture_t: float | None
 
     def _frames_before(self, t: float, pending: list[Rows]) -> None:
@@ -92,19 +95,31 @@ class Inputs:
         as columns (`wire.parse_singles`; a bad one reported on its own key), their
         `seq` counted, the time policy and the clock applied, and the good ones left
         waiting in `pending` (a lockstep frame due before one goes out before it)."""
-        prefix = f"{self.keys.ns}/meas/"
-        cut = len(prefix)
-        split = [it[1][cut:].split("/") if it[1].startswith(prefix) else [] for it in items]
-        fine = [i for i, chunks in enumerate(split) if len(chunks) == 2]
-        keys = [items[i][1] for i in fine]
-        sensors, targets = [split[i][0] for i in fine], [split[i][1] for i in fine]
-        walls = [items[i][3] for i in fine]
-        got = parse_singles(sensors, targets, [items[i][2] for i in fine], self.noise)
+        n = len(items)
+        keys_all = [it[1] for it in items]
+        cache = self.meas_key_parts
+        split = list(map(cache.get, keys_all))
+        if None in split:  # keys not seen before (a feed's keys repeat every scan)
+            split = [self._meas_key(k) if c is None else c for k, c in zip(keys_all, split,
+                                                                            strict=True)]
+        if sum(map(len, split)) == 2 * n:  # every key good (the usual case)
+            fine: list[int] | range = range(n)
+            keys, walls = keys_all, [it[3] for it in items]
+            sensors, targets = (list(c) for c in zip(*split, strict=True))
+            payloads = [it[2] for it in items]
+        else:
+            fine = [i for i, chunks in enumerate(split) if len(chunks) == 2]
+            keys = [keys_all[i] for i in fine]
+            sensors, targets = [split[i][0] for i in fine], [split[i][1] for i in fine]
+            walls = [items[i][3] for i in fine]
+            payloads = [items[i][2] for i in fine]
+        got = parse_singles(sensors, targets, payloads, self.noise)
         # the bad ones, reported in message order: bad keys, then what parse_singles found
-        bad = iter(sorted([(i, items[i][1], split[i][0] if split[i] and split[i][0] else
-                            "unknown", "measurement key must be <ns>/meas/<sensor>/<target>")
-                           for i in range(len(items)) if len(split[i]) != 2]
-                          + [(fine[i], keys[i], sensors[i], why) for i, why in got.rejected]))
+        bad_keys = [] if len(fine) == n else [
+            (i, keys_all[i], split[i][0], "measurement key must be <ns>/meas/<sensor>/<target>")
+            for i in range(n) if len(split[i]) != 2]
+        bad = iter(sorted(bad_keys + [(fine[i], keys[i], sensors[i], why)
+                                      for i, why in got.rejected]))
         later = next(bad, None)
 
         def reject_before(upto: float) -> None:  # message index upto (in `fine`) and after
@@ -114,16 +129,15 @@ class Inputs:
                 self.out.reject(*later[1:])
                 later = next(bad, None)
 
-        last_seq = self.last_seq
-        for sensor, seq in zip(sensors, got.seqs, strict=True):
-            if seq is not None:
-                last = last_seq.get(sensor)
-                if last is not None and seq > last + 1:
-                    self.count.meas_lost += seq - last - 1
-                last_seq[sensor] = seq if last is None else max(last, seq)
+        self._count_seqs(sensors, got.seqs)
         for index, cols in got.parts:
-            rows = Rows([sensors[i] for i in index], cols.ids, MeasurementBatch.of_scan(cols))
-            at, near = [keys[i] for i in index], [walls[i] for i in index]
+            if len(index) == len(sensors):  # all of them (the usual case)
+                rows = Rows(sensors, cols.ids, MeasurementBatch.of_scan(cols))
+                at, near = keys, walls
+            else:
+                rows = Rows([sensors[i] for i in index], cols.ids,
+                            MeasurementBatch.of_scan(cols))
+                at, near = [keys[i] for i in index], [walls[i] for i in index]
             if self._near(rows.batch.t, near):  # one admission for all: the same outcome
                 reject_before(index[-1])
                 self._admit(float(rows.batch.t.max()), near[-1], at[-1], rows.sensors[-1],
@@ -135,6 +149,45 @@ class Inputs:
                 if self._admit(x, near[i], at[i], rows.sensors[i], pending):
                     self._wait(rows.rows(i, i + 1), near[i:i + 1], pending)
         reject_before(math.inf)
+
+    def _meas_key(self, key: str) -> tuple[str, ...]:
+        """(sensor, target) of a `<ns>/meas/<sensor>/<target>` key, or (the sensor to
+        report it under,) for a bad one; remembered (a feed's keys repeat every scan;
+        the memory is emptied when it holds `KEYS_HELD` keys)."""
+        prefix = f"{self.keys.ns}/meas/"
+        chunks = key[len(prefix):].split("/") if key.startswith(prefix) else []
+        parts = tuple(chunks) if len(chunks) == 2 else (chunks[0] if chunks and chunks[0]
+                                                        else "unknown",)
+        if len(self.meas_key_parts) >= KEYS_HELD:
+            self.meas_key_parts.clear()
+        self.meas_key_parts[key] = parts
+        return parts
+
+    def _count_seqs(self, sensors: list[str], seqs: list[int | None]) -> None:
+        """Count the measurements lost (gaps in each sensor's `seq`, in message order) and
+        keep each sensor's highest seq."""
+        last_seq = self.last_seq
+        if len(seqs) >= 16 and None not in seqs and sensors.count(sensors[0]) == len(seqs):
+            # one sensor, every message numbered (a feed's burst): as columns
+            s = np.array(seqs, dtype=np.int64)
+            run = np.maximum.accumulate(s)
+            last = last_seq.get(sensors[0])
+            before = np.empty_like(s)  # the highest seq before each message
+            before[1:] = run[:-1]
+            before[0] = s[0] - 1 if last is None else last
+            if last is not None:
+                np.maximum(before, last, out=before)
+            gaps = s - before - 1
+            self.count.meas_lost += int(gaps[gaps > 0].sum())
+            top = int(run[-1])
+            last_seq[sensors[0]] = top if last is None else max(last, top)
+            return
+        for sensor, seq in zip(sensors, seqs, strict=True):
+            if seq is not None:
+                last = last_seq.get(sensor)
+                if last is not None and seq > last + 1:
+                    self.count.meas_lost += seq - last - 1
+                last_seq[sensor] = seq if last is None else max(last, seq)
 
     def _near(self, t: np.ndarray, walls: list[float]) -> bool:
         """Whether inputs of times t received at `walls` are all within --max-jump of the

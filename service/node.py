@@ -1,8 +1,10 @@
 """The Zenoh adapter: subscribe inputs, run the pipeline on one worker thread, publish.
 
 Measurements wait in Zenoh's own FIFO channels (Zenoh's receive thread never needs the
-GIL for them, so a busy worker cannot throttle the link); the worker moves them to its
-inbox in batches. Clock messages and queries come by callback into the same inbox. One
+GIL for them, so a busy worker cannot throttle the link); the worker takes them in
+batches, straight into its step when nothing else waits (`_next_batch`). Clock messages
+and queries come by callback into its inbox, behind the measurements received before
+them. One
 worker thread owns the tracker, so the tracker needs no locks. Data flows one way:
 wire (decode, validate) -> tracking (associate, update, delete, initiate; display state)
 -> clock -> publication (docs/architecture.md).
@@ -77,6 +79,7 @@ class TrackService(Inputs):
         self.started = time.monotonic()
         self.inbox: queue.SimpleQueue[tuple] = queue.SimpleQueue()
         self.last_seq: dict[str, int] = {}
+        self.meas_key_parts: dict[str, tuple[str, ...]] = {}
         self.timeline = Timeline(max_jump)
         self.state: Any = None  # service.state.StateFile with --state: checkpoints
         self.picture_t: float | None = None  # lockstep: the newest input time taken
@@ -90,9 +93,11 @@ class TrackService(Inputs):
             return zenoh.handlers.Callback(fn, indirect=False)
 
         def control(item: Any) -> None:
-            # a clock message or query: the measurements received before it go first
-            self._ingest(limit=None)
-            put(item)
+            # a clock message or query: the measurements received before it go first (the
+            # lock held until it is in the inbox: see `_next_batch`)
+            with self.ingest_lock:
+                self._move(None)
+                put(item)
 
         def clock(s: zenoh.Sample) -> None:
             control(("clock", str(s.key_expr), s.payload.to_bytes(), time.time()))
@@ -136,23 +141,58 @@ class TrackService(Inputs):
         self.token.undeclare()
         self.out.close()
 
-    def _ingest(self, limit: int | None = MAX_BATCH) -> None:
-        """Move measurements from Zenoh's channels to the inbox, keeping arrival order.
+    def _move(self, limit: int | None) -> None:
+        """`_measurements` into the inbox (the caller holds `ingest_lock`)."""
+        put = self.inbox.put
+        for item in self._measurements(limit):
+            put(item)
+
+    def _measurements(self, limit: int | None) -> list[tuple]:
+        """What waits in Zenoh's channels, in arrival order (the caller holds
+        `ingest_lock`).
 
         With several channels (measurements and scans; a shard's several key expressions)
         the order between them is lost: everything waiting is taken and, when more than one
         channel had something, merged by measurement time (feeds send in time order), so a
         lockstep frame is not released by one channel's later input while another's
         earlier ones still wait. One busy channel is taken as it is (no decoding)."""
+        now = time.time()
+        subs = self.meas_subs
+        if len(subs) > 1:
+            limit = None
+        lists = [got for kind, sub in subs if (got := self._drain(kind, sub, limit, now))]
+        if len(lists) <= 1:
+            return lists[0] if lists else []
+        return list(heapq.merge(*lists, key=_meas_time))
+
+    def _next_batch(self, timeout: float) -> list[tuple]:
+        """The worker's next inputs in order, at most MAX_BATCH (waiting up to `timeout`
+        s for one). When the inbox is empty the measurements go from Zenoh's channels
+        straight into the batch (no round trip through the inbox): a clock message or
+        query puts the measurements received before it, then itself, into the inbox under
+        `ingest_lock`, so with the inbox empty under that lock nothing waiting is older
+        than what the channels hold."""
+        inbox = self.inbox
         with self.ingest_lock:
-            now = time.time()
-            subs = self.meas_subs
-            if len(subs) > 1:
-                limit = None
-            lists = [got for kind, sub in subs if (got := self._drain(kind, sub, limit, now))]
-            items = lists[0] if len(lists) == 1 else heapq.merge(*lists, key=_meas_time)
-            for item in items:
-                self.inbox.put(item)
+            if inbox.empty():
+                got = self._measurements(MAX_BATCH)
+                if len(got) <= MAX_BATCH:
+                    if got:
+                        return got
+                else:  # several channels: the rest waits in the inbox, in order
+                    for item in got[MAX_BATCH:]:
+                        inbox.put(item)
+                    return got[:MAX_BATCH]
+            else:
+                self._move(MAX_BATCH)  # behind the inputs waiting
+        batch = []
+        try:
+            batch.append(inbox.get(timeout=timeout))
+            while len(batch) < MAX_BATCH:
+                batch.append(inbox.get_nowait())
+        except queue.Empty:
+            pass
+        return batch
 
     @staticmethod
     def _drain(kind: str, sub: Any, limit: int | None, now: float) -> list[tuple]:
@@ -171,14 +211,7 @@ class TrackService(Inputs):
                 deadline = self.clock.next_deadline(time.time())
                 if deadline is not None:
                     timeout = min(max(deadline - time.time(), 0.0), POLL)
-            self._ingest()
-            batch = []
-            try:
-                batch.append(self.inbox.get(timeout=timeout))
-                while len(batch) < MAX_BATCH:
-                    batch.append(self.inbox.get_nowait())
-            except queue.Empty:
-                pass
+            batch = self._next_batch(timeout)
             try:
                 self._process(batch)
                 if self.realtime:

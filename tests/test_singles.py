@@ -8,14 +8,16 @@ from __future__ import annotations
 import math
 import random
 
+import msgpack
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from payloads import bad_measurement, measurement
 
 from service import defaults
 from service.estimation.measurements import MeasurementBatch
-from service.wire import Rejected, pack, parse_measurement, parse_singles
+from service.wire import Rejected, pack, parse_measurement, parse_singles, singles
 
 NOISE = defaults.NOISE
 
@@ -98,3 +100,64 @@ def test_any_mix_of_messages_as_each_alone(items, rng):
     targets = [rng.choice(["a", "b", "c-1", "x y"]) for _ in payloads]
     sensors = [rng.choice(["s1", "s2"]) for _ in payloads]
     check(sensors, targets, payloads)
+
+
+def feed_form(rng: random.Random, t: float, seq: int | None) -> dict:
+    m = common(rng, t)
+    return m if seq is None else m | {"seq": seq}
+
+
+@pytest.mark.parametrize("order", ["fields", "reversed", "shuffled"])
+@pytest.mark.parametrize("first_seq", [None, 0, 50, 130, 60_000, 70_000, 2**40])
+def test_one_layout_read_from_the_bytes_as_decoding_each(first_seq, order):
+    """A feed's burst (one key order, seq of one width: fixint, uint8/16/32/64, or none)
+    is read from the joined bytes (`_by_layout`) with what decoding each gives."""
+    rng = random.Random(3)
+    n = 40
+    seqs = [None if first_seq is None else first_seq + i for i in range(n)]
+    names = list(feed_form(rng, 0.0, first_seq))
+    if order != "fields":
+        names = names[::-1] if order == "reversed" else rng.sample(names, len(names))
+    payloads = [pack({k: m[k] for k in names})
+                for m in (feed_form(rng, 7.0 + 0.01 * i, q) for i, q in enumerate(seqs))]
+    targets = [f"x{i}" for i in range(n)]
+    assert len({len(p) for p in payloads}) == 1
+    got = singles._by_layout(["r1"] * n, targets, payloads)
+    assert got is not None and got.seqs == seqs
+    check(["r1"] * n, targets, payloads)
+
+
+def test_other_layouts_and_bad_values_take_the_full_check():
+    rng = random.Random(4)
+    n = 20
+    base = [feed_form(rng, 3.0, 1000 + i) for i in range(n)]
+    targets, sensors = [f"x{i}" for i in range(n)], ["r1"] * n
+
+    def variant(i: int, m: dict) -> list[bytes]:
+        out = [pack(x) for x in base]
+        out[i] = pack(m) if isinstance(m, dict) else m
+        return out
+
+    reordered = dict(reversed(list(base[5].items())))  # same length, other key order
+    cases = [
+        variant(5, reordered),
+        variant(6, base[6] | {"r": -1.0}),  # out of range
+        variant(7, base[7] | {"az": math.nan}),
+        variant(8, base[8] | {"el": math.inf}),
+        variant(9, base[9] | {"seq": -5}),  # a negative seq (int8: another layout)
+        variant(3, msgpack.packb(base[3], use_single_float=True)),  # float32 values
+        variant(4, pack(base[4])[:-3] + b"\xd1" + pack(base[4])[-2:]),  # seq an int16
+        variant(2, b"\x87" + pack(base[2])[1:]),  # a map header one entry short
+    ]
+    for payloads in cases:
+        assert singles._by_layout(sensors, targets, payloads) is None
+        check(sensors, targets, payloads)
+    bad_ids = list(targets)
+    bad_ids[11] = "x y"
+    payloads = [pack(x) for x in base]
+    assert singles._by_layout(sensors, bad_ids, payloads) is None
+    check(sensors, bad_ids, payloads)
+    mixed = ["r1"] * n
+    mixed[12] = "r 2"
+    assert singles._by_layout(mixed, targets, payloads) is None
+    check(mixed, targets, payloads)
