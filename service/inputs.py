@@ -371,15 +371,20 @@ class Inputs:
     def _flush(self, pending: list[Rows]) -> None:
         """Apply the measurements waiting, in order, in one pass over their columns
         (`tracking.bulk`, as a batched scan's rows; one pass per dimension when they mix
-        2-D and 3-D)."""
+        2-D and 3-D). Realtime, the frame due goes out before the pass and after it,
+        before the states (a step of a burst spends most of its time in the pass)."""
         if not pending:
             return
         want = self.out.wanted if self.out.wants_states else None
         pause = self._between_parts if self.realtime else None
         for rows in Rows.joined(pending):
+            if pause:
+                self._frame_between()
             outcome = track_columns(self.tracker, rows.ids, rows.sensors, rows.batch, want,
                                     pause)
             self.out.deleted(outcome.deleted)
+            if pause:
+                self._frame_between()
             self.out.batch(rows.sensors, rows.ids, outcome)
         pending.clear()
 
