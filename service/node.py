@@ -83,6 +83,7 @@ class TrackService(Inputs):
         self.timeline = Timeline(max_jump)
         self.state: Any = None  # service.state.StateFile with --state: checkpoints
         self.picture_t: float | None = None  # lockstep: the newest input time taken
+        self.unswept: float | None = None  # realtime: a frame published without its deletion
         self.stop = threading.Event()
         put = self.inbox.put
 
@@ -135,7 +136,8 @@ class TrackService(Inputs):
     def close(self) -> None:
         self.stop.set()
         self.inbox.put(("wake",))
-        self.thread.join(timeout=10)
+        if self.thread.ident is not None:  # started
+            self.thread.join(timeout=10)
         if self.state is not None and not self.thread.is_alive():
             self.state.final(self)  # the worker has stopped: the table is still
         self.token.undeclare()
@@ -277,16 +279,19 @@ class TrackService(Inputs):
 
     def _publish_frame(self, t: float) -> None:
         self.out.deleted(self.tracker.step([], now=t))  # an empty scan: coast and delete
+        self.unswept = None
         self.out.frame(t, self.tracker.snapshot(t, detail=False))
 
     def _frame_between(self) -> None:
-        """Between two parts of a scan's update: the frame due, if any, and nothing else
-        (no deletion, no held scan: the scan's rows still to come hold their tracks)."""
+        """Within a step (around a pass, between two parts of an update): the frame due, if
+        any, and nothing else (no deletion, no held scan: the rows still to come hold their
+        tracks); the step's `_tick` coasts and deletes at its instant."""
         instant = self.clock.due(time.time() - self.tracker.config.display.lag)
         if instant is not None:
             self.out.look()
             self.count.frames_missed = self.clock.missed
             self.out.frame(instant, self.tracker.snapshot(instant, detail=False))
+            self.unswept = instant
 
     def _tick(self) -> None:
         if len(self.reorder) and self.clock.offset is not None:
@@ -297,6 +302,9 @@ class TrackService(Inputs):
             self.out.look()
             self.count.frames_missed = self.clock.missed
             self._publish_frame(instant)
+        elif self.unswept is not None:  # a frame went out within the step: its coast and
+            self.out.deleted(self.tracker.step([], now=self.unswept))  # delete, now
+            self.unswept = None
 
     # ------------------------------------------------------------ queries
     def status(self) -> dict[str, Any]:
