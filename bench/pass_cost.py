@@ -32,19 +32,9 @@ from typing import Any
 
 import numpy as np
 import zenoh
+from single_cost import CONSUMER  # bench/single_cost.py: a process counting what it gets
 
 STAGES = ("take", "look", "parse", "bulk", "filter", "outputs", "rest")
-CONSUMER = """
-import sys, zenoh
-from service.wire import peer_config
-s = zenoh.open(peer_config("{ep}"))
-n = [0]
-sub = s.declare_subscriber("{key}", zenoh.handlers.Callback(
-    lambda x: n.__setitem__(0, n[0] + 1), indirect=False))
-print("ready", flush=True)
-sys.stdin.readline()
-print(n[0], flush=True)
-"""
 
 
 class Stopwatch:
