@@ -24,15 +24,13 @@ out: it is the same whatever the measurements (bench_capacity.py --encode).
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 from collections import defaultdict
 from typing import Any
 
 import numpy as np
 import zenoh
-from single_cost import CONSUMER  # bench/single_cost.py: a process counting what it gets
+from single_cost import listened_service, start_consumer  # bench/single_cost.py
 
 STAGES = ("take", "look", "parse", "bulk", "filter", "outputs", "rest")
 
@@ -57,8 +55,6 @@ class Stopwatch:
 
 def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) -> None:
     import service.inputs as inputs
-    from service.node import TrackService
-    from service.tracking.tracker import Tracker
     from service.wire import Keys, free_port, pack, peer_config
     from service.wire.session import admin_space
 
@@ -70,20 +66,14 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
     session = zenoh.open(admin_space(conf))  # as the service's: who listens to tracks/
     feeder = zenoh.open(peer_config(ep))
     keys = Keys("pc")
-    consumer = subprocess.Popen(
-        [sys.executable, "-c", CONSUMER.format(ep=ep, key=keys.tracks("swarm-$*0"))],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    consumer = start_consumer(ep, keys.tracks("swarm-$*0"))
     arrived = [0]
     marker = session.declare_subscriber(keys.space("meas"), zenoh.handlers.Callback(
         lambda _: arrived.__setitem__(0, arrived[0] + 1), indirect=False))
     svc = None
     try:
-        consumer.stdout.readline()  # type: ignore[union-attr]
-        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        svc = listened_service(session, keys, consumer)
         end = time.monotonic() + 10
-        while svc.out.track_listeners.none and time.monotonic() < end:
-            svc.out.track_listeners.look()
-            time.sleep(0.05)
         probe = feeder.declare_publisher(keys.space("meas"))
         while not probe.matching_status.matching and time.monotonic() < end:
             time.sleep(0.01)  # the feeder knows the service's subscriber: nothing is lost

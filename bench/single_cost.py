@@ -33,9 +33,29 @@ print(n[0], flush=True)
 """
 
 
-def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
-    from service.node import MAX_BATCH, TrackService
+def start_consumer(ep: str, key: str) -> subprocess.Popen:
+    """A process subscribed to `key` through `ep`, counting what it gets (`CONSUMER`)."""
+    return subprocess.Popen([sys.executable, "-c", CONSUMER.format(ep=ep, key=key)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+
+def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any:
+    """A `TrackService` (no flags, realtime, its worker not started) on `session`, once
+    the consumer is up and the service sees its subscription."""
+    from service.node import TrackService
     from service.tracking.tracker import Tracker
+
+    consumer.stdout.readline()  # type: ignore[union-attr]
+    svc = TrackService(session, keys, Tracker(), clock="realtime")
+    end = time.monotonic() + 10
+    while svc.out.track_listeners.none and time.monotonic() < end:
+        svc.out.track_listeners.look()
+        time.sleep(0.05)
+    return svc
+
+
+def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
+    from service.node import MAX_BATCH
     from service.wire import Keys, free_port, listen_config, pack, unpack
 
     clock = time.thread_time
@@ -46,16 +66,9 @@ def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
         ep = f"tcp/127.0.0.1:{free_port()}"
         session = zenoh.open(listen_config(ep))
         keys = Keys(f"sc{n}")
-        consumer = subprocess.Popen(
-            [sys.executable, "-c", CONSUMER.format(ep=ep, key=keys.tracks("**"))],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        consumer = start_consumer(ep, keys.tracks("**"))
         try:
-            consumer.stdout.readline()  # type: ignore[union-attr]
-            svc = TrackService(session, keys, Tracker(), clock="realtime")
-            end = time.monotonic() + 10
-            while svc.out.track_listeners.none and time.monotonic() < end:
-                svc.out.track_listeners.look()
-                time.sleep(0.05)
+            svc = listened_service(session, keys, consumer)
             rng = np.random.default_rng(0)
             r, az = rng.uniform(5e3, 8e4, n), rng.uniform(-3, 3, n)
             t0 = time.time()
