@@ -282,14 +282,21 @@ class TrackService(Inputs):
         self.unswept = None
         self.out.frame(t, self.tracker.snapshot(t, detail=False))
 
-    def _frame_between(self) -> None:
-        """Within a step (around a pass, between two parts of an update): the frame due, if
-        any, and nothing else (no deletion, no held scan: the rows still to come hold their
-        tracks); the step's `_tick` coasts and deletes at its instant."""
+    def _due(self) -> float | None:
+        """Realtime: the display instant due now, if any (the listeners looked at and the
+        instants missed counted first)."""
         instant = self.clock.due(time.time() - self.tracker.config.display.lag)
         if instant is not None:
             self.out.look()
             self.count.frames_missed = self.clock.missed
+        return instant
+
+    def _frame_between(self) -> None:
+        """Within a step (around a pass, between two parts of an update): the frame due, if
+        any, and nothing else (no deletion, no held scan: the rows still to come hold their
+        tracks); the step's `_tick` coasts and deletes at its instant."""
+        instant = self._due()
+        if instant is not None:
             self.out.frame(instant, self.tracker.snapshot(instant, detail=False))
             self.unswept = instant
 
@@ -297,10 +304,8 @@ class TrackService(Inputs):
         if len(self.reorder) and self.clock.offset is not None:
             for _, (key, scan) in self.reorder.advance(time.time() + self.clock.offset):
                 self._apply_scan(key, scan)
-        instant = self.clock.due(time.time() - self.tracker.config.display.lag)
+        instant = self._due()
         if instant is not None:
-            self.out.look()
-            self.count.frames_missed = self.clock.missed
             self._publish_frame(instant)
         elif self.unswept is not None:  # a frame went out within the step: its coast and
             self.out.deleted(self.tracker.step([], now=self.unswept))  # delete, now
