@@ -46,6 +46,17 @@ CHANNEL = 1 << 13  # measurements Zenoh holds for the worker before it pushes ba
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
 
 
+def arrival(sample: zenoh.Sample, since: float, now: float) -> float:
+    """When `sample` reached this session (Unix s): its Zenoh timestamp (stamped on arrival
+    by a session with timestamping on, earlier by a router or the publisher), kept within
+    [since, now], the span in which it can have arrived (its channel was found empty at
+    `since` and it was taken at `now`); `now` when it has none."""
+    ts = sample.timestamp
+    if ts is None:
+        return now
+    return min(max(ts.get_time_as_ntp64().as_secs_f64(), since), now)  # Unix s
+
+
 def _meas_time(item: tuple) -> float:
     """A measurement's t for ordering (-inf when unreadable: rejected first)."""
     try:
@@ -114,6 +125,7 @@ class TrackService(Inputs):
               for k in (plot_keys or [keys.plots("*")])),
             *(("scan", session.declare_subscriber(k, fifo(CHANNEL)))
               for k in (scan_keys or [keys.scan("*")]))]
+        self.empty_at = [-math.inf] * len(self.meas_subs)  # when each was last found empty
         self.subs = [
             *(sub for _, sub in self.meas_subs),
             session.declare_subscriber(keys.clock, direct(clock)),
@@ -158,11 +170,11 @@ class TrackService(Inputs):
         channel had something, merged by measurement time (feeds send in time order), so a
         lockstep frame is not released by one channel's later input while another's
         earlier ones still wait. One busy channel is taken as it is (no decoding)."""
-        now = time.time()
         subs = self.meas_subs
         if len(subs) > 1:
             limit = None
-        lists = [got for kind, sub in subs if (got := self._drain(kind, sub, limit, now))]
+        lists = [got for i, (kind, sub) in enumerate(subs)
+                 if (got := self._drain(i, kind, sub, limit))]
         if len(lists) <= 1:
             return lists[0] if lists else []
         return list(heapq.merge(*lists, key=_meas_time))
@@ -196,15 +208,24 @@ class TrackService(Inputs):
             pass
         return batch
 
-    @staticmethod
-    def _drain(kind: str, sub: Any, limit: int | None, now: float) -> list[tuple]:
-        out: list[tuple] = []
-        while limit is None or len(out) < limit:
+    def _drain(self, i: int, kind: str, sub: Any, limit: int | None) -> list[tuple]:
+        """Up to `limit` inputs of channel i, each stamped with the arrival of the last
+        (`arrival`: no earlier input arrived later), so a worker busy while they wait does
+        not make them look late to the realtime clock."""
+        got: list[Any] = []
+        while limit is None or len(got) < limit:
             s = sub.try_recv()
             if s is None:
                 break
-            out.append((kind, str(s.key_expr), s.payload.to_bytes(), now))
-        return out
+            got.append(s)
+        now = time.time()
+        since = self.empty_at[i]
+        if limit is None or len(got) < limit:
+            self.empty_at[i] = now  # nothing older than `now` waits in it
+        if not got:
+            return []
+        wall = arrival(got[-1], since, now)
+        return [(kind, str(s.key_expr), s.payload.to_bytes(), wall) for s in got]
 
     def _run(self) -> None:
         while not self.stop.is_set():

@@ -4,13 +4,14 @@ worker's own methods driven in this thread, as its loop drives them)."""
 
 from __future__ import annotations
 
+import math
 import time
 
 import zenoh
 
-from service.node import TrackService
+from service.node import TrackService, arrival
 from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import Keys, free_port, listen_config, pack
+from service.wire import Keys, free_port, listen_config, pack, peer_config, stamping
 
 
 def wait_until(wall: float) -> None:
@@ -40,3 +41,54 @@ def test_a_frame_within_a_step_leaves_the_deletion_to_the_steps_end():
         svc.close()
     finally:
         session.close()
+
+
+def test_the_realtime_clock_learns_from_arrival_not_from_when_the_worker_takes_it():
+    """A worker busy for 0.3 s while a measurement waits in its channel: the clock's
+    offset is t - the arrival (Zenoh's timestamp on arrival), not t - the take."""
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    session = zenoh.open(stamping(listen_config(ep)))
+    feed = zenoh.open(peer_config(ep))
+    try:
+        keys = Keys("rt")
+        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        t = time.time()
+        feed.put(keys.meas("r1", "x1"), pack({"t": t, "pos": [0.0, 1.0]}))
+        wait_until(t + 0.3)  # the worker busy elsewhere meanwhile
+        batch: list = []
+        while not batch:  # the measurement arrived long before: taken now
+            batch = svc._next_batch(0.01)
+        taken = time.time()
+        svc._process(batch)
+        assert svc.count.meas_accepted == 1
+        assert taken - t >= 0.3
+        assert -0.1 < svc.clock.offset <= 0.0  # t - arrival, not t - taken (<= -0.3)
+        svc.close()
+    finally:
+        feed.close()
+        session.close()
+
+
+def test_arrival_is_the_zenoh_timestamp_within_the_span_it_can_have_arrived_in():
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    stamped, plain = zenoh.open(stamping(listen_config(ep))), zenoh.open(peer_config(ep))
+    try:
+        far = stamped.declare_subscriber("a/b", zenoh.handlers.FifoChannel(8))
+        pub = plain.declare_publisher("a/b")
+        end = time.monotonic() + 10
+        while not pub.matching_status.matching and time.monotonic() < end:
+            time.sleep(0.01)  # until the other session's subscriber is known here
+        near = plain.declare_subscriber("a/b", zenoh.handlers.FifoChannel(8))
+        t0 = time.time()
+        pub.put(b"x")  # the stamped session stamps it on arrival; the local copy is not
+        got = [far.recv(), near.recv()]
+        t1 = time.time()
+        s = got[0].timestamp.get_time_as_ntp64().as_secs_f64()
+        assert t0 - 0.01 <= s <= t1 + 0.01
+        assert arrival(got[0], -math.inf, math.inf) == s
+        assert arrival(got[0], s + 1.0, s + 2.0) == s + 1.0  # arrived after `since`
+        assert arrival(got[0], s - 2.0, s - 1.0) == s - 1.0  # taken at `now`
+        assert got[1].timestamp is None and arrival(got[1], 0.0, 5.0) == 5.0  # no stamp
+    finally:
+        plain.close()
+        stamped.close()
