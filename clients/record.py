@@ -25,10 +25,10 @@ from typing import Any
 
 import zenoh
 
-from service.wire import Keys, add_zenoh_args, open_session
+from service.wire import Keys, add_zenoh_args, open_session, stamp_ns
 
 from .progress import add_quiet_arg, bar
-from .recording import RecordingWriter, ntp64_ns
+from .recording import RecordingWriter
 
 POLL = 0.2  # s: how often the writer looks at the stop conditions when no sample comes
 
@@ -73,10 +73,8 @@ class Recorder:
         delete = zenoh.SampleKind.DELETE
 
         def on_sample(s: zenoh.Sample) -> None:
-            ts = s.timestamp
             put((str(s.key_expr), "delete" if s.kind == delete else "put", str(s.encoding),
-                 s.payload.to_bytes(), time.time_ns(),
-                 None if ts is None else ntp64_ns(ts.get_time_as_ntp64())))
+                 s.payload.to_bytes(), time.time_ns(), stamp_ns(s)))
             with lock:
                 self.received += 1
 

@@ -59,12 +59,6 @@ class Sample:
     publish_time: int  # ns
 
 
-def ntp64_ns(ntp64: int) -> int:
-    """Unix nanoseconds of a Zenoh (uhlc) NTP64 time: 32 bits of seconds since the Unix
-    epoch, 32 bits of fraction."""
-    return (ntp64 >> 32) * 1_000_000_000 + ((ntp64 & 0xFFFFFFFF) * 1_000_000_000 >> 32)
-
-
 _T_FIXMAP = b"\xa1t\xcb"  # "t" as the first key of a map, then a float64
 
 

@@ -37,6 +37,7 @@ from .wire import (
     Keys,
     PlotScan,
     pack,
+    stamp_ns,
     unpack,
 )
 
@@ -51,10 +52,8 @@ def arrival(sample: zenoh.Sample, since: float, now: float) -> float:
     by a session with timestamping on, earlier by a router or the publisher), kept within
     [since, now], the span in which it can have arrived (its channel was found empty at
     `since` and it was taken at `now`); `now` when it has none."""
-    ts = sample.timestamp
-    if ts is None:
-        return now
-    return min(max(ts.get_time_as_ntp64().as_secs_f64(), since), now)  # Unix s
+    ns = stamp_ns(sample)
+    return now if ns is None else min(max(ns / 1e9, since), now)
 
 
 def _meas_time(item: tuple) -> float:
@@ -309,7 +308,7 @@ class TrackService(Inputs):
         instant = self.clock.due(time.time() - self.tracker.config.display.lag)
         if instant is not None:
             self.out.look()
-            self.count.frames_missed = self.clock.missed
+            self.count.frames_missed = self.clock.missed + self.out.sender.replaced
         return instant
 
     def _frame_between(self) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -49,6 +50,49 @@ class Counters:
 
 
 
+class FrameSender:
+    """Puts realtime frames from a thread of its own, so the worker does not wait while
+    Zenoh copies a large frame out (7 MB at 100,000 tracks; the put releases the GIL).
+    A frame still waiting when the next one comes is replaced by it and counted in
+    `replaced` (what congestion control DROP does with a stale frame)."""
+
+    def __init__(self, pub: zenoh.Publisher) -> None:
+        self.pub = pub
+        self.cond = threading.Condition()
+        self.pending: bytes | None = None
+        self.closed = False
+        self.replaced = 0
+        self.thread = threading.Thread(target=self._run, name="frame-sender", daemon=True)
+        self.thread.start()
+
+    def put(self, body: bytes) -> None:
+        with self.cond:
+            if self.pending is not None:
+                self.replaced += 1
+            self.pending = body
+            self.cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self.cond:
+                while self.pending is None and not self.closed:
+                    self.cond.wait()
+                if self.pending is None:
+                    return  # closed, and everything handed over put
+                body, self.pending = self.pending, None
+            try:
+                self.pub.put(body)
+            except Exception:  # a closed session: nothing more to send
+                log.exception("frame put failed")
+
+    def close(self) -> None:
+        """Put the frame still waiting, then stop."""
+        with self.cond:
+            self.closed = True
+            self.cond.notify()
+        self.thread.join(timeout=5)
+
+
 class Publisher:
     """Everything the service puts. `realtime`: display keys may drop under congestion
     (a stale frame is worthless); `tracks/`, `states`, deletions and errors never do.
@@ -66,6 +110,8 @@ class Publisher:
         self.block = cc.BLOCK
         self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc,
                                                    encoding=MSGPACK)
+        # realtime frames go out from a thread of their own; lockstep ones in order, here
+        self.sender = FrameSender(self.pub_frame) if realtime else None
         self.pub_states = session.declare_publisher(keys.states, congestion_control=self.block,
                                                     encoding=MSGPACK)
         self.display_listeners = Listeners(session, keys.display("").rstrip("/"), refresh)
@@ -99,6 +145,8 @@ class Publisher:
         self.track_listeners.look()
 
     def close(self) -> None:
+        if self.sender is not None:
+            self.sender.close()
         self.display_listeners.close()
         self.track_listeners.close()
 
@@ -185,7 +233,7 @@ class Publisher:
         if snap.ids is not self.frame_ids[0]:
             self.frame_ids = (snap.ids, pack(snap.ids))
         frame = pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma, snap.codes)
-        self.pub_frame.put(frame)
+        (self.sender or self.pub_frame).put(frame)
         self.latest = (frame, snap)
         if self.wants_display and len(snap.ids):
             rows = self.display_listeners.rows(snap.ids)

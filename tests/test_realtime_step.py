@@ -10,8 +10,9 @@ import time
 import zenoh
 
 from service.node import TrackService, arrival
+from service.outputs import FrameSender
 from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import Keys, free_port, listen_config, pack, peer_config, stamping
+from service.wire import Keys, free_port, listen_config, pack, peer_config, stamp_ns, stamping
 
 
 def wait_until(wall: float) -> None:
@@ -52,11 +53,15 @@ def test_the_realtime_clock_learns_from_arrival_not_from_when_the_worker_takes_i
     try:
         keys = Keys("rt")
         svc = TrackService(session, keys, Tracker(), clock="realtime")
+        pub = feed.declare_publisher(keys.meas("r1", "x1"))
+        end = time.monotonic() + 10
+        while not pub.matching_status.matching and time.monotonic() < end:
+            time.sleep(0.01)  # until the feed knows the service's subscriber
         t = time.time()
-        feed.put(keys.meas("r1", "x1"), pack({"t": t, "pos": [0.0, 1.0]}))
+        pub.put(pack({"t": t, "pos": [0.0, 1.0]}))
         wait_until(t + 0.3)  # the worker busy elsewhere meanwhile
         batch: list = []
-        while not batch:  # the measurement arrived long before: taken now
+        while not batch and time.monotonic() < end:  # it arrived long before: taken now
             batch = svc._next_batch(0.01)
         taken = time.time()
         svc._process(batch)
@@ -85,10 +90,48 @@ def test_arrival_is_the_zenoh_timestamp_within_the_span_it_can_have_arrived_in()
         t1 = time.time()
         s = got[0].timestamp.get_time_as_ntp64().as_secs_f64()
         assert t0 - 0.01 <= s <= t1 + 0.01
-        assert arrival(got[0], -math.inf, math.inf) == s
+        assert arrival(got[0], -math.inf, math.inf) == stamp_ns(got[0]) / 1e9
         assert arrival(got[0], s + 1.0, s + 2.0) == s + 1.0  # arrived after `since`
         assert arrival(got[0], s - 2.0, s - 1.0) == s - 1.0  # taken at `now`
         assert got[1].timestamp is None and arrival(got[1], 0.0, 5.0) == 5.0  # no stamp
+        v = got[0].timestamp.get_time_as_ntp64()  # older zenoh-python: the 64-bit integer
+        bits = (v.as_secs() << 32) | (v.subsec_nanos() << 32) // 1_000_000_000
+
+        class Older:
+            class timestamp:  # noqa: N801 (the attribute a sample has)
+                @staticmethod
+                def get_time_as_ntp64() -> int:
+                    return bits
+
+        assert abs(stamp_ns(Older) - stamp_ns(got[0])) <= 1
     finally:
         plain.close()
         stamped.close()
+
+
+def test_the_frame_sender_puts_every_frame_or_counts_it_replaced_and_the_last_always():
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    session, viewer = zenoh.open(listen_config(ep)), zenoh.open(peer_config(ep))
+    try:
+        got: list[bytes] = []
+        viewer.declare_subscriber("f", zenoh.handlers.Callback(
+            lambda s: got.append(s.payload.to_bytes()), indirect=False))
+        pub = session.declare_publisher("f", congestion_control=zenoh.CongestionControl.BLOCK)
+        end = time.monotonic() + 10
+        while not pub.matching_status.matching and time.monotonic() < end:
+            time.sleep(0.01)
+        sender = FrameSender(pub)
+        bodies = [bytes([i % 256]) * 1_000_000 for i in range(40)]  # faster than they go
+        for body in bodies:
+            sender.put(body)
+        sender.close()  # the frame still waiting goes out first
+        end = time.monotonic() + 10
+        while len(got) + sender.replaced < len(bodies) and time.monotonic() < end:
+            time.sleep(0.01)
+        assert len(got) + sender.replaced == len(bodies)
+        assert got[-1] == bodies[-1]  # the newest is never the one replaced
+        assert got == [b for b in bodies if b in got]  # in order
+        assert not sender.thread.is_alive()
+    finally:
+        viewer.close()
+        session.close()

@@ -47,6 +47,7 @@ from .session import (
     patient,
     peer_config,
     quick_retry,
+    stamp_ns,
     stamping,
     wait_for_tracker,
     zenoh_config,
@@ -61,7 +62,7 @@ __all__ = [
     "check_size", "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port",
     "open_session", "pack", "parse_clock", "parse_full", "parse_measurement", "parse_plots",
     "parse_scan", "parse_scan_columns", "parse_singles", "ScanColumns", "Singles", "patient",
-    "listen_config", "peer_config", "quick_retry", "stamping",
+    "listen_config", "peer_config", "quick_retry", "stamp_ns", "stamping",
     "reason_code", "unpack",
     "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
 ]

@@ -132,6 +132,19 @@ def stamping(conf: Any) -> Any:
     return conf
 
 
+def stamp_ns(sample: Any) -> int | None:
+    """The Zenoh timestamp of a sample in Unix ns, None without one. zenoh-python returns
+    an NTP64 object; older versions the 64-bit integer itself (uhlc: 32 bits of seconds
+    since the Unix epoch, 32 bits of fraction)."""
+    ts = sample.timestamp
+    if ts is None:
+        return None
+    v = ts.get_time_as_ntp64()
+    if isinstance(v, int):
+        return (v >> 32) * 1_000_000_000 + ((v & 0xFFFFFFFF) * 1_000_000_000 >> 32)
+    return int(v.as_nanos())
+
+
 def open_session(args: argparse.Namespace, serve: bool = False, block: bool = False,
                  admin: bool = False) -> Any:
     """The session of a program's options, or one line on stderr and exit 2 (a port
