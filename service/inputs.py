@@ -77,7 +77,8 @@ class Inputs:
                 self._flush(pending)
                 for _, (key, scan) in self.reorder.advance(t, flush=True):
                     self._apply_scan(key, scan)
-            if self.realtime:
+            if self.realtime:  # the measurements received before it go first: the frames
+                self._flush(pending)  # its time makes due must show them
                 self.clock.observe(t, item[3])
             else:
                 self._frames_before(t, pending)

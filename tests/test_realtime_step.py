@@ -135,3 +135,21 @@ def test_the_frame_sender_puts_every_frame_or_counts_it_replaced_and_the_last_al
     finally:
         viewer.close()
         session.close()
+
+
+def test_a_clock_message_moves_the_realtime_frames_only_after_the_measurements_before_it():
+    session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
+    try:
+        keys = Keys("rt")
+        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        wall = time.time()
+        svc._process([  # one batch: a measurement, then the feed's clock 1 s ahead
+            ("meas", keys.meas("r1", "x1"), pack({"t": wall - 0.5, "pos": [0.0, 1.0]}), wall),
+            ("clock", keys.clock, pack({"t": wall + 1.0}), wall)])
+        svc._tick()
+        t, snap = svc.out.latest[1].t, svc.out.latest[1]
+        assert t >= wall + 1.0 - 1 / 30  # the instant the clock message made due
+        assert snap.ids == ["x1"]  # shows the measurement received before it
+        svc.close()
+    finally:
+        session.close()
