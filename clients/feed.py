@@ -213,7 +213,7 @@ def delivered(session: zenoh.Session, keys: Keys, trackers: int,
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
-    session = open_session(args, block=True)  # block, never drop
+    session = open_session(args, block=True, stamp=True)  # block, never drop; stamped
     try:
         if args.trackers and not wait_for_tracker(session, Keys(args.ns), args.trackers):
             sys.exit(f"track-feed: no tracker alive on '{args.ns}' after 30 s "

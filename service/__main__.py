@@ -194,7 +194,7 @@ def main(argv: list[str] | None = None) -> None:
     tracker = Tracker(tracker_config(args))
     # lockstep drops nothing: BLOCK puts wait for a slow subscriber
     session = open_session(args, serve=True, block=args.clock == "lockstep",
-                           admin=True)
+                           admin=True, stamp=True)
     svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),

@@ -133,3 +133,19 @@ def test_batched_states_equal_the_per_target_messages(service_factory):
         t, x, p, model = rows[(body["id"], body["updates"])]
         assert t == body["t"] and x.tolist() == body["x"] and p.tolist() == body["P"]
         assert model == body["model"]
+
+
+def test_the_feed_and_the_service_timestamp_what_they_put(service_factory):
+    """Zenoh timestamps: a measurement carries its feed's time of publication, a state
+    the service's (docs/protocol.md section 6: the realtime clock learns from them)."""
+    svc, s = service_factory("--clock", "lockstep")
+    got: list[tuple[str, str | None]] = []
+    s.declare_subscriber("track/**", zenoh.handlers.Callback(lambda x: got.append(
+        (str(x.key_expr), None if x.timestamp is None else str(x.timestamp.get_id()))),
+        indirect=False))
+    svc.feed("swarm", "--targets", "3", "--duration", "2")
+    assert poll(lambda: sum("/tracks/" in k for k, _ in list(got)) >= 9)
+    meas = {i for k, i in got if "/meas/" in k}
+    states = {i for k, i in got if "/tracks/" in k}
+    assert len(meas) == 1 and len(states) == 1 and None not in meas | states
+    assert meas != states  # two clocks' stamps: the feed's and the service's

@@ -125,9 +125,10 @@ def admin_space(conf: Any) -> Any:
 
 
 def stamping(conf: Any) -> Any:
-    """Zenoh timestamps on: the session stamps every sample that reaches it without one,
-    on arrival (the service's realtime clock learns from arrival times, docs/protocol.md
-    section 6, and the worker may take a sample from its channel later)."""
+    """Zenoh timestamps on: the session stamps what it publishes and every sample that
+    reaches it without a stamp, on arrival. The service's realtime clock learns from
+    arrival times (docs/protocol.md section 6: the worker may take a sample from its
+    channel long after); a feed's own stamps give it the time of publication."""
     conf.insert_json5("timestamping/enabled", "true")
     return conf
 
@@ -146,16 +147,18 @@ def stamp_ns(sample: Any) -> int | None:
 
 
 def open_session(args: argparse.Namespace, serve: bool = False, block: bool = False,
-                 admin: bool = False) -> Any:
+                 admin: bool = False, stamp: bool = False) -> Any:
     """The session of a program's options, or one line on stderr and exit 2 (a port
     taken, a router not reached within --connect-retry, a config that does not load).
     `block`: BLOCK puts wait for slow receivers (`patient`) unless a config file is given;
-    `admin`: the admin space readable (`admin_space`) and samples stamped on arrival
-    (`stamping`) unless a config file is given."""
+    `admin`: the admin space readable (`admin_space`), `stamp`: samples timestamped
+    (`stamping`), each unless a config file is given."""
     def make() -> Any:
         conf = zenoh_config(args, serve)
         if admin and not args.config:
-            stamping(admin_space(conf))
+            admin_space(conf)
+        if stamp and not args.config:
+            stamping(conf)
         return patient(conf) if block and not args.config else conf
 
     return open_or_exit(make, getattr(args, "connect_timeout", CONNECT_TIMEOUT),
