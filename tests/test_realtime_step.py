@@ -9,7 +9,7 @@ import time
 
 import zenoh
 
-from service.node import TrackService, arrival
+from service.node import TRANSIT, TrackService, arrival
 from service.outputs import FrameSender
 from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Keys, free_port, listen_config, pack, peer_config, stamp_ns, stamping
@@ -91,7 +91,7 @@ def test_arrival_is_the_zenoh_timestamp_within_the_span_it_can_have_arrived_in()
         s = got[0].timestamp.get_time_as_ntp64().as_secs_f64()
         assert t0 - 0.01 <= s <= t1 + 0.01
         assert arrival(got[0], -math.inf, math.inf) == stamp_ns(got[0]) / 1e9
-        assert arrival(got[0], s + 1.0, s + 2.0) == s + 1.0  # arrived after `since`
+        assert arrival(got[0], s + 1.0, s + 2.0) == s + 1.0 - TRANSIT  # a clock's error
         assert arrival(got[0], s - 2.0, s - 1.0) == s - 1.0  # taken at `now`
         assert got[1].timestamp is None and arrival(got[1], 0.0, 5.0) == 5.0  # no stamp
         v = got[0].timestamp.get_time_as_ntp64()  # older zenoh-python: the 64-bit integer
