@@ -4,6 +4,7 @@ worker's own methods driven in this thread, as its loop drives them)."""
 
 from __future__ import annotations
 
+import gc
 import math
 import time
 
@@ -152,4 +153,20 @@ def test_a_clock_message_moves_the_realtime_frames_only_after_the_measurements_b
         assert snap.ids == ["x1"]  # shows the measurement received before it
         svc.close()
     finally:
+        session.close()
+
+
+def test_the_worker_freezes_the_long_lived_objects_out_of_the_collectors_scans():
+    session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
+    try:
+        gc.unfreeze()
+        keys = Keys("rt")
+        svc = TrackService(session, keys, Tracker(), clock="realtime").start()
+        end = time.monotonic() + 10
+        while gc.get_freeze_count() == 0 and time.monotonic() < end:
+            time.sleep(0.01)  # an idle worker freezes at once, then every FREEZE_EVERY s
+        assert gc.get_freeze_count() > 0
+        svc.close()
+    finally:
+        gc.unfreeze()
         session.close()
