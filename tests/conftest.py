@@ -97,3 +97,12 @@ def make_tracker(order: int = 2, q: float | None = None, **kw: Any) -> Tracker:
     disp = DisplayConfig(**{k: kw.pop(k) for k in list(kw) if k in DISPLAY_OPTIONS})
     return Tracker(TrackerConfig(filter=FilterSpec({2: "cv", 3: "ca"}[order], q), **kw,
                                  display=disp))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compiled_kernels() -> None:
+    """Compile the IMM kernel once, before any service process starts (on a fresh clone
+    it takes seconds; the processes then load it from the cache)."""
+    from service.estimation import imm_jit
+
+    imm_jit.warm()

@@ -19,7 +19,7 @@ STDLIB = set(sys.stdlib_module_names) | {"__future__"}
 RULES: dict[str, tuple[set[str], set[str]]] = {
     "service.wire": ({"msgpack", "zenoh"}, {"service.wire"}),
     "service.defaults": (set(), set()),
-    "service.estimation": ({"numpy"}, {"service.estimation", "service.wire",
+    "service.estimation": ({"numpy", "numba"}, {"service.estimation", "service.wire",
                                        "service.defaults"}),
     "service.tracking": ({"numpy", "scipy"}, {"service.tracking", "service.estimation",
                                               "service.wire", "service.defaults"}),

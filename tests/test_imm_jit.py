@@ -1,6 +1,7 @@
-"""The IMM's batch-last update (`estimation.imm_soa`) against the IMM's own textbook code
+"""The IMM's compiled update (`estimation.imm_jit`) against the IMM's own textbook code
 (`IMM.update` with a conversion that is not a `CMKFConversion`, the path any other
-conversion takes): same posteriors, mode probabilities, NIS and finiteness mask."""
+conversion takes): same posteriors, mode probabilities, NIS and finiteness mask, for
+passes of any number of rows (blocks of `imm_jit.BLOCK`, the last one padded)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import copy
 import numpy as np
 import pytest
 
-from service.estimation import imm_soa
+from service.estimation import imm_jit
 from service.estimation.catalog import FilterSpec
 from service.estimation.measurements import MeasurementBatch
 from service.estimation.ucm import CMKFConversion
@@ -39,38 +40,40 @@ def close(a: np.ndarray, b: np.ndarray, rel: float) -> bool:
     return bool((np.abs(a - b) <= rel * scale).all())
 
 
-@pytest.mark.parametrize("whole", [imm_soa.WHOLE, 16])  # 16: modes one at a time,
-@pytest.mark.parametrize("dim", [3, 2])  # the spread row by row
-def test_batch_last_imm_is_the_textbook_imm(dim, whole, monkeypatch):
-    monkeypatch.setattr(imm_soa, "WHOLE", whole)
+@pytest.mark.parametrize("count", [40, 1, imm_jit.BLOCK, imm_jit.BLOCK + 1])
+@pytest.mark.parametrize("dim", [3, 2])
+def test_compiled_imm_is_the_textbook_imm(dim, count):
     rng = np.random.default_rng(5)
     tracker = Tracker(TrackerConfig(filter=FilterSpec("imm")))
     imm = tracker.updater
-    assert imm_soa.applies(imm)
+    assert imm_jit.applies(imm)
     for t in range(5):  # tracks with a history: modes apart, probabilities moved
         tracker.track(measurements(40, float(t), dim, rng))
     arrays = tracker.store.layout(dim)
-    rows = arrays.live()[0]
-    arrays.mode_p[rows[7], 1, 0, 0] = np.nan  # a row whose update cannot be finite
-    batch = MeasurementBatch.of(measurements(40, 5.5, dim, rng), dim)
+    bad = min(7, count - 1)
+    rows = arrays.live()[0][::-1][:count]  # store rows in any order
+    if count > 1:
+        arrays.mode_p[rows[bad], 1, 0, 0] = np.nan  # a row whose update cannot be finite
+    batch = MeasurementBatch.of(measurements(40, 5.5, dim, rng)[::-1][:count], dim)
     dt = batch.t - arrays.t[rows]
     ref_arrays = copy.deepcopy(arrays)
     conversion = CMKFConversion(batch)
     fast = imm.update(arrays, rows, dt, conversion)
     ref = imm.update(ref_arrays, rows, dt, lambda xp, pp: conversion(xp, pp))
-    assert (fast[3] == ref[3]).all() and fast[3].sum() == len(rows) - 1
+    assert (fast[3] == ref[3]).all() and fast[3].sum() == len(rows) - (count > 1)
     ok = fast[3]
     for a, b, rel in zip(fast[:3], ref[:3], (1e-10, 1e-9, 1e-9), strict=True):
         assert close(a[ok], b[ok], rel)
     for name in ("mode_x", "mode_p", "mode_prob"):
         assert close(getattr(arrays, name)[rows[ok]], getattr(ref_arrays, name)[rows[ok]],
                      1e-9), name
-        assert np.array_equal(getattr(arrays, name)[rows[7]],  # the bad row kept its prior
-                              getattr(ref_arrays, name)[rows[7]], equal_nan=True)
+        assert count == 1 or np.array_equal(  # the bad row kept its prior
+            getattr(arrays, name)[rows[bad]], getattr(ref_arrays, name)[rows[bad]],
+            equal_nan=True)
     p = fast[1][ok]
     assert (p == p.transpose(0, 2, 1)).all()  # exactly symmetric
 
 
 def test_turn_modes_take_the_textbook_code():
     imm = FilterSpec("imm", imm_turn=2.0).build()[0]
-    assert not imm_soa.applies(imm)
+    assert not imm_jit.applies(imm)

@@ -1,0 +1,637 @@
+"""The compiled kernels of the default IMM's update (Numba), for blocks of B rows with the
+batch axis last (the innermost loop of every stage runs over the block, which the
+compiler vectorises): mixing, prediction, the CMKF's converted measurement with R
+averaged over each mode's prediction, the Joseph update, the mode probabilities and the
+moments. `imm_jit` drives them; `IMM.update`'s own code and `ucm.cmkf_soa` are their
+references (tests/test_imm_jit.py). One file on purpose: Numba's cache (`cache=True`,
+beside this file or in the user's cache directory) is invalidated by the source file of
+the function compiled, not by those of the functions it calls.
+
+Formulas: Blom & Bar-Shalom 1988; Bar-Shalom, Li & Kirubarajan 2001, sec. 11.6.6 (the
+IMM); Granstrom, Willett & Bar-Shalom, IEEE TAES 51(4), 2015 (mixing a CV mode into a
+CA one); Mo et al., IEEE TAES 34(3), 1998 (the unbiased conversion); the averaging over
+the prediction and its reasons are in `ucm.ucm_expected_soa`, the Joseph form's in
+`kalman.update_soa`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .kalman import S_FLOOR
+from .ucm import ROUNDING
+
+BLOCK = 16  # rows per block: the length of every innermost loop
+LOG_2PI = math.log(2.0 * math.pi)
+# reassociation and contraction (fused multiply-adds), not the flags that assume no NaN
+# or infinity: the finiteness checks must hold
+FAST = {"contract", "reassoc", "arcp", "nsz"}
+JIT = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": FAST}
+SWEEPS = 30  # Jacobi sweeps at most (a 3 x 3 converges to rounding in about 4)
+# the constants of a measurement's noise that `noise` reads, rows of `point`'s `const`
+SM, CM, SR2, SAZ2, SINH_A, SINH_E, E_AZ, E_EL, G0, G1, C0, C1, C2 = range(13)
+CONSTS = 13
+
+
+
+@njit(**JIT)
+def rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, polar, values,
+          sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+    """The update of every row, a block at a time (the last block padded with copies of
+    its last row, which are not written back)."""
+    m, n = mode_x.shape[1], mode_x.shape[2]
+    d, b = n // 3, BLOCK
+    mx, mp, mu = np.empty((m, n, b)), np.empty((m, n, n, b)), np.empty((m, b))
+    h, pol = np.empty(b), np.empty(b, np.bool_)
+    val, sig, org = np.empty((d, b)), np.empty((d, b)), np.empty((3, b))
+    w, c, z = np.empty((m, m, b)), np.empty((m, b)), np.empty((d, b))
+    xp, pp = np.empty((m, n, b)), np.empty((m, n, n, b))  # each mode's prediction
+    xu, pu = np.empty((m, n, b)), np.empty((m, n, n, b))  # ... and posterior
+    rr, lik, fin = np.empty((m, d, d, b)), np.empty((m, b)), np.empty((m, b), np.bool_)
+    xo, po, nb = np.empty((n, b)), np.empty((n, n, b)), np.empty(b)
+    mean, spread = np.empty((n, b)), np.empty((n, n, b))  # of the mixture's prediction
+    # work arrays of the stages: (n, n) and (3, 3) matrices, vectors of 3, per row
+    wk, w33, wv = np.empty((3, n, n, b)), np.empty((3, 3, 3, b)), np.empty((6, 3, b))
+    dv = np.empty((n, b))
+    const, mats, nvec = np.empty((CONSTS, b)), np.empty((3, 3, 3, b)), np.empty((13, 6, b))
+    for lo in range(0, len(rows), b):
+        for q in range(b):  # gather the block, batch axis last
+            i = min(lo + q, len(rows) - 1)
+            row = rows[i]
+            h[q], pol[q] = dt[i], polar[i]
+            for a in range(d):
+                val[a, q], sig[a, q] = values[a, i], sigmas[a, i]
+            for a in range(3):
+                org[a, q] = origin[a, i]
+            for j in range(m):
+                mu[j, q] = mode_prob[row, j]
+                for a in range(n):
+                    mx[j, a, q] = mode_x[row, j, a]
+                    for e in range(n):
+                        mp[j, a, e, q] = mode_p[row, j, a, e]
+        point(pol, val, sig, org, d, z, const)
+        _weights(mu, h, tau, dest, w, c)
+        for j in range(m):
+            s = n if kinds[j] == 1 else 2 * d  # a CV mode: position and velocity
+            _mix(mx, mp, w, dest, kinds, j, s, d, xp[j], pp[j], dv)
+            _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j], wk[0], wv)
+            noise(pol, sig, org, const, xp[j], pp[j], d, rr[j], mats, nvec)
+            _update(xp[j], pp[j], s, d, z, rr[j], xu[j], pu[j], lik[j], fin[j], wk, w33, wv)
+        _probabilities(c, lik, fin, mu, nb)
+        _moments(xu, pu, mu, n, xo, po, dv)
+        _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
+        _mixture_nis(mean, spread, rr, c, z, d, nis, lo, len(rows), w33, wv)
+        for q in range(min(b, len(rows) - lo)):  # scatter
+            i, row = lo + q, rows[lo + q]
+            ok[i] = nb[q] == 1.0
+            for a in range(n):
+                xn[i, a] = xo[a, q]
+                for e in range(n):
+                    pn[i, a, e] = po[a, e, q]
+            if ok[i]:
+                for j in range(m):
+                    mode_prob[row, j] = mu[j, q]
+                    for a in range(n):
+                        mode_x[row, j, a] = xu[j, a, q]
+                        for e in range(n):
+                            mode_p[row, j, a, e] = pu[j, a, e, q]
+
+
+@njit(**JIT)
+def _weights(mu, h, tau, dest, w, c):  # pragma: no cover - compiled
+    """Mixing weights w[i, j] = pi_ij mu_i / c_j and the predicted mode probabilities
+    c_j = sum_i pi_ij mu_i, pi over each row's |dt| as `IMM.transition`."""
+    m, b = mu.shape
+    for a in range(m):
+        for q in range(b):
+            stay = math.exp(-abs(h[q]) / tau[a])
+            for e in range(m):
+                w[a, e, q] = (stay if a == e else (1.0 - stay) * dest[a, e]) * mu[a, q]
+    for e in range(m):
+        for q in range(b):
+            c[e, q] = 0.0
+        for a in range(m):
+            for q in range(b):
+                c[e, q] += w[a, e, q]
+        for a in range(m):
+            for q in range(b):
+                w[a, e, q] /= max(c[e, q], 1e-300)
+
+
+@njit(**JIT)
+def _mix(mx, mp, w, dest, kinds, j, s, d, x0, p0, dv):  # pragma: no cover - compiled
+    """Mode j's mixed initial condition (its first s components) into x0 (n, B) and
+    p0 (n, n, B): a CV mode i mixed into a CA mode j takes j's acceleration and its
+    covariance block, with no cross terms. A mode j cannot come from is skipped."""
+    m, b = mx.shape[0], mx.shape[2]
+    x0[:s] = 0.0
+    for a in range(s):
+        for e in range(a, s):
+            p0[a, e] = 0.0
+    for pas in range(2):  # the mean, then the spread about it
+        for i in range(m):
+            if i != j and dest[i, j] == 0.0:
+                continue
+            top = 2 * d if kinds[j] == 1 and kinds[i] != 1 else s  # i's own components
+            for a in range(s):
+                src = mx[i, a] if a < top else mx[j, a]
+                if pas == 0:
+                    for q in range(b):
+                        x0[a, q] += w[i, j, q] * src[q]
+                else:
+                    for q in range(b):
+                        dv[a, q] = src[q] - x0[a, q]
+            if pas == 0:
+                continue
+            for a in range(s):
+                for e in range(a, s):
+                    if a < top and e < top:
+                        for q in range(b):
+                            p0[a, e, q] += w[i, j, q] * (mp[i, a, e, q] + dv[a, q] * dv[e, q])
+                    elif a >= top:  # both of j's acceleration
+                        for q in range(b):
+                            p0[a, e, q] += w[i, j, q] * (mp[j, a, e, q] + dv[a, q] * dv[e, q])
+                    else:
+                        for q in range(b):
+                            p0[a, e, q] += w[i, j, q] * (dv[a, q] * dv[e, q])
+    for a in range(s):
+        for e in range(a + 1, s):
+            p0[e, a] = p0[a, e]
+
+
+@njit(**JIT)
+def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
+    """x (n, B), P (n, n, B), their first s = order d components, over each row's dt in
+    place: F = kron(Phi, I_d), Phi[a, a + k] = dt^k / k!, Q = q^2 kron(g g', I_d),
+    g_a = |dt|^(order - a) / (order - a)! (as `models.predict_soa`)."""
+    b = x.shape[1]
+    pw, g = wv[0], wv[1]  # dt^k / k! and g; tmp: F P
+    for q in range(b):
+        t = h[q]
+        pw[0, q], pw[1, q], pw[2, q] = 1.0, t, 0.5 * t * t
+        at = abs(t)
+        g[order - 1, q] = at
+        g[order - 2, q] = 0.5 * at * at
+        if order == 3:
+            g[0, q] = at * at * at / 6.0
+    for a in range(order):  # x <- F x (block a reads blocks c >= a, not yet changed)
+        for k in range(d):
+            for c in range(a + 1, order):
+                for q in range(b):
+                    x[a * d + k, q] += pw[c - a, q] * x[c * d + k, q]
+    for a in range(order):  # tmp = F P
+        for k in range(d):
+            for col in range(s):
+                for q in range(b):
+                    tmp[a * d + k, col, q] = p[a * d + k, col, q]
+                for c in range(a + 1, order):
+                    for q in range(b):
+                        tmp[a * d + k, col, q] += pw[c - a, q] * p[c * d + k, col, q]
+    for r in range(s):  # P = tmp F' + Q, upper triangle, mirrored
+        a, k = r // d, r % d
+        for col in range(r, s):
+            e, el = col // d, col % d
+            for q in range(b):
+                p[r, col, q] = tmp[r, col, q]
+            for f in range(e + 1, order):
+                for q in range(b):
+                    p[r, col, q] += pw[f - e, q] * tmp[r, f * d + el, q]
+            if k == el:
+                for q in range(b):
+                    p[r, col, q] += qn * qn * g[a, q] * g[e, q]
+            for q in range(b):
+                p[col, r, q] = p[r, col, q]
+
+
+@njit(**JIT)
+def _inverse(s0, d, si, det, low, piv):  # pragma: no cover - compiled
+    """(S + S_FLOOR I)^-1 of each row's symmetric d x d S into si and its determinant into
+    det, through S = L D L' (Golub & Van Loan 2013, alg. 4.1.1; no pivoting: S is a
+    covariance); then S^-1 = L^-T D^-1 L^-1. A zero pivot gives NaN."""
+    b = s0.shape[2]
+    for q in range(b):
+        det[q] = 1.0
+    for j in range(d):
+        for q in range(b):
+            v = s0[j, j, q] + S_FLOOR
+            for r in range(j):
+                v -= low[j, r, q] * low[j, r, q] * piv[r, q]
+            piv[j, q] = v
+            det[q] *= v
+        for i in range(j + 1, d):
+            for q in range(b):
+                u = s0[i, j, q]
+                for r in range(j):
+                    u -= low[i, r, q] * low[j, r, q] * piv[r, q]
+                low[i, j, q] = u / piv[j, q]
+    for j in range(d):  # low <- L^-1 below the diagonal, column by column
+        for i in range(j + 1, d):
+            for q in range(b):
+                v = -low[i, j, q]
+                for r in range(j + 1, i):
+                    v -= low[i, r, q] * low[r, j, q]
+                low[i, j, q] = v
+    for i in range(d):
+        for j in range(i, d):
+            for q in range(b):
+                v = (1.0 if j == i else low[j, i, q]) / piv[j, q]
+                for r in range(j + 1, d):
+                    v += low[r, i, q] * low[r, j, q] / piv[r, q]
+                si[i, j, q] = v
+                si[j, i, q] = v
+
+
+@njit(**JIT)
+def _update(x, p, s, d, z, r, xo, po, lik, fin, wk, w33, wv):  # pragma: no cover - compiled
+    """The CMKF update (H = [I 0]) of x (n, B), P (n, n, B), their first s components,
+    into xo, po (the rest zero): K' = S^-1 P[:d], E' = P[:d] - S0 K' with S0 = P[:d, :d]
+    + R, P+ = P - [K E][P[:d]; K']; the log-likelihood and whether it is all finite."""
+    b = x.shape[1]
+    s0, si, low, kt, et = w33[0], w33[1], w33[2], wk[1, :3], wk[2, :3]
+    nu, sn, det, piv = wv[0], wv[1], wv[2, 0], wv[3]
+    for a in range(d):
+        for e in range(d):
+            for q in range(b):
+                s0[a, e, q] = p[a, e, q] + r[a, e, q]
+        for q in range(b):
+            nu[a, q] = z[a, q] - x[a, q]
+    _inverse(s0, d, si, det, low, piv)
+    for a in range(d):
+        for col in range(s):
+            for q in range(b):
+                kt[a, col, q] = 0.0
+            for e in range(d):
+                for q in range(b):
+                    kt[a, col, q] += si[a, e, q] * p[e, col, q]
+    for a in range(d):
+        for col in range(s):
+            for q in range(b):
+                et[a, col, q] = p[a, col, q]
+            for e in range(d):
+                for q in range(b):
+                    et[a, col, q] -= s0[e, a, q] * kt[e, col, q]
+    for a in range(d):
+        for q in range(b):
+            sn[a, q] = 0.0
+        for e in range(d):
+            for q in range(b):
+                sn[a, q] += si[a, e, q] * nu[e, q]
+    for col in range(s):
+        for q in range(b):
+            xo[col, q] = x[col, q]
+        for a in range(d):
+            for q in range(b):
+                xo[col, q] += kt[a, col, q] * nu[a, q]
+    for i in range(s):
+        for j in range(i, s):
+            for q in range(b):
+                po[i, j, q] = p[i, j, q]
+            for a in range(d):
+                for q in range(b):
+                    po[i, j, q] -= kt[a, i, q] * p[a, j, q] + et[a, i, q] * kt[a, j, q]
+            for q in range(b):
+                po[j, i, q] = po[i, j, q]
+    xo[s:] = 0.0
+    po[s:] = 0.0
+    po[:s, s:] = 0.0
+    for q in range(b):
+        nis = 0.0
+        for a in range(d):
+            nis += nu[a, q] * sn[a, q]
+        tot = nis
+        for col in range(s):
+            tot += xo[col, q]
+            for e in range(s):
+                tot += po[col, e, q]
+        fin[q] = math.isfinite(tot)  # a sum is finite if all its terms are (but overflow)
+        dq = det[q]
+        lik[q] = -0.5 * (nis + math.log(dq) + d * LOG_2PI) if dq > 0 else -np.inf
+
+
+@njit(**JIT)
+def _probabilities(c, lik, fin, mu, good):  # pragma: no cover - compiled
+    """The new mode probabilities mu_j ~ c_j exp(lik_j) (logs, largest first) and
+    good[q] = 1.0 where every mode is finite; a non-finite probability weighs 0."""
+    m, b = c.shape
+    for q in range(b):
+        top = -np.inf
+        for j in range(m):
+            lik[j, q] += math.log(max(c[j, q], 1e-300))
+            top = max(top, lik[j, q])
+        tot = 0.0
+        for j in range(m):
+            mu[j, q] = math.exp(lik[j, q] - top)
+            tot += mu[j, q]
+        good[q] = 1.0
+        for j in range(m):
+            mu[j, q] /= tot
+            if not (fin[j, q] and math.isfinite(mu[j, q])):
+                good[q] = 0.0
+        for j in range(m):
+            if not math.isfinite(mu[j, q]):
+                mu[j, q] = 0.0
+
+
+@njit(**JIT)
+def _moments(x, p, w, n, mean, cov, dv):  # pragma: no cover - compiled
+    """Mean (n, B) and covariance (n, n, B) of the mixtures of (x_j, P_j) (first n
+    components) with weights w (M, B)."""
+    m, b = w.shape
+    mean[:n] = 0.0
+    for j in range(m):
+        for a in range(n):
+            for q in range(b):
+                mean[a, q] += w[j, q] * x[j, a, q]
+    for a in range(n):
+        for e in range(a, n):
+            for q in range(b):
+                cov[a, e, q] = 0.0
+    for j in range(m):
+        for a in range(n):
+            for q in range(b):
+                dv[a, q] = x[j, a, q] - mean[a, q]
+        for a in range(n):
+            for e in range(a, n):
+                for q in range(b):
+                    cov[a, e, q] += w[j, q] * (p[j, a, e, q] + dv[a, q] * dv[e, q])
+    for a in range(n):
+        for e in range(a + 1, n):
+            for q in range(b):
+                cov[e, a, q] = cov[a, e, q]
+
+
+@njit(**JIT)
+def _mixture_nis(mean, spread, rr, c, z, d, nis, lo, k, w33, wv):  # pragma: no cover
+    """NIS of z against the mixture of the modes' predicted positions (mean, spread;
+    weights c), with R averaged the same way: sum_j c_j R_j (as `IMM.update`), into
+    nis[lo:lo + B] (the rows below k)."""
+    m, b = c.shape
+    for j in range(m):
+        for a in range(d):
+            for e in range(d):
+                for q in range(b):
+                    spread[a, e, q] += c[j, q] * rr[j, a, e, q]
+    si, low, det, piv = w33[0], w33[1], wv[2, 0], wv[3]
+    _inverse(spread, d, si, det, low, piv)
+    for q in range(min(b, k - lo)):
+        v = 0.0
+        for a in range(d):
+            for e in range(d):
+                v += (z[a, q] - mean[a, q]) * si[a, e, q] * (z[e, q] - mean[e, q])
+        nis[lo + q] = v
+
+
+@njit(**JIT)
+def point(polar, val, sig, org, d, z, const):  # pragma: no cover - compiled
+    """The converted measurements z (d, B): the UCM point (Mo et al. 1998) moved to the
+    common frame, or the Cartesian position as given (val, sig (d, B), org (3, B)); and
+    the constants of each row's noise, the same for every mode, into const (13, B)."""
+    b = z.shape[1]
+    for q in range(b):
+        if not polar[q]:
+            for a in range(d):
+                z[a, q] = val[a, q]
+            for a in range(CONSTS):  # benign numbers for the polar arithmetic it skips
+                const[a, q] = 0.0
+            const[CM, q] = const[SAZ2, q] = 1.0
+            continue
+        saz2 = sig[1, q] * sig[1, q]
+        lb = math.exp(-0.5 * saz2)
+        sm, cm = math.sin(val[1, q]), math.cos(val[1, q])
+        if d == 3:
+            sel2 = sig[2, q] * sig[2, q]
+            le = math.exp(-0.5 * sel2)
+            horiz = val[0, q] * math.cos(val[2, q]) / (lb * le)
+            z[2, q] = val[0, q] * math.sin(val[2, q]) / le + org[2, q]
+        else:
+            sel2 = 0.0
+            horiz = val[0, q] / lb
+        z[0, q] = horiz * sm + org[0, q]
+        z[1, q] = horiz * cm + org[1, q]
+        sr2 = sig[0, q] * sig[0, q]
+        e_az, e_el = math.exp(-saz2), math.exp(-sel2)
+        const[SM, q], const[CM, q], const[SR2, q], const[SAZ2, q] = sm, cm, sr2, saz2
+        const[SINH_A, q], const[SINH_E, q] = math.sinh(saz2), math.sinh(sel2)
+        const[E_AZ, q], const[E_EL, q] = e_az, e_el
+        const[G0, q], const[G1, q] = sr2 * e_el, math.expm1(-sel2)
+        const[C0, q], const[C1, q] = e_az * math.sinh(sel2), sr2 * e_az * e_el
+        const[C2, q] = math.expm1(-saz2 - sel2)
+
+
+@njit(**JIT)
+def noise(polar, sig, org, const, x, p, d, out, mats, vecs):  # pragma: no cover - compiled
+    """R (d, d, B) of each row's converted measurement: the UCM error covariance averaged
+    over the prediction N(x[:d], P[:d, :d]) (x (n, B), p (n, n, B)) by the 2d-point
+    cubature on the symmetric square root of P[:d, :d], each point's azimuth turned toward
+    the measured one (`ucm.ucm_expected_soa`), or diag(sigma^2) for a Cartesian one; NaN
+    where P[:d, :d] is not finite. Work arrays mats (3, 3, 3, B), vecs (13, 6, B)."""
+    b = out.shape[2]
+    k2 = 2 * d
+    cov, rot, vec = mats[0], mats[1], mats[2]
+    rel, bad, wt = vecs[0, :3], vecs[0, 4], vecs[0, 5]
+    sn, cs, cterm = vecs[1], vecs[2], vecs[3]
+    pts = vecs[4:7]  # (3, 2d, B): coordinate, point, row
+    for q in range(b):
+        bad[q] = 0.0
+    for a in range(d):
+        for e in range(d):
+            for q in range(b):
+                v = p[a, e, q]
+                if not math.isfinite(v):
+                    bad[q] = 1.0
+                cov[a, e, q] = v
+        for q in range(b):
+            rel[a, q] = x[a, q] - org[a, q]
+    for a in range(d):
+        for e in range(d):
+            for q in range(b):
+                if bad[q] != 0.0:
+                    cov[a, e, q] = 0.0
+    _eigh(cov, d, rot, vec, vecs[7, :3])
+    # the points mean +- (sqrt(d) S)[:, i], S = sum_e sqrt(lambda_e) v_e v_e' (an
+    # eigenvalue within rounding of zero, below ROUNDING x the largest, is zero)
+    lam = vecs[12, :3]
+    for q in range(b):
+        top = rot[0, 0, q]
+        for e in range(1, d):
+            top = max(top, rot[e, e, q])
+        for e in range(d):
+            v = rot[e, e, q]
+            lam[e, q] = math.sqrt(d * v) if v > ROUNDING * top else 0.0
+    for col in range(d):
+        for a in range(d):
+            for q in range(b):
+                v = 0.0
+                for e in range(d):
+                    v += lam[e, q] * vec[col, e, q] * vec[a, e, q]
+                pts[a, col, q] = rel[a, q] + v
+                pts[a, d + col, q] = rel[a, q] - v
+    for q in range(b):  # the weight of the measured azimuth against the predicted one
+        r0, r1 = rel[0, q], rel[1, q]
+        rho2 = r0 * r0 + r1 * r1
+        var_t = r1 * r1 * cov[0, 0, q] - 2.0 * r0 * r1 * cov[0, 1, q] + r0 * r0 * cov[1, 1, q]
+        var_t = var_t / rho2 if rho2 > 0 else 0.5 * (cov[0, 0, q] + cov[1, 1, q])
+        var_az = var_t / max(rho2, 1e-12)
+        wt[q] = var_az / (var_az + const[SAZ2, q])
+    # each point's azimuth turned toward the measured one by wt times their wrapped
+    # difference: sin and cos of the sum from those of the point (x / rho, y / rho) and
+    # of the turn (a series where it is small: far from the zenith wt ~ 0)
+    for k in range(k2):
+        for q in range(b):
+            px, py = pts[0, k, q], pts[1, k, q]
+            rho = math.sqrt(px * px + py * py)
+            sa, ca = (px / rho, py / rho) if rho > 0 else (0.0, 1.0)
+            sm, cm = const[SM, q], const[CM, q]
+            dl = wt[q] * math.atan2(sm * ca - cm * sa, cm * ca + sm * sa)
+            if abs(dl) < 1e-3:
+                d2 = dl * dl
+                sd = dl * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0))
+                cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0))
+            else:
+                sd, cd = math.sin(dl), math.cos(dl)
+            sn[k, q], cs[k, q] = sa * cd + ca * sd, ca * cd - sa * sd
+    if d == 3:
+        _sums_3d(pts, sn, cs, const, out, cterm, vecs[7:12], k2)
+    else:
+        _sums_2d(pts, sn, cs, const, out, cterm, vecs[7], k2)
+    for q in range(b):
+        if not polar[q]:
+            for a in range(d):
+                for e in range(d):
+                    out[a, e, q] = sig[a, q] * sig[a, q] if a == e else 0.0
+        elif bad[q] != 0.0:
+            for a in range(d):
+                for e in range(d):
+                    out[a, e, q] = np.nan
+
+
+@njit(**JIT)
+def _sums_3d(pts, sn, cs, const, out, cterm, sums, k2):  # pragma: no cover - compiled
+    """The sums over the 6 points of `ucm._ucm_sums_3d`, over 6, into out (3, 3, B)."""
+    b = sn.shape[1]
+    s_ce2, s_rho2, s_z2, s_se2 = sums[0, 0], sums[0, 1], sums[0, 2], sums[0, 3]
+    fs0, fs1, fc0, fc1 = sums[1, 0], sums[1, 1], sums[1, 2], sums[1, 3]
+    for q in range(b):
+        s_ce2[q] = s_rho2[q] = s_z2[q] = s_se2[q] = 0.0
+        fs0[q] = fs1[q] = fc0[q] = fc1[q] = 0.0
+    for k in range(k2):
+        for q in range(b):
+            x, y, h = pts[0, k, q], pts[1, k, q], pts[2, k, q]
+            rh2, z2 = x * x + y * y, h * h
+            r2 = rh2 + z2
+            inv_r2 = 1.0 / r2 if r2 > 0 else 1.0
+            ce2 = rh2 * inv_r2 if r2 > 0 else 1.0  # el = 0 at the origin, as arctan2
+            s_ce2[q] += ce2
+            s_rho2[q] += rh2
+            s_z2[q] += z2
+            s_se2[q] += z2 * inv_r2
+            sr2 = const[SR2, q]
+            cterm[k, q] = (const[C0, q] * r2 + const[C1, q] * ce2 + const[C2, q] * rh2
+                           + const[C0, q] * sr2)
+            zr1 = math.sqrt(rh2) * h
+            zr0 = zr1 * inv_r2
+            fs0[q] += zr0 * sn[k, q]
+            fs1[q] += zr1 * sn[k, q]
+            fc0[q] += zr0 * cs[k, q]
+            fc1[q] += zr1 * cs[k, q]
+    for q in range(b):
+        sr2, g0, g1 = const[SR2, q], const[G0, q], const[G1, q]
+        s_b = s_rho2[q] + s_z2[q] + k2 * sr2
+        s_a = const[SINH_A, q] * (const[E_EL, q] * (s_rho2[q] + sr2 * s_ce2[q])
+                                  + const[SINH_E, q] * s_b)
+        s_c = const[C0, q] * s_b + const[C1, q] * s_ce2[q] + const[C2, q] * s_rho2[q]
+        out[2, 2, q] = (const[SINH_E, q] * s_b + g0 * s_se2[q] + g1 * s_z2[q]) / k2
+        out[0, 2, q] = out[2, 0, q] = (g0 * fs0[q] + g1 * fs1[q]) / k2
+        out[1, 2, q] = out[2, 1, q] = (g0 * fc0[q] + g1 * fc1[q]) / k2
+        _horizontal(cterm, sn, cs, s_c, s_a, k2, q, out)
+
+
+@njit(**JIT)
+def _sums_2d(pts, sn, cs, const, out, cterm, s_rho2, k2):  # pragma: no cover - compiled
+    """The sums over the 4 points of `ucm._ucm_sums_2d`, over 4, into out (2, 2, B)."""
+    b = sn.shape[1]
+    for q in range(b):
+        s_rho2[0, q] = 0.0
+    for k in range(k2):
+        for q in range(b):
+            rh2 = pts[0, k, q] * pts[0, k, q] + pts[1, k, q] * pts[1, k, q]
+            s_rho2[0, q] += rh2
+            cterm[k, q] = rh2 * math.expm1(-const[SAZ2, q]) + const[SR2, q] * const[E_AZ, q]
+    for q in range(b):
+        s_a = const[SINH_A, q] * (s_rho2[0, q] + k2 * const[SR2, q])
+        s_c = 0.0
+        for k in range(k2):
+            s_c += cterm[k, q]
+        _horizontal(cterm, sn, cs, s_c, s_a, k2, q, out)
+
+
+@njit(**JIT, inline="always")
+def _horizontal(cterm, sn, cs, s_c, s_a, k2, q, out):  # pragma: no cover - compiled
+    """The horizontal block a I + c u u' summed over the points, over their number."""
+    o01 = o00 = 0.0
+    for k in range(k2):
+        o01 += cterm[k, q] * sn[k, q] * cs[k, q]
+        o00 += cterm[k, q] * sn[k, q] * sn[k, q]
+    out[0, 1, q] = out[1, 0, q] = o01 / k2
+    out[1, 1, q] = (s_c - o00 + s_a) / k2
+    out[0, 0, q] = (o00 + s_a) / k2
+
+
+@njit(**JIT)
+def _eigh(cov, d, a, v, rot):  # pragma: no cover - compiled
+    """Eigen-decomposition of each row's symmetric d x d cov by cyclic Jacobi rotations
+    (Golub & Van Loan 2013, alg. 8.5.3) until every row's off-diagonal is below 1e-16 of
+    its diagonal: the eigenvalues on the diagonal of a, the eigenvectors the columns of
+    v ((d, d, B) each)."""
+    b = cov.shape[2]
+    for i in range(d):
+        for j in range(d):
+            for q in range(b):
+                a[i, j, q] = cov[i, j, q]
+                v[i, j, q] = 1.0 if i == j else 0.0
+    live = rot[2]  # 1 while a row's off-diagonal is not yet below rounding
+    for q in range(b):
+        live[q] = 1.0
+    for _ in range(SWEEPS):
+        done = True
+        for q in range(b):  # a row stops as it would alone: its bits do not depend on
+            o = 0.0  # the other rows of its block
+            s = 0.0
+            for i in range(d):
+                s += a[i, i, q] * a[i, i, q]
+                for j in range(i + 1, d):
+                    o += a[i, j, q] * a[i, j, q]
+            if o <= 1e-32 * s:
+                live[q] = 0.0
+            if live[q] != 0.0:
+                done = False
+        if done:
+            break
+        cr, sr = rot[0], rot[1]  # each row's rotation (identity where a_pq = 0)
+        for p_ in range(d - 1):
+            for r in range(p_ + 1, d):
+                for q in range(b):
+                    apq = a[p_, r, q]
+                    theta = (a[r, r, q] - a[p_, p_, q]) / (2.0 * apq if apq != 0.0 else 1.0)
+                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                    t = 0.0 if apq == 0.0 or live[q] == 0.0 else (t if theta >= 0 else -t)
+                    cr[q] = 1.0 / math.sqrt(t * t + 1.0)
+                    sr[q] = t * cr[q]
+                for k in range(d):  # A <- J' A J, V <- V J
+                    for q in range(b):
+                        akp, akq = a[k, p_, q], a[k, r, q]
+                        a[k, p_, q] = cr[q] * akp - sr[q] * akq
+                        a[k, r, q] = sr[q] * akp + cr[q] * akq
+                for k in range(d):
+                    for q in range(b):
+                        apk, aqk = a[p_, k, q], a[r, k, q]
+                        a[p_, k, q] = cr[q] * apk - sr[q] * aqk
+                        a[r, k, q] = sr[q] * apk + cr[q] * aqk
+                for k in range(d):
+                    for q in range(b):
+                        vkp, vkq = v[k, p_, q], v[k, r, q]
+                        v[k, p_, q] = cr[q] * vkp - sr[q] * vkq
+                        v[k, r, q] = sr[q] * vkp + cr[q] * vkq
