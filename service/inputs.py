@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .estimation.measurements import MeasurementBatch
+from .layouts import by_layout
 from .tracking.bulk import BatchOutcome, Rows, track_columns
 from .wire import (
     PlotScan,
@@ -93,9 +94,9 @@ class Inputs:
 
     def _take_singles(self, items: list[tuple], pending: list[Rows]) -> None:
         """Single measurements taken together, in order, as each alone would be: checked
-        as columns (`wire.parse_singles`; a bad one reported on its own key), their
-        `seq` counted, the time policy and the clock applied, and the good ones left
-        waiting in `pending` (a lockstep frame due before one goes out before it)."""
+        as columns (`layouts.by_layout`, else `wire.parse_singles`; a bad one reported on
+        its own key), their `seq` counted, the time policy and the clock applied, and the
+        good ones left waiting in `pending` (a lockstep frame due before one goes out before it)."""
         n = len(items)
         keys_all = [it[1] for it in items]
         cache = self.meas_key_parts
@@ -114,7 +115,8 @@ class Inputs:
             sensors, targets = [split[i][0] for i in fine], [split[i][1] for i in fine]
             walls = [items[i][3] for i in fine]
             payloads = [items[i][2] for i in fine]
-        got = parse_singles(sensors, targets, payloads, self.noise)
+        got = by_layout(sensors, targets, payloads) or parse_singles(sensors, targets,
+                                                                    payloads, self.noise)
         # the bad ones, reported in message order: bad keys, then what parse_singles found
         bad_keys = [] if len(fine) == n else [
             (i, keys_all[i], split[i][0], "measurement key must be <ns>/meas/<sensor>/<target>")

@@ -17,7 +17,8 @@ from payloads import bad_measurement, measurement
 
 from service import defaults
 from service.estimation.measurements import MeasurementBatch
-from service.wire import Rejected, pack, parse_measurement, parse_singles, singles
+from service.layouts import by_layout
+from service.wire import Rejected, pack, parse_measurement, parse_singles
 
 NOISE = defaults.NOISE
 
@@ -36,6 +37,13 @@ def reference(sensors, targets, payloads):
 def check(sensors, targets, payloads) -> None:
     ref = reference(sensors, targets, payloads)
     got = parse_singles(sensors, targets, payloads, NOISE)
+    _check(ref, got)
+    fast = by_layout(sensors, targets, payloads)  # the service's reading of one layout
+    if fast is not None:
+        _check(ref, fast)
+
+
+def _check(ref, got) -> None:
     assert got.rejected == [(i, r) for i, r in enumerate(ref) if isinstance(r, str)]
     assert got.seqs == [None if isinstance(r, str) else r.seq for r in ref]
     seen = []
@@ -111,7 +119,7 @@ def feed_form(rng: random.Random, t: float, seq: int | None) -> dict:
 @pytest.mark.parametrize("first_seq", [None, 0, 50, 130, 60_000, 70_000, 2**40])
 def test_one_layout_read_from_the_bytes_as_decoding_each(first_seq, order):
     """A feed's burst (one key order, seq of one width: fixint, uint8/16/32/64, or none)
-    is read from the joined bytes (`_by_layout`) with what decoding each gives."""
+    is read from the joined bytes (`layouts.by_layout`) with what decoding each gives."""
     rng = random.Random(3)
     n = 40
     seqs = [None if first_seq is None else first_seq + i for i in range(n)]
@@ -122,7 +130,7 @@ def test_one_layout_read_from_the_bytes_as_decoding_each(first_seq, order):
                 for m in (feed_form(rng, 7.0 + 0.01 * i, q) for i, q in enumerate(seqs))]
     targets = [f"x{i}" for i in range(n)]
     assert len({len(p) for p in payloads}) == 1
-    got = singles._by_layout(["r1"] * n, targets, payloads)
+    got = by_layout(["r1"] * n, targets, payloads)
     assert got is not None and got.seqs == seqs
     check(["r1"] * n, targets, payloads)
 
@@ -150,14 +158,14 @@ def test_other_layouts_and_bad_values_take_the_full_check():
         variant(2, b"\x87" + pack(base[2])[1:]),  # a map header one entry short
     ]
     for payloads in cases:
-        assert singles._by_layout(sensors, targets, payloads) is None
+        assert by_layout(sensors, targets, payloads) is None
         check(sensors, targets, payloads)
     bad_ids = list(targets)
     bad_ids[11] = "x y"
     payloads = [pack(x) for x in base]
-    assert singles._by_layout(sensors, bad_ids, payloads) is None
+    assert by_layout(sensors, bad_ids, payloads) is None
     check(sensors, bad_ids, payloads)
     mixed = ["r1"] * n
     mixed[12] = "r 2"
-    assert singles._by_layout(mixed, targets, payloads) is None
+    assert by_layout(mixed, targets, payloads) is None
     check(mixed, targets, payloads)

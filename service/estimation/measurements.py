@@ -64,8 +64,9 @@ class MeasurementBatch:
         n, good = scan.n, np.asarray(scan.good, dtype=np.intp)
         every = len(good) == n
 
-        def column(v: list[float] | float) -> np.ndarray:
-            a = np.asarray(v, dtype=float) if isinstance(v, list) else np.full(n, float(v))
+        def column(v: list[float] | np.ndarray | float) -> np.ndarray:
+            a = np.full(n, float(v)) if isinstance(v, int | float) else \
+                np.asarray(v, dtype=float)
             return a if every else a[good]
 
         k, d = len(good), scan.dim

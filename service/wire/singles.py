@@ -8,20 +8,13 @@ column at a time (`plots.bad_rows`); a message of another form, or one a column 
 flags, goes through `parse_measurement` alone and either joins the columns as a record
 (`ScanColumns.fixed`) or is rejected with that check's reason.
 
-Faster still, when every message of the call is laid out byte for byte like the first and
-that is the common form with each value a msgpack float64 (what one feed sends: the same
-keys in the same order, `seq` of one width), the messages are not decoded one by one: the
-values are read from the joined bytes by one `struct` format (`_by_layout`; a regular
-expression checks the bytes between them) and checked as columns. Bytes equal outside
-the values decode to the same map, so this gives what decoding each gives; anything else
-(another layout in the call, a value a column check flags) takes the path above for the
-whole call.
+Faster still, a take of one byte layout (what one feed sends) is read as NumPy columns
+of its bytes by the service (`service.layouts`, from `value_offsets`): this package loads
+no NumPy.
 """
 
 from __future__ import annotations
 
-import re
-import struct
 from dataclasses import dataclass
 from operator import itemgetter
 
@@ -33,17 +26,11 @@ from .messages import POLAR_3D, Measurement, parse_measurement
 from .plots import bad_rows
 from .scans import _IDS, ScanColumns
 
-_FIELDS = ("t", "r", "az", "el", "sr", "saz", "sel")
+FIELDS = _FIELDS = ("t", "r", "az", "el", "sr", "saz", "sel")  # the common form
 _GET = itemgetter(*_FIELDS)
 _FLOAT = {float}
 _NAMES = {f.encode(): f for f in (*_FIELDS, "seq")}
 _UINT = {0xCC: 1, 0xCD: 2, 0xCE: 4, 0xCF: 8}  # msgpack uint 8/16/32/64: value bytes
-_UNSIGNED = {1: "B", 2: "H", 4: "I", 8: "Q"}
-_ORDER = {name: i for i, name in enumerate((*_FIELDS, "seq"))}
-_READERS: dict[bytes, tuple[re.Pattern[bytes], str, list[int]]] = {}  # `_reader`, per layout
-READERS_HELD = 64
-LAYOUT_MIN = 8  # messages in a call from which `_by_layout` is tried (below: decoding
-# each costs less than the column set-up)
 
 
 @dataclass
@@ -72,10 +59,6 @@ def parse_singles(sensors: list[str], targets: list[str], payloads: list[bytes],
     """Check the messages (sensor, target, payload)[i], in order (`noise`: the service's
     default noise for a message that gives none)."""
     n = len(payloads)
-    if n >= LAYOUT_MIN:
-        got = _by_layout(sensors, targets, payloads)
-        if got is not None:
-            return got
     msgs = list(map(_map, payloads))
     fast = [i for i, m in enumerate(msgs)  # the 7 fields, and perhaps seq
             if type(m) is dict and POLAR_3D.issuperset(m) and len(m) - ("seq" in m) == 7]
@@ -154,7 +137,7 @@ def _columns(run: list[int], dim: int, good: dict[int, None], records: dict[int,
                        True, values, sigmas, (0.0, 0.0, 0.0), fixed, [])
 
 
-def _layout(p: bytes) -> tuple[dict[str, int], tuple[int, int] | None] | None:
+def value_offsets(p: bytes) -> tuple[dict[str, int], tuple[int, int] | None] | None:
     """Where the values are in a message of the common form laid out as msgpack packs it:
     a fixmap of the 7 fields (fixstr keys, each value a float64) and perhaps `seq` (a
     positive fixint or an uint): each field's value offset and seq's (offset, width; width
@@ -184,75 +167,3 @@ def _layout(p: bytes) -> tuple[dict[str, int], tuple[int, int] | None] | None:
         else:
             return None
     return (at, seq) if pos == end and len(at) == 7 else None
-
-
-def _by_layout(sensors: list[str], targets: list[str], payloads: list[bytes]
-               ) -> Singles | None:
-    """The messages checked as columns of their bytes when all are laid out like the
-    first (see the module's docstring) and every one is good; else None."""
-    first = payloads[0]
-    if len(set(map(len, payloads))) != 1:
-        return None
-    reader = _reader(first)
-    if reader is None:
-        return None
-    same, fmt, where = reader
-    joined = b"".join(payloads)
-    if same.fullmatch(joined) is None:  # a byte outside the values differs
-        return None
-    got = list(zip(*struct.iter_unpack(fmt, joined), strict=True))
-    cols = [got[i] for i in where]
-    n = len(payloads)
-    seqs: list[int | None] = [None] * n
-    if len(cols) > len(_FIELDS):
-        seqs = list(cols.pop())
-        if max(seqs) > MAX_SEQ:  # type: ignore[type-var]
-            return None
-    values = [list(c) for c in cols]
-    if any(bad_rows(col, name) for col, name in zip(values, _FIELDS, strict=True)):
-        return None
-    if not (_IDS.fullmatch("/".join(targets)) and _IDS.fullmatch("/".join(set(sensors)))):
-        return None
-    t, *vals = values
-    return Singles([(list(range(n)), ScanColumns(
-        sensors[0], n, list(range(n)), list(targets), t, 3, True, vals[:3], vals[3:],
-        (0.0, 0.0, 0.0), {}, []))], [], seqs)
-
-
-def _reader(first: bytes) -> tuple[re.Pattern[bytes], str, list[int]] | None:
-    """For messages laid out like `first`: a pattern that matches them joined (their
-    bytes outside the values equal to `first`'s), the `struct` format of their values (in
-    byte order), and where in that order the fields of `_FIELDS` and then seq (if there)
-    are. Remembered per layout (a feed sends one or a few)."""
-    layout = _layout(first)
-    if layout is None:
-        return None
-    at, seq = layout
-    cuts = sorted([(o, 8, name) for name, o in at.items()]
-                  + ([(seq[0], seq[1] or 1, "seq")] if seq else []))
-    shape = bytearray(first)  # the layout: the message with its values zeroed
-    for o, size, _ in cuts:
-        shape[o:o + size] = bytes(size)
-    key = bytes(shape)
-    got = _READERS.get(key)
-    if got is None:
-        pattern, pos = [], 0
-        for o, size, name in cuts:
-            pattern.append(re.escape(first[pos:o]))
-            pattern.append(b"[\x00-\x7f]" if name == "seq" and not seq[1]  # type: ignore[index]
-                           else b".{%d}" % size)
-            pos = o + size
-        pattern.append(re.escape(first[pos:]))
-        same = re.compile(b"(?:" + b"".join(pattern) + b")+", re.DOTALL)
-        fmt, pos = ">", 0  # the values in byte order
-        for o, size, name in cuts:
-            fmt += (f"{o - pos}x" if o > pos else "") + ("d" if name != "seq" else
-                                                          _UNSIGNED[size])
-            pos = o + size
-        fmt += f"{len(first) - pos}x" if len(first) > pos else ""
-        names = [name for _, _, name in cuts]
-        got = (same, fmt, [names.index(name) for name in (*_FIELDS, "seq")[:len(names)]])
-        if len(_READERS) >= READERS_HELD:
-            _READERS.clear()
-        _READERS[key] = got
-    return got
