@@ -478,9 +478,34 @@ def noise(polar, sig, org, const, x, p, d, out, mats, vecs):  # pragma: no cover
         wt[q] = var_az / (var_az + const[SAZ2, q])
     # each point's azimuth turned toward the measured one by wt times their wrapped
     # difference: sin and cos of the sum from those of the point (x / rho, y / rho) and
-    # of the turn (a series where it is small: far from the zenith wt ~ 0)
+    # of the turn. The difference is atan(u), u = tan of it, and sin and cos of the turn
+    # are series where both are small (the usual case: every lane the same operations);
+    # the other points are computed again with atan2, sin and cos
+    fix = vecs[12]
     for k in range(k2):
         for q in range(b):
+            px, py = pts[0, k, q], pts[1, k, q]
+            rho = math.sqrt(px * px + py * py)
+            inv = 1.0 / rho if rho > 0 else 0.0
+            sa, ca = px * inv, py * inv if rho > 0 else 1.0
+            sm, cm = const[SM, q], const[CM, q]
+            cross, dot = sm * ca - cm * sa, cm * ca + sm * sa
+            u = cross / dot if dot > 0 else 0.0
+            u2 = u * u  # atan(u) to u^15: the rest below 1e-17 of it for |u| <= 0.1
+            th = u * (1.0 - u2 * (1.0 / 3.0 - u2 * (0.2 - u2 * (1.0 / 7.0 - u2 * (
+                1.0 / 9.0 - u2 * (1.0 / 11.0 - u2 * (1.0 / 13.0 - u2 / 15.0)))))))
+            dl = wt[q] * th  # wt in [0, 1]: |dl| <= |th| < 0.1
+            d2 = dl * dl  # sin to dl^13, cos to dl^12: the rest below 1e-24 for |dl| < 0.1
+            sd = dl * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0 * (
+                1.0 - d2 / 72.0 * (1.0 - d2 / 110.0 * (1.0 - d2 / 156.0))))))
+            cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (
+                1.0 - d2 / 56.0 * (1.0 - d2 / 90.0 * (1.0 - d2 / 132.0)))))
+            sn[k, q], cs[k, q] = sa * cd + ca * sd, ca * cd - sa * sd
+            fix[k, q] = 0.0 if dot > 0 and abs(u) <= 0.1 and abs(dl) < 0.1 else 1.0
+    for k in range(k2):
+        for q in range(b):
+            if fix[k, q] == 0.0:
+                continue
             px, py = pts[0, k, q], pts[1, k, q]
             rho = math.sqrt(px * px + py * py)
             sa, ca = (px / rho, py / rho) if rho > 0 else (0.0, 1.0)
