@@ -21,7 +21,7 @@ RULES: dict[str, tuple[set[str], set[str]]] = {
     "service.defaults": (set(), set()),
     "service.estimation": ({"numpy", "numba"}, {"service.estimation", "service.wire",
                                        "service.defaults"}),
-    "service.tracking": ({"numpy", "scipy"}, {"service.tracking", "service.estimation",
+    "service.tracking": ({"numpy", "scipy", "numba"}, {"service.tracking", "service.estimation",
                                               "service.wire", "service.defaults"}),
     "clients": ({"numpy", "scipy", "zenoh", "msgpack", "matplotlib", "mcap", "rich", "tqdm",
                  "aiohttp"},

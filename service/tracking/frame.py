@@ -19,7 +19,10 @@ here, not the 25 ns `pow` per row that `predicted_at` calls).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from .status import COASTING
 from .store import Columns, TrackArrays
@@ -138,53 +141,40 @@ class FrameColumns:
     def _chunk(self, sl: slice, t: float, q: float, pos: np.ndarray, vel: np.ndarray,
                sigma: np.ndarray, age: np.ndarray, codes: np.ndarray,
                scratch: np.ndarray) -> None:
-        """One chunk of columns: the operations of `display.predicted_at` in its order
-        (the same bits), on columns of the chunk, all axes in one pass each."""
-        d, o, m = self.dim, self.order, sl.stop - sl.start
-        x, a = self.x[:, sl], self.a[:, sl]
-        dt, h, g = scratch[0, :m], scratch[1, :m], scratch[2, :m]
-        p, v = scratch[3:3 + d, :m], scratch[3 + d:3 + 2 * d, :m]
-        np.subtract(t, self.t[sl], out=dt)
-        if o == 3:  # pos = x0 + dt (v + a dt / 2), vel = v + dt a
-            np.multiply(dt, 0.5, out=h)
-            np.multiply(x[2 * d:], h, out=p)
-            p += x[d:2 * d]
-            p *= dt
-            np.multiply(x[2 * d:], dt, out=v)
-            np.add(v, x[d:2 * d], out=vel[:, :d].T)
-        else:
-            np.multiply(x[d:2 * d], dt, out=p)
-            np.copyto(vel[:, :d].T, x[d:2 * d])
-        np.add(p, x[:d], out=pos[:, :d].T)
-        w = sigma  # the variance first, in place
-        if o == 3:  # A00 + dt (2 A01 + dt (A11 + A02 + dt (A12 + dt A22 / 4)))
-            np.multiply(a[5], dt, out=w)
-            w += a[4]
-            w *= dt
-            w += a[3]
-            w += a[2]
-            w *= dt
-        else:  # A00 + dt (2 A01 + dt A11)
-            np.multiply(a[2], dt, out=w)
-        w += a[1]
-        w *= dt
-        w += a[0]
-        # plus dim (q |dt|^o / o!)^2
-        np.multiply(dt, dt, out=g)
-        if o == 3:
-            np.multiply(g, g, out=h)
-            h *= g
-            h *= d * q * q / 36.0
-            w += h
-        else:
-            g /= 2
-            g *= q
-            np.square(g, out=g)
-            g *= d
-            w += g
-        np.maximum(w, 0.0, out=w)
-        np.sqrt(w, out=w)
-        np.maximum(dt, 0.0, out=age)
-        np.copyto(codes, self.base[sl])
-        np.copyto(codes, COASTING, where=age > self.limit[sl])
+        """One chunk of columns (`_draw`, compiled: one pass over them)."""
+        noise = self.dim * q * q / 36.0 if self.order == 3 else q  # as `predicted_at`
+        _draw(self.x, self.t, self.a, self.base, self.limit, sl.start, sl.stop, t, noise,
+              self.dim, self.order, pos, vel, sigma, age, codes)
 
+
+@njit(cache=True, nogil=True)
+def _draw(x, tt, a, base, limit, lo, hi, t, noise, d, o, pos, vel, sigma, age,
+          codes):  # pragma: no cover - compiled
+    """Rows lo..hi of the columns drawn at instant t into row 0.. of the outputs: the
+    operations of `display.predicted_at` in its order, one row at a time (the same bits:
+    no fast-math, so no operation is fused or reordered)."""
+    for r in range(lo, hi):
+        i = r - lo
+        dt = t - tt[r]
+        if o == 3:  # pos = x0 + dt (v + a dt / 2), vel = v + dt a
+            h = dt * 0.5
+            for k in range(d):
+                pos[i, k] = (x[2 * d + k, r] * h + x[d + k, r]) * dt + x[k, r]
+                vel[i, k] = x[2 * d + k, r] * dt + x[d + k, r]
+            # A00 + dt (2 A01 + dt (A11 + A02 + dt (A12 + dt A22 / 4)))
+            w = ((((a[5, r] * dt + a[4, r]) * dt + a[3, r] + a[2, r]) * dt + a[1, r]) * dt
+                 + a[0, r])
+            g = dt * dt
+            w += g * g * g * noise  # dim (q |dt|^3 / 3!)^2
+        else:
+            for k in range(d):
+                pos[i, k] = x[d + k, r] * dt + x[k, r]
+                vel[i, k] = x[d + k, r]
+            w = (a[2, r] * dt + a[1, r]) * dt + a[0, r]  # A00 + dt (2 A01 + dt A11)
+            g = dt * dt / 2 * noise
+            w += g * g * d  # dim (q dt^2 / 2)^2
+        if w < 0.0:
+            w = 0.0
+        sigma[i] = math.sqrt(w)
+        age[i] = 0.0 if dt < 0.0 else dt
+        codes[i] = COASTING if age[i] > limit[r] else base[r]
