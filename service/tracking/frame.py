@@ -120,41 +120,35 @@ class FrameColumns:
         rows = arrays.live()[0]
         index = self.span(rows)
         self.refresh(arrays, cols, rows, index)
-        if isinstance(index, slice):
-            lo, hi, pick = index.start, index.stop, None
-        else:  # gaps: every row of the range, then the live ones
-            lo, hi, pick = int(rows[0]), int(rows[-1]) + 1, rows - int(rows[0])
-        m = hi - lo
+        m = len(rows)
         width = 3
         make = np.empty if self.dim == width else np.zeros
         pos, vel = make((m, width)), make((m, width))
         sigma, age, codes = np.empty(m), np.empty(m), np.empty(m, np.uint8)
-        scratch = np.empty((3 + 2 * self.dim, min(m, CHUNK)))
-        for a in range(lo, hi, CHUNK):
-            b, k = min(hi, a + CHUNK), a - lo
-            self._chunk(slice(a, b), t, q, pos[k:k + b - a], vel[k:k + b - a],
-                        sigma[k:k + b - a], age[k:k + b - a], codes[k:k + b - a], scratch)
-        if pick is not None:
-            return pos[pick], vel[pick], sigma[pick], age[pick], codes[pick]
+        every = np.ascontiguousarray(rows, dtype=np.int64)  # gaps or not: the live rows
+        for a in range(0, m, CHUNK):
+            b = min(m, a + CHUNK)
+            self._chunk(every[a:b], t, q, pos[a:b], vel[a:b], sigma[a:b], age[a:b],
+                        codes[a:b])
         return pos, vel, sigma, age, codes
 
-    def _chunk(self, sl: slice, t: float, q: float, pos: np.ndarray, vel: np.ndarray,
-               sigma: np.ndarray, age: np.ndarray, codes: np.ndarray,
-               scratch: np.ndarray) -> None:
-        """One chunk of columns (`_draw`, compiled: one pass over them)."""
+    def _chunk(self, rows: np.ndarray, t: float, q: float, pos: np.ndarray,
+               vel: np.ndarray, sigma: np.ndarray, age: np.ndarray, codes: np.ndarray
+               ) -> None:
+        """The store rows `rows` drawn at t into the outputs (`_draw`, compiled)."""
         noise = self.dim * q * q / 36.0 if self.order == 3 else q  # as `predicted_at`
-        _draw(self.x, self.t, self.a, self.base, self.limit, sl.start, sl.stop, t, noise,
-              self.dim, self.order, pos, vel, sigma, age, codes)
+        _draw(self.x, self.t, self.a, self.base, self.limit, rows, t, noise, self.dim,
+              self.order, pos, vel, sigma, age, codes)
 
 
 @njit(cache=True, nogil=True)
-def _draw(x, tt, a, base, limit, lo, hi, t, noise, d, o, pos, vel, sigma, age,
+def _draw(x, tt, a, base, limit, rows, t, noise, d, o, pos, vel, sigma, age,
           codes):  # pragma: no cover - compiled
-    """Rows lo..hi of the columns drawn at instant t into row 0.. of the outputs: the
+    """The columns of store rows `rows` drawn at instant t into row i of the outputs: the
     operations of `display.predicted_at` in its order, one row at a time (the same bits:
     no fast-math, so no operation is fused or reordered)."""
-    for r in range(lo, hi):
-        i = r - lo
+    for i in range(len(rows)):
+        r = rows[i]
         dt = t - tt[r]
         if o == 3:  # pos = x0 + dt (v + a dt / 2), vel = v + dt a
             h = dt * 0.5
