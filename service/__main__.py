@@ -8,7 +8,6 @@ import logging
 import signal
 import sys
 import threading
-import time
 import uuid
 
 from . import __version__, defaults
@@ -193,11 +192,14 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     tracker = Tracker(tracker_config(args))
-    t0 = time.monotonic()
-    tracker.warm()  # before the service is seen to be alive
-    if time.monotonic() - t0 > 2.0:
-        print(f"track-service: compiled the filter kernels in {time.monotonic() - t0:.0f} s "
-              "(cached for the next start)", file=sys.stderr, flush=True)
+    # the filter's kernels before the service is seen to be alive: compiled on a machine's
+    # first start (seconds: say so), loaded from Numba's cache after
+    note = threading.Timer(1.0, lambda: print(
+        "track-service: compiling the filter kernels (the first start on this machine "
+        "only)...", file=sys.stderr, flush=True))
+    note.start()
+    tracker.warm()
+    note.cancel()
     # lockstep drops nothing: BLOCK puts wait for a slow subscriber
     session = open_session(args, serve=True, block=args.clock == "lockstep",
                            admin=True, stamp=True)
