@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from .imm_kernel import BLOCK
-from .imm_kernel import rows as _rows
+from .imm_kernel import update_rows as _rows
 from .measurements import MeasurementBatch
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]

@@ -38,8 +38,8 @@ CONSTS = 13
 
 
 @njit(**JIT)
-def rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, polar, values,
-          sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, polar, values,
+                sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
     """The update of every row, a block at a time (the last block padded with copies of
     its last row, which are not written back)."""
     m, n = mode_x.shape[1], mode_x.shape[2]
