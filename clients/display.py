@@ -297,10 +297,9 @@ def text(pic: Picture, args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
-    zenoh.init_log_from_env_or("error")
     table = Table(sort=args.sort, reverse=args.reverse, filter=args.filter,
                   page=max(args.page - 1, 0), page_size=args.rows or 40)
-    session = open_session(args)
+    session = open_session(args, log=True)
     pic = Picture(session, Keys(args.ns), table)
     try:
         if args.once or not sys.stdout.isatty() or not sys.stdin.isatty():

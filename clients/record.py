@@ -94,7 +94,7 @@ def record(args: argparse.Namespace, out: Any) -> tuple[int, RecordingWriter]:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     writer = RecordingWriter(out, keys.ns, keyexprs, args.scene_hz, args.scene_marker)
-    with open_session(args) as session:
+    with open_session(args, log=True) as session:
         rec = Recorder(session, keyexprs)
         print(f"track-record: recording {' '.join(keyexprs)} to {args.output} "
               "(Ctrl-C to stop)", file=sys.stderr, flush=True)
@@ -139,7 +139,6 @@ def record(args: argparse.Namespace, out: Any) -> tuple[int, RecordingWriter]:
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
-    zenoh.init_log_from_env_or("error")
     start = time.monotonic()
     with open(args.output, "wb") as out:
         received, writer = record(args, out)

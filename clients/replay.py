@@ -150,7 +150,6 @@ def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
     if args.speed <= 0:
         raise SystemExit("track-replay: --speed must be > 0")
-    zenoh.init_log_from_env_or("error")
     remap = remapper(args.remap)
     with open(args.file, "rb") as stream:
         try:
@@ -170,7 +169,7 @@ def main(argv: list[str] | None = None) -> None:
         trackers = args.trackers if args.trackers is not None else int(
             holds_inputs(channels, ns))
         target = Keys(remap(ns) if ns else "track")
-        with open_session(args, block=True) as session:  # BLOCK puts wait: never drop
+        with open_session(args, block=True, log=True) as session:  # BLOCK puts wait: never drop
             if trackers and not wait_for_tracker(session, target, trackers):
                 sys.exit(f"track-replay: no tracker alive on '{target.ns}' after 30 s "
                          "(start track-service, or pass --trackers 0)")

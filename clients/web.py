@@ -186,7 +186,7 @@ class WebServer:
 
 
 async def serve(args: argparse.Namespace) -> None:
-    session = open_session(args)
+    session = open_session(args, log=True)
     try:
         server = WebServer(session, Keys(args.ns), args.origin, args.trail)
     except BaseException:
@@ -222,7 +222,6 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--trail", type=float, default=TRAIL,
                    help="seconds of history behind each track (default %(default)s)")
     args = p.parse_args(argv)
-    zenoh.init_log_from_env_or("error")
     try:
         asyncio.run(serve(args))
     except OSError as exc:

@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
     if args.config:
         read_file(args.config, "the Zenoh configuration", prog=PROG)
-    session = open_or_exit(lambda: router_config(args), retry=0.0, prog=PROG,
+    session = open_or_exit(lambda: router_config(args), prog=PROG,
                            what=f" {args.config}" if args.config else "")
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -1,5 +1,6 @@
 """Operator mistakes get one clear line on stderr and exit status 2, never a traceback:
-an unreadable file, a listening port already taken, a router that cannot be reached.
+an unreadable file, a listening port already taken, a router that cannot be reached or
+that refuses the session (TLS, authentication: `refusal.py` names which).
 Shared by the service and every client (stdlib only; Zenoh imported when opening)."""
 
 from __future__ import annotations
@@ -7,12 +8,12 @@ from __future__ import annotations
 import os
 import re
 import sys
-import time
 from collections.abc import Callable
 from typing import Any, NoReturn
 
 CONNECT_TIMEOUT = 10.0  # s: how long a program keeps trying to reach its router or peer
 EXIT_USAGE = 2  # exit status of an operator mistake
+ENDPOINT = r"(?:tcp|udp|tls|quic|ws|unixsock-stream)/[^\s\)\]\,]+"
 
 
 def prog_name() -> str:
@@ -46,38 +47,84 @@ def zenoh_reason(exc: BaseException) -> str:
     return " ".join(text.split()) or type(exc).__name__
 
 
-def open_or_exit(make_config: Callable[[], Any], retry: float = CONNECT_TIMEOUT,
-                 prog: str | None = None, what: str = "") -> Any:
-    """`zenoh.open` on a fresh config from `make_config`, or one line and exit 2.
+def open_or_exit(make_config: Callable[[], Any], retry: float | None = None,
+                 prog: str | None = None, what: str = "", log: bool = False) -> Any:
+    """`zenoh.open` on the config from `make_config`, or one line and exit 2.
 
-    An endpoint that cannot be reached (a router or service not up yet) is tried again
-    every 0.5 s for up to `retry` seconds; a listening port already taken, or a config
-    that does not load, fails at once."""
+    A session that connects somewhere (not a router) waits at most `retry` seconds for
+    its endpoints (None: the config's `connect/timeout_ms` when bounded, else
+    CONNECT_TIMEOUT), Zenoh retrying meanwhile; then the endpoints are probed once to
+    name the cause (`refusal.why_refused`: unreachable, TLS refused by the router,
+    authentication refused). A listening port already taken, or a config that does not
+    load, fails at once. `log`: Zenoh's error log on stderr once the session is open
+    (from the start when RUST_LOG is set), not its retries' errors before the one line."""
     import zenoh
 
-    deadline = time.monotonic() + retry
-    while True:
-        try:
-            conf = make_config()
-        except zenoh.ZError as exc:
-            fail(f"cannot load the Zenoh configuration{what}: {zenoh_reason(exc)}", prog)
-        try:
-            return zenoh.open(conf)
-        except zenoh.ZError as exc:
-            reason = zenoh_reason(exc)
-            if "already in use" in reason:
-                m = re.search(r"bound to (\S+?):?\s*\[", reason)
-                where = m.group(1) if m else "the listening endpoint"
-                fail(f"cannot listen on {where}: address already in use (another instance "
-                     "running? choose another endpoint with -l)", prog)
-            if "Unable to connect" not in reason:
-                fail(f"cannot open the Zenoh session: {reason}", prog)
-            if time.monotonic() >= deadline:
-                fail(f"cannot reach {_endpoints(reason)} after {retry:g} s of retries "
-                     "(is the router or service running? check -e/--connect)", prog)
-        time.sleep(0.5)
+    if log and os.environ.get("RUST_LOG"):
+        zenoh.init_log_from_env_or("error")
+    try:
+        conf = make_config()
+    except zenoh.ZError as exc:
+        fail(f"cannot load the Zenoh configuration{what}: {zenoh_reason(exc)}", prog)
+    wait = bound_connect(conf, retry)
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        reason = zenoh_reason(exc)
+        if "already in use" in reason:
+            m = re.search(r"bound to (\S+?):?\s*\[", reason)
+            where = m.group(1) if m else "the listening endpoint"
+            fail(f"cannot listen on {where}: address already in use (another instance "
+                 "running? choose another endpoint with -l)", prog)
+        if "Unable to connect" not in reason:
+            fail(f"cannot open the Zenoh session: {reason}", prog)
+        fail(refused_line(conf, reason, wait), prog)
+    if log:
+        zenoh.init_log_from_env_or("error")
+    return session
 
 
-def _endpoints(reason: str) -> str:
-    found = re.findall(r"(?:tcp|udp|tls|quic|ws|unixsock-stream)/[^\s\)\]\,]+", reason)
-    return ", ".join(found) or "the connect endpoints"
+def _json(conf: Any, path: str) -> Any:
+    import json
+
+    try:
+        return json.loads(conf.get_json(path))
+    except Exception:  # noqa: BLE001 - a key this Zenoh does not know
+        return None
+
+
+def bound_connect(conf: Any, retry: float | None) -> float | None:
+    """Make a connecting session give up after `retry` s (see `open_or_exit`) instead of
+    waiting for ever (`timeout_ms: -1`) or in the background (a peer's default); the
+    wait in s, None for a router or a session that connects nowhere."""
+    mode = _json(conf, "mode") or "peer"
+    endpoints = _json(conf, "connect/endpoints")
+    if isinstance(endpoints, dict):
+        endpoints = endpoints.get(mode)
+    if mode == "router" or not endpoints:
+        return None
+    if retry is None:
+        ms = _json(conf, "connect/timeout_ms")
+        if isinstance(ms, dict):
+            ms = ms.get(mode)
+        retry = ms / 1000 if isinstance(ms, (int, float)) and ms >= 0 else CONNECT_TIMEOUT
+    conf.insert_json5("connect/timeout_ms", str(int(retry * 1000)))
+    conf.insert_json5("connect/exit_on_failure", "true")
+    return retry
+
+
+def refused_line(conf: Any, reason: str, wait: float | None) -> str:
+    """The one line for a session that did not connect: where, how long, and why."""
+    from .refusal import why_refused
+
+    mode = _json(conf, "mode") or "peer"
+    listed = _json(conf, "connect/endpoints")
+    if isinstance(listed, dict):
+        listed = listed.get(mode)
+    endpoints = [str(e) for e in listed or []] or re.findall(ENDPOINT, reason)
+    where = ", ".join(endpoints) or "the connect endpoints"
+    reached, cause = why_refused(conf, endpoints)
+    tried = f" after {wait:g} s of retries" if wait is not None else ""
+    if reached:
+        return f"cannot connect to {where}{tried}: {cause}"
+    return f"cannot reach {where}{tried}: {cause}"

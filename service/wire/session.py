@@ -30,9 +30,10 @@ def add_zenoh_args(parser: argparse.ArgumentParser, ns: bool = True) -> None:
     g.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to listen on (repeatable)")
     g.add_argument("-c", "--config", metavar="FILE.json5", help="Zenoh configuration file")
-    g.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT, metavar="SECONDS",
-                   help="keep trying to reach the connect endpoints this long before giving "
-                        "up (default %(default)s)")
+    g.add_argument("--connect-timeout", type=float, default=None, metavar="SECONDS",
+                   help="keep trying to reach the connect endpoints this long, then exit "
+                        "naming the cause (default: the config file's connect/timeout_ms, "
+                        f"else {CONNECT_TIMEOUT:g})")
     if ns:
         g.add_argument("--ns", default=DEFAULT_NS, help="key namespace (default %(default)s)")
 
@@ -147,9 +148,11 @@ def stamp_ns(sample: Any) -> int | None:
 
 
 def open_session(args: argparse.Namespace, serve: bool = False, block: bool = False,
-                 admin: bool = False, stamp: bool = False) -> Any:
+                 admin: bool = False, stamp: bool = False, log: bool = False) -> Any:
     """The session of a program's options, or one line on stderr and exit 2 (a port
-    taken, a router not reached within --connect-retry, a config that does not load).
+    taken, a config that does not load, a router not reached within --connect-timeout or
+    refusing the session: `cli.open_or_exit`, which names the cause). `log`: Zenoh's
+    error log on stderr once the session is open.
     `block`: BLOCK puts wait for slow receivers (`patient`) unless a config file is given;
     `admin`: the admin space readable (`admin_space`), `stamp`: samples timestamped
     (`stamping`), each unless a config file is given."""
@@ -161,8 +164,8 @@ def open_session(args: argparse.Namespace, serve: bool = False, block: bool = Fa
             stamping(conf)
         return patient(conf) if block and not args.config else conf
 
-    return open_or_exit(make, getattr(args, "connect_timeout", CONNECT_TIMEOUT),
-                        what=f" {args.config}" if args.config else "")
+    return open_or_exit(make, getattr(args, "connect_timeout", None),
+                        what=f" {args.config}" if args.config else "", log=log)
 
 
 def wait_for_tracker(session: Any, keys: Keys, count: int = 1, timeout: float = 30.0) -> bool:
