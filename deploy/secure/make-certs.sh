@@ -6,8 +6,9 @@
 #   sh deploy/secure/make-certs.sh [DIR] [ROUTER_NAME ...]
 #
 # DIR (default deploy/secure/certs) gets ca.pem, router.pem/router-key.pem, and
-# <role>.pem/<role>-key.pem for the roles track-service, track-feed, track-viewer (each
-# certificate's common name is its role: the access-control policy names them), plus
+# <role>.pem/<role>-key.pem for the roles track-service, track-feed, track-viewer,
+# track-intercept (each certificate's common name is its role: the access-control
+# policy names them), plus
 # credentials.txt ("user:password" per line: the router's dictionary) and
 # <role>.password. The router's certificate names ROUTER_NAME... (default: router,
 # localhost and 127.0.0.1), the names clients connect to. Keep ca-key.pem offline.
@@ -45,11 +46,11 @@ for name in "$@"; do
 done
 sign router track-router "$san" serverAuth
 : > credentials.txt
-for role in track-service track-feed track-viewer; do
+for role in track-service track-feed track-viewer track-intercept; do
   sign "$role" "$role" "DNS:$role" clientAuth
   pw=$(openssl rand -hex 16)
   printf '%s' "$pw" > "$role.password"
   printf '%s:%s\n' "$role" "$pw" >> credentials.txt
 done
 rm -f ca.srl
-echo "made in $dir: ca.pem, router.pem, track-service.pem, track-feed.pem, track-viewer.pem (+ keys), credentials.txt"
+echo "made in $dir: ca.pem, router.pem, track-service.pem, track-feed.pem, track-viewer.pem, track-intercept.pem (+ keys), credentials.txt"
