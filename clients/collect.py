@@ -15,6 +15,7 @@ from typing import Any
 import zenoh
 
 from service.wire import Keys, decode_frame, free_port, peer_config, unpack, wait_for_tracker
+from service.wire.cli import open_or_exit
 
 from . import feed, feed_plots, scenarios
 from .guidance import Law
@@ -78,7 +79,8 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
         if m["t"] >= t_end:
             done.set()
 
-    session = zenoh.open(peer_config(endpoint))
+    session = (zenoh.open(peer_config(endpoint)) if proc else  # -e: a running service
+               open_or_exit(lambda: peer_config(endpoint), prog="track-eval"))
     try:
         direct = [zenoh.handlers.Callback(f, indirect=False) for f in (on_track, on_frame)]
         subs = [session.declare_subscriber(keys.space("tracks"), direct[0]),

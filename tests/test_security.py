@@ -127,13 +127,15 @@ def test_each_role_does_its_part_and_nothing_else(deployment):
                 out.add(k.rsplit("/", 1)[1])
         return out
 
-    assert seen_all.wait_for(lambda x: "marker-1" in ids(x, "tracks") and any(
-        k == KEYS.frame and b.get("t", 0) >= 4.9 for _, k, kind, b in x if kind == "PUT"),
-        WAIT), sorted(ids(seen_all.snapshot(), "tracks"))
-    frames = got[("viewer", KEYS.frame)]
-    assert frames.wait_for(lambda x: {*TARGETS, "marker-1"} <= ids(x, "frame"), WAIT)
-
+    assert seen_all.wait_for(lambda x: "marker-1" in ids(x, "tracks"), WAIT), \
+        f"the feed's marker was not tracked: {sorted(ids(seen_all.snapshot(), 'tracks'))}"
     problems = []
+    if not seen_all.wait_for(lambda x: any(k == KEYS.frame and b.get("t", 0) >= 4.9
+                                           for _, k, kind, b in x if kind == "PUT"), WAIT):
+        problems.append("a track/** subscriber (as track-record) got no frame up to t=5")
+    if not got[("viewer", KEYS.frame)].wait_for(
+            lambda x: {*TARGETS, "marker-1"} <= ids(x, "frame"), WAIT):
+        problems.append("a viewer's frame subscription did not get the tracks")
     everything = seen_all.snapshot()
     for _, k, kind, b in everything:  # nothing forged reached the watcher
         if "fake" in k or (kind == "PUT" and isinstance(b, dict) and b.get("forged")):
@@ -243,3 +245,4 @@ def test_shipped_viewers_show_and_record_the_tracks(deployment, tmp_path):
         for _, sample in rec.samples(frame_ids):
             shown |= set(unpack(sample.payload).get("ids", []))
     assert {"shown-1", "shown-2", "shown-3"} <= shown, sorted(shown)
+

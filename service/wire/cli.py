@@ -11,7 +11,7 @@ import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
 
-CONNECT_TIMEOUT = 10.0  # s: how long a program keeps trying to reach its router or peer
+CONNECT_TIMEOUT = 5.0  # s: how long a program keeps trying to reach its router or peer
 EXIT_USAGE = 2  # exit status of an operator mistake
 ENDPOINT = r"(?:tcp|udp|tls|quic|ws|unixsock-stream)/[^\s\)\]\,]+"
 
@@ -66,6 +66,7 @@ def open_or_exit(make_config: Callable[[], Any], retry: float | None = None,
         conf = make_config()
     except zenoh.ZError as exc:
         fail(f"cannot load the Zenoh configuration{what}: {zenoh_reason(exc)}", prog)
+    readable_files(conf, prog)
     wait = bound_connect(conf, retry)
     try:
         session = zenoh.open(conf)
@@ -91,6 +92,18 @@ def _json(conf: Any, path: str) -> Any:
         return json.loads(conf.get_json(path))
     except Exception:  # noqa: BLE001 - a key this Zenoh does not know
         return None
+
+
+def readable_files(conf: Any, prog: str | None) -> None:
+    """Every certificate, key and password file the config names is readable, or one line
+    naming it (Zenoh's own error does not say which file)."""
+    tls = _json(conf, "transport/link/tls") or {}
+    files = [(f"TLS {k}", v) for k, v in tls.items()
+             if k.endswith(("_certificate", "_private_key")) and isinstance(v, str) and v]
+    users = _json(conf, "transport/auth/usrpwd/dictionary_file")
+    files += [("user/password dictionary_file", users)] if isinstance(users, str) else []
+    for what, path in files:
+        read_file(path, f"the {what}", binary=True, prog=prog)
 
 
 def bound_connect(conf: Any, retry: float | None) -> float | None:

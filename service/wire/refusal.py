@@ -102,6 +102,11 @@ def after_transport(auth: dict) -> str:
 
 
 def probe_tls(sock: socket.socket, host: str, tls: dict, auth: dict) -> str:
+    if tls.get("enable_mtls") and not all(
+            tls.get(k) or tls.get(f"{k}_base64")
+            for k in ("connect_certificate", "connect_private_key")):
+        return ("the config turns mTLS on without a client certificate and key "
+                "(transport/link/tls: connect_certificate, connect_private_key)")
     try:
         ctx, cert = tls_context(tls, tls.get("verify_name_on_connect", True) is not False)
     except (OSError, ssl.SSLError, ValueError) as exc:
