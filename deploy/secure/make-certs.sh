@@ -14,7 +14,7 @@
 # localhost and 127.0.0.1), the names clients connect to. Keep ca-key.pem offline.
 set -eu
 dir=${1:-deploy/secure/certs}
-shift 2>/dev/null || true
+if [ $# -gt 0 ]; then shift; fi  # (a bare shift with no argument ends dash)
 [ $# -gt 0 ] || set -- router localhost 127.0.0.1
 mkdir -p "$dir"
 cd "$dir"
