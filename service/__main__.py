@@ -192,6 +192,10 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     tracker = Tracker(tracker_config(args))
+    # lockstep drops nothing: BLOCK puts wait for a slow subscriber. Opened before the
+    # kernels are compiled: a refused or unreachable router is said at once
+    session = open_session(args, serve=True, block=args.clock == "lockstep",
+                           admin=True, stamp=True)
     # the filter's kernels before the service is seen to be alive: compiled on a machine's
     # first start (seconds: say so), loaded from Numba's cache after
     note = threading.Timer(1.0, lambda: print(
@@ -200,9 +204,6 @@ def main(argv: list[str] | None = None) -> None:
     note.start()
     tracker.warm()
     note.cancel()
-    # lockstep drops nothing: BLOCK puts wait for a slow subscriber
-    session = open_session(args, serve=True, block=args.clock == "lockstep",
-                           admin=True, stamp=True)
     svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),
