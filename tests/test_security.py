@@ -16,6 +16,7 @@ import threading
 
 import pytest
 import secure_kit
+import test_web
 import zenoh
 from routers import ENV, Stamped
 from secure_kit import KEYS, program
@@ -26,6 +27,7 @@ from service.wire import pack, unpack
 
 pytestmark = pytest.mark.slow
 pki, deployment = secure_kit.pki, secure_kit.deployment  # the fixtures
+browser = test_web.browser  # a headless chromium (skips without one)
 WAIT = 60.0  # s: generous, for a loaded machine; every wait ends on its condition
 ROGUES = ("viewer", "interceptor", "feed", "tracker")
 TARGETS = ("ok-1", "ok-2", "ok-3")
@@ -246,3 +248,39 @@ def test_shipped_viewers_show_and_record_the_tracks(deployment, tmp_path):
             shown |= set(unpack(sample.payload).get("ids", []))
     assert {"shown-1", "shown-2", "shown-3"} <= shown, sorted(shown)
 
+
+
+def test_track_web_shows_the_tracks_in_a_browser(deployment, browser):
+    """track-web with the viewer's shipped file: the page in a real browser counts the
+    tracks of the latest frame, the feed's new ones among them, and shows the tracker."""
+    d = deployment
+    frames: list[dict] = []
+    watcher = d.session("viewer")
+    watcher.declare_subscriber(KEYS.frame, lambda x: frames.append(unpack(
+        x.payload.to_bytes())))
+    web = test_web.WebProc(d.endpoint, "-c", str(d.config("viewer")))
+    feed = d.session("feed")
+    names = {"web-1", "web-2", "web-3"}
+    try:
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.goto(web.url + "/")
+        t = 100.0  # after the other tests' times: lockstep time only goes forward
+
+        def shown() -> bool:
+            nonlocal t
+            if frames and names <= set(frames[-1]["ids"]) and test_web.page_text(
+                    page, "track-count") == str(len(frames[-1]["ids"])):
+                return True
+            for j, tid in enumerate(sorted(names)):  # the picture advances meanwhile
+                feed.put(KEYS.meas("radar1", tid), meas(t, 700.0 * j))
+            feed.put(KEYS.clock, pack({"t": t + 0.5}))
+            t += 1.0
+            return False
+
+        assert test_web.poll(shown, timeout=WAIT, step=0.5), (
+            test_web.page_text(page, "track-count"), frames[-1:])
+        assert test_web.poll(lambda: "secure" in test_web.page_text(page, "health"),
+                             timeout=WAIT)
+    finally:
+        err = web.stop()
+    assert "Traceback" not in err, err
