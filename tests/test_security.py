@@ -200,8 +200,8 @@ def test_each_role_does_its_part_and_nothing_else(deployment):
 
 
 def test_shipped_viewers_show_and_record_the_tracks(deployment, tmp_path):
-    """track-display (live, plain text as when piped) shows the feed's tracks, and
-    track-record records the frames, each with the viewer's shipped file."""
+    """track-display (live, plain text as when piped; then --once) shows the feed's
+    tracks, and track-record records the frames, each with the viewer's shipped file."""
     d = deployment
     viewer = str(d.config("viewer"))
     out = tmp_path / "secure.mcap"
@@ -236,6 +236,11 @@ def test_shipped_viewers_show_and_record_the_tracks(deployment, tmp_path):
             ready.wait(1.0)  # the condition, polled while the lockstep picture advances
             t += 1.0
         assert ready.is_set(), "".join(lines[-40:]) + stop(display)[-2000:]
+        # --once, started now with the picture paused: the table from its queries
+        once = subprocess.run(program("track-display", "--once", "-c", viewer, "-e",
+                                      d.endpoint), capture_output=True, text=True,
+                              timeout=WAIT, env=ENV, stdin=subprocess.DEVNULL)
+        assert once.returncode == 0 and "shown-3" in once.stdout, once.stdout + once.stderr
     finally:
         err_d = stop(display)
         err_r = stop(record)
