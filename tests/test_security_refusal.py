@@ -150,6 +150,7 @@ def test_a_refused_viewer_exits_at_once_with_one_line(variant, cause, pki, tmp_p
                                          d.endpoint))
     finally:
         d.close()
+    print(f"{variant}: exit {rc} after {took:.1f} s: {err.strip()}")
     assert not single(rc, err, "track-display: cannot connect to", d.endpoint, cause), err
     assert took < FAST, (took, err)
 
