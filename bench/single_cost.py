@@ -4,7 +4,7 @@ process (bench/bench_capacity.py --single-cost N).
 A `TrackService` (no flags: the default IMM) on a real Zenoh session, a consumer process
 subscribed to `<ns>/tracks/**` (so every state is put, as in the throughput benchmark),
 and N swarm targets' single radar messages handed to the worker's `_process` in batches
-of `node.MAX_BATCH`, as the worker takes them from its channel in a burst: thread CPU time
+of `adapter.ingest.MAX_BATCH`, as the worker takes them from its channel in a burst: thread CPU time
 per message over scans 2 to 5. The echo's work on the same messages (decode, a small
 reply put, bench/echo.py) is timed the same way in the same run. Zenoh's receive path
 is outside both figures (the same for both processes); the put is inside both.
@@ -42,7 +42,7 @@ def start_consumer(ep: str, key: str) -> subprocess.Popen:
 def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any:
     """A `TrackService` (no flags, realtime, its worker not started) on `session`, once
     the consumer is up and the service sees its subscription."""
-    from service.node import TrackService
+    from service.adapter import TrackService
     from service.tracking.tracker import Tracker
 
     consumer.stdout.readline()  # type: ignore[union-attr]
@@ -55,7 +55,7 @@ def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any
 
 
 def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
-    from service.node import MAX_BATCH
+    from service.adapter.ingest import MAX_BATCH
     from service.wire import Keys, free_port, listen_config, pack, unpack
 
     clock = time.thread_time

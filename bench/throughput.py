@@ -142,7 +142,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     includes what those updates leave for it.
     Medians over `frames` frames with nobody subscribed to `frame`, then as many with a
     subscriber in another process (Zenoh's put then sends the body)."""
-    from service.node import TrackService
+    from service.adapter import TrackService
     from service.tracking.bulk import track_columns
     from service.tracking.tracker import Tracker
 
@@ -234,7 +234,7 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
     sustain: measurements per second with 30 frames per second."""
     from clients import scenarios
     from service import defaults
-    from service.encode import pack_frame
+    from service.adapter.encode import pack_frame
     from service.estimation.filters import cmkf_step
     from service.estimation.measurements import MeasurementBatch
     from service.tracking.bulk import track_columns

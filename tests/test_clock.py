@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.tracking import clock
+from service.adapter import schedule as clock
 
 RATE = 30.0
 

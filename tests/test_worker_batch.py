@@ -1,5 +1,5 @@
-"""The worker's batches of single messages (service/node.py `_next_batch`, inputs.py
-`_take_singles`): measurements taken from Zenoh's channel straight into a step keep their
+"""The worker's batches of single messages (service/adapter/ingest.py `Ingest.next_batch`,
+worker.py `_take_singles`): measurements taken from Zenoh's channel straight into a step keep their
 order against queries, `seq` gaps are counted as message by message, bad keys are
 reported once each and their chunks remembered, on the real service process."""
 

@@ -20,10 +20,11 @@ from .. import defaults
 from ..estimation import kalman, models
 from ..estimation.scratch import span
 from ..wire import SHOWN, STATUSES
-from .clock import TOL
 from .frame import FrameColumns
 from .status import status_codes
 from .store import Columns, TrackArrays, TrackStore
+
+TOL = defaults.TIME_TOL  # s: "strictly before t" (the display clock's instants)
 
 
 def predicted(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t: np.ndarray | float,
