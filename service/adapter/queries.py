@@ -18,7 +18,7 @@ from .publish import MSGPACK, Publisher
 from .schedule import Clock
 
 if TYPE_CHECKING:
-    from .worker import Tracking
+    from .steps import Tracking
 
 
 class Queries:

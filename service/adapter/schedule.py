@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -271,28 +270,12 @@ class Realtime:
 
 
 class Frames:
-    """The display instants the clock makes due, each published with the tracks at it:
-    an empty step at the instant (coast and delete), then its frame. `held`: the time of
-    the oldest input held back (frames wait for it); `flush`: applies the rows waiting
-    (a frame shows every input taken before it)."""
+    """The display instants published, each with the tracks at it: an empty step at the
+    instant (coast and delete), then its frame."""
 
-    def __init__(self, clock: Clock, tracking: Tracking, out: Publisher,
-                 held: Callable[[], float | None], flush: Callable[[], None]) -> None:
+    def __init__(self, clock: Clock, tracking: Tracking, out: Publisher) -> None:
         self.clock, self.tracking, self.out = clock, tracking, out
-        self.held, self.flush = held, flush
         self.unswept: float | None = None  # a frame published without its deletion
-
-    def before(self, t: float) -> None:
-        """The instants due before an input of time t (or the oldest input held back, if
-        older) go out, after the rows waiting."""
-        held = self.held()
-        if held is not None:
-            t = min(t, held)
-        due = self.clock.due_before(t)
-        if due:
-            self.flush()
-            for instant in due:
-                self.publish(instant)
 
     def publish(self, t: float) -> None:
         self.out.deleted(self.tracking.instant(t))

@@ -63,7 +63,7 @@ class TrackService:
         self.decode = Decoder(keys, noise)
         self.admit = Admit(self.clock, max_jump, reorder)
         self.pending: list[Rows] = []  # labelled rows taken, not yet applied
-        self.frames = Frames(self.clock, self.tracking, self.out, self.admit.held, self._flush)
+        self.frames = Frames(self.clock, self.tracking, self.out)
         self.state: Any = None  # adapter.state.StateFile with --state: checkpoints
         self.stop = threading.Event()
         self.next_freeze = 0.0  # monotonic time of the worker's next gc.freeze()
@@ -274,7 +274,7 @@ class TrackService:
         if self.clock.anytime:  # a frame may fall due as soon as the clock learns t
             self._flush()
         self.clock.observe(t, item.wall)
-        self.frames.before(t)
+        self._frames_before(t)
 
     # ------------------------------------------------------------ admit
     def _admit(self, t: float, wall: float, key: str, sensor: str) -> bool:
@@ -327,12 +327,12 @@ class TrackService:
         one goes out before it (the rows cut where frames fall due)."""
         t = rows.batch.t
         self.clock.observe_all(t, walls)
-        self.frames.before(float(t[0]))
+        self._frames_before(float(t[0]))
         start = 0
         while (i := self.clock.first_due(t, start + 1, self.admit.held())) is not None:
             self.pending.append(rows.rows(start, i))
             start = i
-            self.frames.before(float(t[i]))
+            self._frames_before(float(t[i]))
         self.pending.append(rows.rows(start, len(t)) if start else rows)
 
     # ------------------------------------------------------------ the tracker
@@ -363,11 +363,22 @@ class TrackService:
 
     def _apply_scans(self, scans: list[tuple[str, PlotScan]]) -> None:
         for key, scan in scans:
-            self.frames.before(scan.t)
+            self._frames_before(scan.t)
             outcomes, deleted = self.tracking.scan(scan)
             self.out.deleted(deleted)
             self.count.scans_applied += 1
             self.out.states(outcomes, key)
+
+    # ------------------------------------------------------------ schedule
+    def _frames_before(self, t: float) -> None:
+        """The instants due before an input of time t (or the oldest scan held back, if
+        older: the frames wait for it) go out, after the rows waiting."""
+        held = self.admit.held()
+        due = self.clock.due_before(t if held is None else min(t, held))
+        if due:
+            self._flush()
+            for instant in due:
+                self.frames.publish(instant)
 
     def _tick(self) -> None:
         """After a batch: the scans the wall clock releases, the frame it makes due (or
