@@ -15,7 +15,8 @@ batched line is the service alone.
 `frame_cost`: the worker's CPU per frame at N tracks of the default IMM, in this process
 on a real Zenoh session: the empty step (coast, delete), the snapshot (every track drawn
 at the instant) and `Publisher.frame` (check, `pack_frame`, put), as
-`TrackService._publish_frame` runs them, with a sector of the tracks updated between
+`Frames.publish` (service/adapter/schedule.py) runs them, with a sector of the tracks
+updated between
 frames.
 """
 
@@ -133,7 +134,8 @@ print(n[0], flush=True)
 
 def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     """The worker's CPU (thread time) per frame at N tracks of the default IMM, as
-    `TrackService._publish_frame` spends it on a real Zenoh session: the empty step that
+    `Frames.publish` (service/adapter/schedule.py) spends it on a real Zenoh session:
+    the empty step that
     coasts and deletes (`tracker.step([], now=t)`), the snapshot (every track drawn at
     the instant) and `Publisher.frame` (the finiteness check, `pack_frame`, the put). The
     tracks are a swarm updated in three passes (as single_cost.step_cost makes them), and
@@ -186,7 +188,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
                     track_columns(tracker, [ids[i] for i in rows], "r",
                                   _swarm_batch(t - 0.01, r, az, rows), want=None)
                     c0 = clock()
-                    svc.out.deleted(tracker.step([], now=t))  # as TrackService._publish_frame
+                    svc.out.deleted(tracker.step([], now=t))  # as Frames.publish
                     c1 = clock()
                     snap = tracker.snapshot(t, detail=False)
                     c2 = clock()

@@ -15,7 +15,6 @@ CLOCK = "realtime"  # or "lockstep"
 BLEND = 0.0  # s: absorb a correction over this period (0: plain prediction)
 BLEND_SPEED = 0.0  # m/s: absorb a correction at this speed (0: no speed limit)
 LAG = 0.0  # s: display instants lag the clock, smoothed when bracketed
-TIME_TOL = 1e-6  # s: the contract's "strictly before t" tolerance (display instants)
 LISTENERS_REFRESH = 0.1  # s: how often a realtime service re-reads who subscribes display/, tracks/
 
 # ---------------------------------------------------------------- filters

@@ -16,13 +16,13 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from .. import defaults
+from ..wire import TIME_TOL
 
 if TYPE_CHECKING:
     from .publish import Publisher
     from .steps import Tracking
 
-TOL = defaults.TIME_TOL  # s: "strictly before t" tolerance of the contract
+TOL = TIME_TOL  # s: "strictly before t" tolerance of the contract
 MAX_GAP_FRAMES = 30 * 600  # a lockstep jump longer than this is skipped, not replayed
 
 
