@@ -55,7 +55,7 @@ def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any
 
 
 def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
-    from service.adapter.ingest import MAX_BATCH, Single
+    from service.adapter.ingest import MAX_BATCH, Singles
     from service.wire import Keys, free_port, listen_config, pack, unpack
 
     clock = time.thread_time
@@ -74,18 +74,20 @@ def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
             t0 = time.time()
             ours, echo = [], []
             for k in range(scans):
-                items = [Single(keys.meas("radar1", f"swarm-{i:06d}"), pack(
+                items = Singles.joined([Singles.one(keys.meas("radar1", f"swarm-{i:06d}"), pack(
                     {"t": t0 + k, "r": float(r[i]) + 10 * k, "az": float(az[i]), "el": 0.1,
                      "sr": 20.0, "saz": 0.003, "sel": 0.003, "seq": k * n + i}), time.time())
-                         for i in range(n)]
+                         for i in range(n)])
                 c0 = clock()
                 for lo in range(0, n, MAX_BATCH):
-                    svc._process(items[lo:lo + MAX_BATCH])
+                    svc._process([Singles(items.keys[lo:lo + MAX_BATCH],
+                                          items.payloads[lo:lo + MAX_BATCH],
+                                          items.walls[lo:lo + MAX_BATCH])])
                 ours.append(clock() - c0)
                 c0 = clock()  # the echo: decode, reply {t, id} on tracks/<target>
-                for item in items:
-                    msg = unpack(item.payload)
-                    target = item.key.rsplit("/", 1)[1]
+                for key, payload in zip(items.keys, items.payloads, strict=True):
+                    msg = unpack(payload)
+                    target = key.rsplit("/", 1)[1]
                     session.put(keys.tracks(target), pack({"t": msg["t"], "id": target}),
                                 congestion_control=zenoh.CongestionControl.BLOCK)
                 echo.append(clock() - c0)

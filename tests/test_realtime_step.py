@@ -12,7 +12,7 @@ import time
 import zenoh
 
 from service.adapter import TrackService
-from service.adapter.ingest import TRANSIT, ClockMessage, Single, arrival
+from service.adapter.ingest import TRANSIT, ClockMessage, Singles, arrival
 from service.adapter.publish import FrameSender
 from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Keys, free_port, listen_config, pack, peer_config, stamp_ns, stamping
@@ -30,8 +30,8 @@ def test_a_frame_within_a_step_leaves_the_deletion_to_the_steps_end():
         svc = TrackService(session, keys, Tracker(TrackerConfig(delete_after=0.3)),
                            clock="realtime")
         t = time.time()
-        svc._process([Single(keys.meas("r1", "gone"), pack({"t": t, "pos": [0.0, 1.0]}),
-                             time.time())])
+        svc._process([Singles.one(keys.meas("r1", "gone"), pack({"t": t, "pos": [0.0, 1.0]}),
+                                  time.time())])
         svc._tick()
         assert len(svc.tracker) == 1
         wait_until(t + 0.3 + 2 / 30)  # an instant after the track went stale is due
@@ -147,7 +147,8 @@ def test_a_clock_message_moves_the_realtime_frames_only_after_the_measurements_b
         svc = TrackService(session, keys, Tracker(), clock="realtime")
         wall = time.time()
         svc._process([  # one batch: a measurement, then the feed's clock 1 s ahead
-            Single(keys.meas("r1", "x1"), pack({"t": wall - 0.5, "pos": [0.0, 1.0]}), wall),
+            Singles.one(keys.meas("r1", "x1"), pack({"t": wall - 0.5, "pos": [0.0, 1.0]}),
+                        wall),
             ClockMessage(keys.clock, pack({"t": wall + 1.0}), wall)])
         svc._tick()
         t, snap = svc.out.latest[1].t, svc.out.latest[1]

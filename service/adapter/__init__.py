@@ -1,6 +1,6 @@
 """The Zenoh adapter: the stages a sample goes through, in order, each a module.
 
-1. `ingest`: Zenoh's channels and callbacks to typed inputs (`Single`, `Scan`, `Plots`,
+1. `ingest`: Zenoh's channels and callbacks to typed inputs (`Singles`, `Scan`, `Plots`,
    `ClockMessage`, `Query`), in the order they came; `decode` (with `layouts`) reads
    their keys and payloads into checked columns.
 2. `admit`: the time policy (`timeline`), unlabelled scans reordered across sensors

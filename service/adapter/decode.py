@@ -11,7 +11,7 @@ from typing import Any
 
 from ..wire import Keys, Rejected, parse_clock, parse_plots, parse_scan_columns, parse_singles
 from ..wire.scans import ScanColumns
-from .ingest import ClockMessage, Plots, Scan, Single
+from .ingest import ClockMessage, Plots, Scan, Singles
 from .layouts import by_layout
 
 KEYS_HELD = 1 << 20  # measurement keys whose chunks are remembered (`Decoder.meas_key`)
@@ -44,11 +44,11 @@ class Decoder:
         self.key_parts: dict[str, tuple[str, ...]] = {}  # `meas_key`
         self.meas_prefix = f"{keys.ns}/meas/"
 
-    def singles(self, items: list[Single]) -> SinglesTake:
+    def singles(self, run: Singles) -> SinglesTake:
         """Single measurements checked together, as each alone would be: as columns
         (`layouts.by_layout`, else `wire.parse_singles`)."""
-        n = len(items)
-        keys_all = [it.key for it in items]
+        n = len(run)
+        keys_all = run.keys
         cache = self.key_parts
         split = list(map(cache.get, keys_all))
         if None in split:  # keys not seen before (a feed's keys repeat every scan)
@@ -56,15 +56,14 @@ class Decoder:
                                                                            strict=True)]
         if sum(map(len, split)) == 2 * n:  # every key good (the usual case)
             fine: list[int] | range = range(n)
-            keys, walls = keys_all, [it.wall for it in items]
+            keys, walls, payloads = keys_all, run.walls, run.payloads
             sensors, targets = (list(c) for c in zip(*split, strict=True))
-            payloads = [it.payload for it in items]
         else:
             fine = [i for i, chunks in enumerate(split) if len(chunks) == 2]
             keys = [keys_all[i] for i in fine]
             sensors, targets = [split[i][0] for i in fine], [split[i][1] for i in fine]
-            walls = [items[i].wall for i in fine]
-            payloads = [items[i].payload for i in fine]
+            walls = [run.walls[i] for i in fine]
+            payloads = [run.payloads[i] for i in fine]
         got = by_layout(sensors, targets, payloads) or parse_singles(sensors, targets,
                                                                     payloads, self.noise)
         bad_keys = [] if len(fine) == n else [

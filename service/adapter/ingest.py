@@ -17,6 +17,7 @@ import queue
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -31,12 +32,44 @@ TRANSIT = 0.1  # s a publication stamp may precede the sample's arrival (`arriva
 
 
 @dataclass(slots=True)
-class Single:
-    """A single labelled measurement, `<ns>/meas/<sensor>/<target>`, received at `wall`."""
+class Singles:
+    """Single labelled measurements (`<ns>/meas/<sensor>/<target>`) in the order they came:
+    each one's key, payload and arrival (`walls`, Unix s). One value per run of them (a
+    channel's take, or several taken together), not one per message: a burst is
+    thousands of messages."""
 
-    key: str
-    payload: bytes
-    wall: float
+    keys: list[str]
+    payloads: list[bytes]
+    walls: list[float]
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    @property
+    def key(self) -> str:
+        return self.keys[0]
+
+    @staticmethod
+    def one(key: str, payload: bytes, wall: float) -> Singles:
+        return Singles([key], [payload], [wall])
+
+    def each(self) -> list[Singles]:
+        """One run per message."""
+        return [Singles([k], [p], [w]) for k, p, w in zip(self.keys, self.payloads,
+                                                          self.walls, strict=True)]
+
+    def cut(self, n: int) -> tuple[Singles, Singles]:
+        """The first n messages and the rest."""
+        return (Singles(self.keys[:n], self.payloads[:n], self.walls[:n]),
+                Singles(self.keys[n:], self.payloads[n:], self.walls[n:]))
+
+    @staticmethod
+    def joined(runs: list[Singles]) -> Singles:
+        """Consecutive runs as one."""
+        if len(runs) == 1:
+            return runs[0]
+        return Singles([k for r in runs for k in r.keys], [p for r in runs for p in r.payloads],
+                       [w for r in runs for w in r.walls])
 
 
 @dataclass(slots=True)
@@ -85,8 +118,28 @@ class Wake:
     key = ""
 
 
-Input = Single | Scan | Plots | ClockMessage | Query | Wake
-Measurement = Single | Scan | Plots
+Input = Singles | Scan | Plots | ClockMessage | Query | Wake
+Measurement = Singles | Scan | Plots
+
+
+def size(item: Input) -> int:
+    """How many messages an input holds."""
+    return len(item) if type(item) is Singles else 1  # type: ignore[arg-type]
+
+
+def cut(items: list[Input], n: int) -> tuple[list[Input], list[Input]]:
+    """The first n messages of `items` and the rest (a run split where n falls)."""
+    head: list[Input] = []
+    for i, item in enumerate(items):
+        k = size(item)
+        if k > n:
+            if n == 0:
+                return head, items[i:]
+            first, rest = item.cut(n)  # type: ignore[union-attr]
+            return [*head, first], [rest, *items[i + 1:]]
+        head.append(item)
+        n -= k
+    return head, []
 
 
 def arrival(sample: zenoh.Sample, since: float, now: float) -> float:
@@ -100,9 +153,10 @@ def arrival(sample: zenoh.Sample, since: float, now: float) -> float:
 
 
 def meas_time(item: Measurement) -> float:
-    """A measurement's t for ordering (-inf when unreadable: rejected first)."""
+    """A measurement's t for ordering (-inf when unreadable: rejected first); a run of
+    singles by its first."""
     try:
-        t = unpack(item.payload).get("t")
+        t = unpack(item.payloads[0] if type(item) is Singles else item.payload).get("t")
         if isinstance(t, bytes) and len(t) >= 8:  # a batched scan's times: its first
             t = struct.unpack_from("<d", t)[0]
         return float(t) if isinstance(t, int | float) and not isinstance(t, bool) else -math.inf
@@ -116,6 +170,9 @@ class Ingest:
     def __init__(self, session: zenoh.Session, keys: Keys, meas_keys: list[str] | None,
                  plot_keys: list[str] | None, scan_keys: list[str] | None) -> None:
         self.inbox: queue.SimpleQueue[Input] = queue.SimpleQueue()
+        # taken from the channels or the inbox but not yet handed to the worker (older
+        # than anything in the inbox; the worker's alone)
+        self.carry: deque[Input] = deque()
         self.lock = threading.Lock()  # held while measurements move into the inbox
         put = self.inbox.put
 
@@ -140,7 +197,7 @@ class Ingest:
 
         fifo = zenoh.handlers.FifoChannel
         self.channels: list[tuple[type[Measurement], Any]] = [
-            *((Single, session.declare_subscriber(k, fifo(CHANNEL)))
+            *((Singles, session.declare_subscriber(k, fifo(CHANNEL)))
               for k in (meas_keys or [keys.space("meas")])),
             *((Plots, session.declare_subscriber(k, fifo(CHANNEL)))
               for k in (plot_keys or [keys.plots("*")])),
@@ -162,36 +219,42 @@ class Ingest:
 
     def idle(self) -> bool:
         """Whether nothing waits in the inbox."""
-        return self.inbox.empty()
+        return not self.carry and self.inbox.empty()
 
     def waiting(self) -> int:
-        return self.inbox.qsize()
+        return len(self.carry) + self.inbox.qsize()
 
     def next_batch(self, timeout: float) -> list[Input]:
-        """The worker's next inputs in order, at most MAX_BATCH (waiting up to `timeout`
-        s for one). When the inbox is empty the measurements go from Zenoh's channels
-        straight into the batch (no round trip through the inbox): a clock message or
-        query puts the measurements received before it, then itself, into the inbox under
-        the lock, so with the inbox empty under that lock nothing waiting is older than
-        what the channels hold."""
-        inbox = self.inbox
+        """The worker's next inputs in order, at most MAX_BATCH messages (waiting up to
+        `timeout` s for one). When nothing waits in the inbox the measurements go from
+        Zenoh's channels straight into the batch (no round trip through the inbox): a clock
+        message or query puts the measurements received before it, then itself, into the
+        inbox under the lock, so with the inbox empty under that lock nothing waiting is
+        older than what the channels hold."""
+        inbox, carry = self.inbox, self.carry
         with self.lock:
-            if inbox.empty():
-                got = self._measurements(MAX_BATCH)
-                if len(got) <= MAX_BATCH:
-                    if got:
-                        return got  # type: ignore[return-value]
-                else:  # several channels: the rest waits in the inbox, in order
-                    for item in got[MAX_BATCH:]:
-                        inbox.put(item)
-                    return got[:MAX_BATCH]  # type: ignore[return-value]
+            if not carry and inbox.empty():
+                got, rest = cut(self._measurements(MAX_BATCH), MAX_BATCH)
+                carry.extend(rest)  # several channels: the rest waits, in order
+                if got:
+                    return got
             else:
                 self._move(MAX_BATCH)  # behind the inputs waiting
         batch: list[Input] = []
+        room = MAX_BATCH
         try:
-            batch.append(inbox.get(timeout=timeout))
-            while len(batch) < MAX_BATCH:
-                batch.append(inbox.get_nowait())
+            while room > 0:
+                if carry:
+                    item = carry.popleft()
+                else:
+                    item = inbox.get_nowait() if batch else inbox.get(timeout=timeout)
+                k = size(item)
+                if k > room:  # a run longer than the room left: the rest comes next
+                    item, rest = item.cut(room)  # type: ignore[union-attr]
+                    carry.appendleft(rest)
+                    k = room
+                batch.append(item)
+                room -= k
         except queue.Empty:
             pass
         return batch
@@ -217,7 +280,9 @@ class Ingest:
                  if (got := self._drain(i, kind, sub, limit))]
         if len(lists) <= 1:
             return lists[0] if lists else []
-        return list(heapq.merge(*lists, key=meas_time))
+        each = [[one for run in got for one in run.each()]  # type: ignore[union-attr]
+                if type(got[0]) is Singles else got for got in lists]
+        return list(heapq.merge(*each, key=meas_time))
 
     def _drain(self, i: int, kind: type[Measurement], sub: Any, limit: int | None
                ) -> list[Measurement]:
@@ -237,4 +302,7 @@ class Ingest:
         if not got:
             return []
         wall = arrival(got[-1], since, now)
+        if kind is Singles:  # one run: a burst is thousands of messages
+            return [Singles([str(s.key_expr) for s in got], [s.payload.to_bytes() for s in got],
+                            [wall] * len(got))]
         return [kind(str(s.key_expr), s.payload.to_bytes(), wall) for s in got]

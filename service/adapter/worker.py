@@ -28,7 +28,7 @@ from ..tracking.tracker import Tracker
 from ..wire import Keys, PlotScan
 from .admit import Admit
 from .decode import Decoder
-from .ingest import ClockMessage, Ingest, Input, Plots, Query, Scan, Single
+from .ingest import ClockMessage, Ingest, Input, Plots, Query, Scan, Singles
 from .publish import Publisher
 from .queries import Queries
 from .schedule import Frames, make_clock
@@ -139,12 +139,12 @@ class TrackService:
         i = 0
         while i < len(batch):
             item, j = batch[i], i + 1
-            if type(item) is Single:
-                while j < len(batch) and type(batch[j]) is Single:
+            if type(item) is Singles:
+                while j < len(batch) and type(batch[j]) is Singles:
                     j += 1
             try:
-                if type(item) is Single:
-                    self._take_singles(batch[i:j])  # type: ignore[arg-type]
+                if type(item) is Singles:
+                    self._take_singles(Singles.joined(batch[i:j]))  # type: ignore[arg-type]
                 else:
                     self._take(item)
             except Exception as exc:  # a fault of ours: report it, keep the batch going
@@ -183,11 +183,11 @@ class TrackService:
             self._flush()
             self.queries.answer(item)
 
-    def _take_singles(self, items: list[Single]) -> None:
+    def _take_singles(self, run: Singles) -> None:
         """Single measurements taken together, in order, as each alone would be: read as
         columns (`decode`), a bad one reported on its own key in message order, their `seq`
         gaps counted, the time policy and the clock applied, the good ones left waiting."""
-        got = self.decode.singles(items)
+        got = self.decode.singles(run)
         fine, keys, sensors, walls = got.fine, got.keys, got.sensors, got.walls
         bad = iter(got.bad)
         later = next(bad, None)
