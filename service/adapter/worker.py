@@ -16,7 +16,7 @@ import logging
 import math
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
@@ -33,6 +33,9 @@ from .publish import Publisher
 from .queries import Queries
 from .schedule import Frames, make_clock
 from .steps import Tracking
+
+if TYPE_CHECKING:
+    from .state import StateFile
 
 log = logging.getLogger("track-service")
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
@@ -64,7 +67,7 @@ class TrackService:
         self.admit = Admit(self.clock, max_jump, reorder)
         self.pending: list[Rows] = []  # labelled rows taken, not yet applied
         self.frames = Frames(self.clock, self.tracking, self.out)
-        self.state: Any = None  # adapter.state.StateFile with --state: checkpoints
+        self.state: StateFile | None = None  # with --state: checkpoints
         self.stop = threading.Event()
         self.next_freeze = 0.0  # monotonic time of the worker's next gc.freeze()
         self.ingest = Ingest(session, keys, meas_keys, plot_keys, scan_keys)
