@@ -73,30 +73,30 @@ class Singles:
 
 
 @dataclass(slots=True)
-class Scan:
+class Message:
+    """One sample: its key, payload and arrival (`wall`, Unix s)."""
+
+    key: str
+    payload: bytes
+    wall: float
+
+
+class Scan(Message):
     """A batched labelled scan, `<ns>/scan/<sensor>` (rows as columns)."""
 
-    key: str
-    payload: bytes
-    wall: float
+    __slots__ = ()
 
 
-@dataclass(slots=True)
-class Plots:
+class Plots(Message):
     """An unlabelled scan, `<ns>/plots/<sensor>`."""
 
-    key: str
-    payload: bytes
-    wall: float
+    __slots__ = ()
 
 
-@dataclass(slots=True)
-class ClockMessage:
+class ClockMessage(Message):
     """`<ns>/clock`: the feed's simulation time (nothing older will come)."""
 
-    key: str
-    payload: bytes
-    wall: float
+    __slots__ = ()
 
 
 @dataclass(slots=True)
