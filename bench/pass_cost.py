@@ -12,7 +12,7 @@ messages once they have all arrived in the channel, and its thread CPU is split 
     take     taking the messages from the channel into the worker's batch
     look     who listens to tracks/ (`Publisher.look`)
     parse    `_take_singles`: keys, `wire.parse_singles`, seq, time policy, clock
-    bulk     `tracking.bulk.track_columns` outside the filter (ids, deletion, states)
+    bulk     `Tracking.rows` (`tracking.bulk.track_columns`) outside the filter
     filter   `Tracker.update_rows`: the IMM kernel (service/estimation)
     outputs  `Publisher.batch`: counts, the tracks/<id> bodies and puts
     rest     the rest of `_process` / `_flush`
@@ -54,7 +54,6 @@ class Stopwatch:
 
 
 def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) -> None:
-    import service.inputs as inputs
     from service.wire import Keys, free_port, pack, peer_config
     from service.wire.session import admin_space
 
@@ -102,18 +101,24 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
                 time.sleep(0.0005)
             time.sleep(0.002)  # the marker and the channel are fed by the same callback loop
 
-        def gather(k: int) -> list[tuple]:
+        def gather(k: int) -> list[Any]:
             """The k messages sent, as the worker takes them (in one go unless the
             channel lags the marker: then again, sleeping between, which costs no CPU)."""
             batch = take()
             end = time.monotonic() + 10
-            while len(batch) < k and time.monotonic() < end:
+            while messages(batch) < k and time.monotonic() < end:
                 time.sleep(0.001)
                 batch += take()
             return batch
 
-        def take() -> list[tuple]:
-            if hasattr(svc, "_next_batch"):
+        def messages(batch: list[Any]) -> int:
+            """Messages in a batch (a run of singles holds many)."""
+            return sum(len(x) if hasattr(x, "keys") else 1 for x in batch)
+
+        def take() -> list[Any]:
+            if hasattr(svc, "ingest"):
+                return svc.ingest.next_batch(0.0)  # type: ignore[union-attr]
+            if hasattr(svc, "_next_batch"):  # the code before the staged adapter
                 return svc._next_batch(0.0)  # type: ignore[union-attr]
             svc._ingest()  # type: ignore[union-attr]  # the code before _next_batch
             batch = []
@@ -139,8 +144,7 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
         svc.out.batch = watch.wrap("outputs", svc.out.batch)  # type: ignore[method-assign]
         svc.tracker.update_rows = watch.wrap(  # type: ignore[method-assign]
             "filter", svc.tracker.update_rows)
-        plain = inputs.track_columns
-        inputs.track_columns = watch.wrap("bulk", plain)  # type: ignore[assignment]
+        svc.tracking.rows = watch.wrap("bulk", svc.tracking.rows)  # type: ignore[method-assign]
         clock = time.thread_time
         log(f"worker CPU per pass of k single messages at {tracks} tracks (no flags: IMM, "
             f"realtime; a consumer of tracks/swarm-$*0), median of {reps} passes, us:")
@@ -148,35 +152,32 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
             f"{'non-filt':>8} {'per row':>8}")
         medians: dict[int, dict[str, float]] = {}
         start = 0
-        try:
-            for k in sizes:
-                full_scan()  # no track ages out while the small passes run
-                per: dict[str, list[float]] = defaultdict(list)
-                for _ in range(reps):
-                    send(range(start, start + k))
-                    start = (start + k) % tracks
-                    watch.spent.clear()
-                    c0 = clock()
-                    batch = gather(k)
-                    c1 = clock()
-                    svc._process(batch)  # type: ignore[union-attr]
-                    c2 = clock()
-                    assert len(batch) == k, (len(batch), k)
-                    s = watch.spent
-                    per["take"].append(c1 - c0)
-                    per["bulk"].append(s["bulk"] - s["filter"])
-                    for name in ("look", "parse", "filter", "outputs"):
-                        per[name].append(s[name])
-                    per["rest"].append(c2 - c1 - s["look"] - s["parse"] - s["bulk"]
-                                       - s["outputs"])
-                    per["total"].append(c2 - c0)
-                    per["non-filter"].append(c2 - c0 - s["filter"])
-                m = medians[k] = {n: float(np.median(v)) * 1e6 for n, v in per.items()}
-                log(f"{k:>6} " + " ".join(f"{m[s]:>8.0f}" for s in STAGES)
-                    + f" {m['total']:>8.0f} {m['non-filter']:>8.0f}"
-                    f" {m['total'] / k:>8.1f}")
-        finally:
-            inputs.track_columns = plain  # type: ignore[assignment]
+        for k in sizes:
+            full_scan()  # no track ages out while the small passes run
+            per: dict[str, list[float]] = defaultdict(list)
+            for _ in range(reps):
+                send(range(start, start + k))
+                start = (start + k) % tracks
+                watch.spent.clear()
+                c0 = clock()
+                batch = gather(k)
+                c1 = clock()
+                svc._process(batch)  # type: ignore[union-attr]
+                c2 = clock()
+                assert messages(batch) == k, (messages(batch), k)
+                s = watch.spent
+                per["take"].append(c1 - c0)
+                per["bulk"].append(s["bulk"] - s["filter"])
+                for name in ("look", "parse", "filter", "outputs"):
+                    per[name].append(s[name])
+                per["rest"].append(c2 - c1 - s["look"] - s["parse"] - s["bulk"]
+                                   - s["outputs"])
+                per["total"].append(c2 - c0)
+                per["non-filter"].append(c2 - c0 - s["filter"])
+            m = medians[k] = {n: float(np.median(v)) * 1e6 for n, v in per.items()}
+            log(f"{k:>6} " + " ".join(f"{m[s]:>8.0f}" for s in STAGES)
+                + f" {m['total']:>8.0f} {m['non-filter']:>8.0f}"
+                f" {m['total'] / k:>8.1f}")
         summary(medians, log)
         consumer.stdin.write("\n")  # type: ignore[union-attr]
         consumer.stdin.flush()  # type: ignore[union-attr]

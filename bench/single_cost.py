@@ -4,7 +4,7 @@ process (bench/bench_capacity.py --single-cost N).
 A `TrackService` (no flags: the default IMM) on a real Zenoh session, a consumer process
 subscribed to `<ns>/tracks/**` (so every state is put, as in the throughput benchmark),
 and N swarm targets' single radar messages handed to the worker's `_process` in batches
-of `node.MAX_BATCH`, as the worker takes them from its channel in a burst: thread CPU time
+of `adapter.ingest.MAX_BATCH`, as the worker takes them from its channel in a burst: thread CPU time
 per message over scans 2 to 5. The echo's work on the same messages (decode, a small
 reply put, bench/echo.py) is timed the same way in the same run. Zenoh's receive path
 is outside both figures (the same for both processes); the put is inside both.
@@ -42,7 +42,7 @@ def start_consumer(ep: str, key: str) -> subprocess.Popen:
 def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any:
     """A `TrackService` (no flags, realtime, its worker not started) on `session`, once
     the consumer is up and the service sees its subscription."""
-    from service.node import TrackService
+    from service.adapter import TrackService
     from service.tracking.tracker import Tracker
 
     consumer.stdout.readline()  # type: ignore[union-attr]
@@ -55,7 +55,7 @@ def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any
 
 
 def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
-    from service.node import MAX_BATCH
+    from service.adapter.ingest import MAX_BATCH, Singles
     from service.wire import Keys, free_port, listen_config, pack, unpack
 
     clock = time.thread_time
@@ -74,16 +74,18 @@ def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
             t0 = time.time()
             ours, echo = [], []
             for k in range(scans):
-                items = [("meas", keys.meas("radar1", f"swarm-{i:06d}"), pack(
+                items = Singles.joined([Singles.one(keys.meas("radar1", f"swarm-{i:06d}"), pack(
                     {"t": t0 + k, "r": float(r[i]) + 10 * k, "az": float(az[i]), "el": 0.1,
                      "sr": 20.0, "saz": 0.003, "sel": 0.003, "seq": k * n + i}), time.time())
-                         for i in range(n)]
+                         for i in range(n)])
                 c0 = clock()
                 for lo in range(0, n, MAX_BATCH):
-                    svc._process(items[lo:lo + MAX_BATCH])
+                    svc._process([Singles(items.keys[lo:lo + MAX_BATCH],
+                                          items.payloads[lo:lo + MAX_BATCH],
+                                          items.walls[lo:lo + MAX_BATCH])])
                 ours.append(clock() - c0)
                 c0 = clock()  # the echo: decode, reply {t, id} on tracks/<target>
-                for _, key, payload, _ in items:
+                for key, payload in zip(items.keys, items.payloads, strict=True):
                     msg = unpack(payload)
                     target = key.rsplit("/", 1)[1]
                     session.put(keys.tracks(target), pack({"t": msg["t"], "id": target}),

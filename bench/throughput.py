@@ -15,7 +15,8 @@ batched line is the service alone.
 `frame_cost`: the worker's CPU per frame at N tracks of the default IMM, in this process
 on a real Zenoh session: the empty step (coast, delete), the snapshot (every track drawn
 at the instant) and `Publisher.frame` (check, `pack_frame`, put), as
-`TrackService._publish_frame` runs them, with a sector of the tracks updated between
+`Frames.publish` (service/adapter/schedule.py) runs them, with a sector of the tracks
+updated between
 frames.
 """
 
@@ -133,7 +134,8 @@ print(n[0], flush=True)
 
 def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     """The worker's CPU (thread time) per frame at N tracks of the default IMM, as
-    `TrackService._publish_frame` spends it on a real Zenoh session: the empty step that
+    `Frames.publish` (service/adapter/schedule.py) spends it on a real Zenoh session:
+    the empty step that
     coasts and deletes (`tracker.step([], now=t)`), the snapshot (every track drawn at
     the instant) and `Publisher.frame` (the finiteness check, `pack_frame`, the put). The
     tracks are a swarm updated in three passes (as single_cost.step_cost makes them), and
@@ -142,7 +144,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     includes what those updates leave for it.
     Medians over `frames` frames with nobody subscribed to `frame`, then as many with a
     subscriber in another process (Zenoh's put then sends the body)."""
-    from service.node import TrackService
+    from service.adapter import TrackService
     from service.tracking.bulk import track_columns
     from service.tracking.tracker import Tracker
 
@@ -186,7 +188,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
                     track_columns(tracker, [ids[i] for i in rows], "r",
                                   _swarm_batch(t - 0.01, r, az, rows), want=None)
                     c0 = clock()
-                    svc.out.deleted(tracker.step([], now=t))  # as TrackService._publish_frame
+                    svc.out.deleted(tracker.step([], now=t))  # as Frames.publish
                     c1 = clock()
                     snap = tracker.snapshot(t, detail=False)
                     c2 = clock()
@@ -234,7 +236,7 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
     sustain: measurements per second with 30 frames per second."""
     from clients import scenarios
     from service import defaults
-    from service.encode import pack_frame
+    from service.adapter.encode import pack_frame
     from service.estimation.filters import cmkf_step
     from service.estimation.measurements import MeasurementBatch
     from service.tracking.bulk import track_columns

@@ -11,9 +11,9 @@ import threading
 import uuid
 
 from . import __version__, defaults
+from .adapter import TrackService
+from .adapter.state import StateFile
 from .estimation.catalog import FILTERS, FilterSpec
-from .node import TrackService
-from .state import StateFile
 from .tracking.association import SensorModels
 from .tracking.display import DisplayConfig
 from .tracking.tracker import Tracker, TrackerConfig

@@ -1,4 +1,5 @@
-"""Unit tests of service.clock against the Clock section of PROTOCOL.md.
+"""Unit tests of the display clocks (service/adapter/schedule.py) against the Clock
+section of PROTOCOL.md; their one interface (`Clock`).
 
 Display instants are n / rate. Lockstep: before an input at t, every instant strictly
 before t (1 us tolerance) not yet published is due; the first input sets the start.
@@ -12,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.tracking import clock
+from service.adapter import schedule as clock
 
 RATE = 30.0
 
@@ -216,3 +217,81 @@ def test_realtime_long_run_monotonic_and_accounted():
     assert all(b > a for a, b in zip(out, out[1:], strict=False))
     assert len(out) + rt.missed == out[-1] - out[0] + 1
     assert rt.missed > 0  # steps up to 0.09 s > 1/30 s do skip instants
+
+
+# ---------------------------------------------------------------- one interface
+def protocol_members() -> list[str]:
+    return sorted({*clock.Clock.__annotations__,
+                   *(n for n in vars(clock.Clock) if not n.startswith("_"))})
+
+
+def test_both_clocks_answer_every_member_of_the_interface():
+    """The worker asks the clock, never which clock it is: both have every member."""
+    members = protocol_members()
+    assert {"picture", "due_before", "first_due", "due", "save", "load"} <= set(members)
+    for c in (clock.make_clock("lockstep", RATE), clock.make_clock("realtime", RATE)):
+        missing = [m for m in members if not hasattr(c, m)]
+        assert not missing, (type(c).__name__, missing)
+    with pytest.raises(ValueError):
+        clock.make_clock("sundial", RATE)
+
+
+def test_first_due_is_the_first_row_before_which_an_instant_falls_due():
+    rng = np.random.default_rng(3)
+    for lag, held in [(0.0, None), (0.05, None), (0.0, 1.3), (0.1, 0.9)]:
+        lk = clock.Lockstep(RATE, lag)
+        lk.due_before(0.5)
+        t = np.sort(rng.uniform(0.4, 2.0, 60))
+        for start in (1, 7, 59):
+            want = next((i for i in range(start, len(t))
+                         if lk.due_soon(t[i] if held is None else min(t[i], held))), None)
+            assert lk.first_due(t, start, held) == want
+        assert lk.first_due(t, 1, held) is not None  # the times run past an instant
+    rt = clock.Realtime(RATE)
+    rt.observe(100.0, 50.0)
+    assert rt.first_due(np.array([100.0, 101.0, 200.0]), 1, None) is None
+    assert rt.due_before(200.0) == []  # its instants fall due on the wall clock
+
+
+def test_the_lag_delays_the_instants_by_itself():
+    lagged, plain = clock.Lockstep(RATE, lag=0.25), clock.Lockstep(RATE)
+    for t in (1.0, 1.5, 2.0 + 1e-7, 3.3):
+        assert lagged.due_before(t) == plain.due_before(t - 0.25)
+    rt_lagged, rt = clock.Realtime(RATE, lag=0.25), clock.Realtime(RATE)
+    for c in (rt_lagged, rt):
+        c.observe(10.0, 1000.0)
+    assert rt_lagged.due(1000.5) == rt.due(1000.5 - 0.25)
+
+
+def test_the_picture_is_the_newest_input_in_lockstep_and_the_wall_clock_in_realtime():
+    lk = clock.Lockstep(RATE)
+    assert lk.picture(5.0) is None and lk.sim_time(5.0) is None
+    lk.taken(3.0)
+    lk.taken(2.0)  # an older input does not move the picture back
+    assert lk.picture(123.0) == 3.0
+    lk.restart(1.0)  # a new timeline, backwards
+    assert lk.picture(0.0) == 1.0
+    rt = clock.Realtime(RATE)
+    assert rt.picture(5.0) is None
+    rt.observe(10.0, 1000.0)
+    rt.taken(99.0)  # the picture follows the wall clock, not the inputs taken
+    assert rt.picture(1001.0) == rt.sim_time(1001.0) == 11.0
+
+
+def test_a_clock_resumes_from_its_saved_state_and_refuses_the_other_kinds():
+    lk = clock.Lockstep(RATE)
+    lk.due_before(1.0)
+    lk.due_before(2.0)
+    lk.taken(2.0)
+    again = clock.Lockstep(RATE)
+    assert again.load(lk.save(), 0.0) == "; lockstep picture at t=2.000"
+    assert (again.next_n, again.picture_t) == (lk.next_n, 2.0)
+    assert again.due_before(2.1) == lk.due_before(2.1)
+    rt = clock.Realtime(RATE)
+    rt.observe(10.0, 1000.0)
+    back = clock.Realtime(RATE)
+    assert back.load(rt.save(), 2000.0).startswith("; realtime frames resume")
+    assert back.picture(2000.0) == 1010.0
+    fresh = clock.Realtime(RATE)
+    assert fresh.load(lk.save(), 2000.0) == "" and fresh.offset is None
+    assert clock.Lockstep(RATE).load(rt.save(), 0.0) == ""

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from test_checkpoint import busy_tracker, polar
 
-from service.encode import pack_frame
+from service.adapter.encode import pack_frame
 from service.estimation.catalog import FilterSpec
 from service.tracking import checkpoint, frame
 from service.tracking.deleter import UpdateTimeDeleter

@@ -1,5 +1,6 @@
 """The data's way is one direction (docs/architecture.md): wire contract -> estimation ->
-tracking -> the Zenoh adapter -> clients. Every import of the product's modules is read
+tracking -> the Zenoh adapter (`service.adapter`, which may import everything below it
+and which nothing below imports) -> clients. Every import of the product's modules is read
 from the source and checked against the rules; the wire package is also imported in a
 fresh interpreter to show it loads neither NumPy nor Zenoh."""
 
@@ -23,6 +24,9 @@ RULES: dict[str, tuple[set[str], set[str]]] = {
                                        "service.defaults"}),
     "service.tracking": ({"numpy", "scipy", "numba"}, {"service.tracking", "service.estimation",
                                               "service.wire", "service.defaults"}),
+    "service.adapter": ({"numpy", "zenoh"},
+                        {"service.adapter", "service.tracking", "service.estimation",
+                         "service.wire", "service.defaults", "service.__version__"}),
     "clients": ({"numpy", "scipy", "zenoh", "msgpack", "matplotlib", "mcap", "rich", "tqdm",
                  "aiohttp"},
                 {"service.wire", "clients"}),
@@ -70,7 +74,7 @@ FILES = sorted(p for d in ("service", "clients") for p in (ROOT / d).rglob("*.py
 @pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_imports_follow_the_layers(path: Path) -> None:
     found = rule_for(module_name(path))
-    if found is None:  # the adapter (service.node, service.encode, service.__main__)
+    if found is None:  # the programs (service.__main__, service.router)
         return
     _, (third_party, ours) = found
     bad = []
@@ -95,7 +99,19 @@ def test_the_rules_catch_a_wrong_import(tmp_path: Path) -> None:
     assert not under("service.tracking.store", ours)
     assert not under("zenoh", ours)
     assert under("service.wire", ours)
-    assert rule_for("service.node") is None
+    assert rule_for("service.__main__") is None
+    for below in ("service.wire", "service.estimation", "service.tracking"):
+        _, (_, allowed) = rule_for(below + ".x")  # type: ignore[misc]
+        assert not under("service.adapter.worker", allowed), below
+    _, (_, adapter) = rule_for("service.adapter.worker")  # type: ignore[misc]
+    assert under("service.tracking.tracker", adapter) and not under("clients.feed", adapter)
+
+
+def test_the_adapter_is_its_own_package() -> None:
+    """The adapter's modules live in service/adapter/ (governed above), not beside it:
+    service/ holds only the package's root, the defaults and the programs."""
+    loose = {p.name for p in (ROOT / "service").glob("*.py")}
+    assert loose == {"__init__.py", "__main__.py", "defaults.py", "router.py"}, loose
 
 
 def test_every_layer_has_files() -> None:

@@ -1,6 +1,7 @@
-"""The realtime worker's frames within a step (around a pass: `TrackService._flush`) and
-the coasting and deletion that go with them, on a service with a real Zenoh session (the
-worker's own methods driven in this thread, as its loop drives them)."""
+"""The realtime worker's frames within a step (around a pass: `TrackService._flush`,
+service/adapter/worker.py, and `Frames.between`) and the coasting and deletion that go
+with them, on a service with a real Zenoh session (the worker's own methods driven in
+this thread, as its loop drives them)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ import time
 
 import zenoh
 
-from service.node import TRANSIT, TrackService, arrival
-from service.outputs import FrameSender
+from service.adapter import TrackService
+from service.adapter.ingest import TRANSIT, ClockMessage, Singles, arrival
+from service.adapter.publish import FrameSender
 from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Keys, free_port, listen_config, pack, peer_config, stamp_ns, stamping
 
@@ -28,18 +30,18 @@ def test_a_frame_within_a_step_leaves_the_deletion_to_the_steps_end():
         svc = TrackService(session, keys, Tracker(TrackerConfig(delete_after=0.3)),
                            clock="realtime")
         t = time.time()
-        svc._process([("meas", keys.meas("r1", "gone"), pack({"t": t, "pos": [0.0, 1.0]}),
-                       time.time())])
+        svc._process([Singles.one(keys.meas("r1", "gone"), pack({"t": t, "pos": [0.0, 1.0]}),
+                                  time.time())])
         svc._tick()
         assert len(svc.tracker) == 1
         wait_until(t + 0.3 + 2 / 30)  # an instant after the track went stale is due
-        svc._frame_between()  # as around a pass: the frame, no deletion
+        svc.frames.between()  # as around a pass: the frame, no deletion
         assert svc.out.latest[0] is not None  # published
-        assert svc.unswept is not None and svc.unswept > t + 0.3
+        assert svc.frames.unswept is not None and svc.frames.unswept > t + 0.3
         assert len(svc.tracker) == 1
         svc._tick()  # the step's end: the coast and delete of that instant
         assert len(svc.tracker) == 0 and svc.count.tracks_deleted == 1
-        assert svc.unswept is None
+        assert svc.frames.unswept is None
         svc.close()
     finally:
         session.close()
@@ -63,7 +65,7 @@ def test_the_realtime_clock_learns_from_arrival_not_from_when_the_worker_takes_i
         wait_until(t + 0.3)  # the worker busy elsewhere meanwhile
         batch: list = []
         while not batch and time.monotonic() < end:  # it arrived long before: taken now
-            batch = svc._next_batch(0.01)
+            batch = svc.ingest.next_batch(0.01)
         taken = time.time()
         svc._process(batch)
         assert svc.count.meas_accepted == 1
@@ -145,8 +147,9 @@ def test_a_clock_message_moves_the_realtime_frames_only_after_the_measurements_b
         svc = TrackService(session, keys, Tracker(), clock="realtime")
         wall = time.time()
         svc._process([  # one batch: a measurement, then the feed's clock 1 s ahead
-            ("meas", keys.meas("r1", "x1"), pack({"t": wall - 0.5, "pos": [0.0, 1.0]}), wall),
-            ("clock", keys.clock, pack({"t": wall + 1.0}), wall)])
+            Singles.one(keys.meas("r1", "x1"), pack({"t": wall - 0.5, "pos": [0.0, 1.0]}),
+                        wall),
+            ClockMessage(keys.clock, pack({"t": wall + 1.0}), wall)])
         svc._tick()
         t, snap = svc.out.latest[1].t, svc.out.latest[1]
         assert t >= wall + 1.0 - 1 / 30  # the instant the clock message made due

@@ -16,8 +16,8 @@ from hypothesis import strategies as st
 from payloads import bad_measurement, measurement
 
 from service import defaults
+from service.adapter.layouts import by_layout
 from service.estimation.measurements import MeasurementBatch
-from service.layouts import by_layout
 from service.wire import Rejected, pack, parse_measurement, parse_singles
 
 NOISE = defaults.NOISE

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from service.tracking.clock import Lockstep
-from service.tracking.timeline import Timeline
+from service.adapter.schedule import Lockstep
+from service.adapter.timeline import Timeline
 
 
 def test_near_inputs_taken_far_ones_refused():

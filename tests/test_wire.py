@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.encode import pack_displays, pack_frame, pack_tracks
+from service.adapter.encode import pack_displays, pack_frame, pack_tracks
 from service.estimation.imm import ModeProbabilities
 from service.wire import pack, unpack
 

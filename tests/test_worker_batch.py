@@ -1,5 +1,5 @@
-"""The worker's batches of single messages (service/node.py `_next_batch`, inputs.py
-`_take_singles`): measurements taken from Zenoh's channel straight into a step keep their
+"""The worker's batches of single messages (service/adapter/ingest.py `Ingest.next_batch`,
+worker.py `_take_singles`): measurements taken from Zenoh's channel straight into a step keep their
 order against queries, `seq` gaps are counted as message by message, bad keys are
 reported once each and their chunks remembered, on the real service process."""
 
@@ -76,3 +76,41 @@ def test_bursts_keep_order_count_gaps_and_report_bad_keys(service_factory):
     st = status(s)
     assert st["meas_accepted"] == 2 * len(seqs) + 40 and st["meas_rejected"] == 3
     assert st["meas_lost"] == 50 + 10  # 250..259
+
+
+def test_a_burst_behind_a_query_comes_in_batches_of_at_most_max_batch_in_order():
+    """2,500 messages moved into the inbox as one run by a query behind them: the worker
+    takes them 1,024 messages at a time, in order, and the query after the last."""
+    from service.adapter import TrackService
+    from service.adapter.ingest import MAX_BATCH, Query, Singles, size
+    from service.tracking.tracker import Tracker
+    from service.wire import Keys, free_port, listen_config, peer_config
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    session, feed = zenoh.open(listen_config(ep)), zenoh.open(peer_config(ep))
+    svc = None
+    try:
+        keys = Keys("mb")
+        svc = TrackService(session, keys, Tracker(), clock="lockstep")  # worker not started
+        pub = feed.declare_publisher(keys.meas("r1", "probe"))
+        assert poll(lambda: pub.matching_status.matching)
+        n = 2500
+        for i in range(n):
+            feed.put(keys.meas("r1", f"x{i}"), message(i, 1.0, i), congestion_control=BLOCK)
+        replies = feed.get(keys.status, timeout=10)  # its callback moves the burst first
+        assert poll(lambda: svc.ingest.waiting() == 2)  # the run and the query
+        batches = []
+        while sum(map(size, (it for b in batches for it in b))) < n + 1:
+            batches.append(svc.ingest.next_batch(0.1))
+        assert [sum(map(size, b)) for b in batches] == [MAX_BATCH, MAX_BATCH, n - 2 * MAX_BATCH + 1]
+        items = [it for b in batches for it in b]
+        assert isinstance(items[-1], Query)
+        keys_taken = [k for it in items[:-1] for k in it.keys if isinstance(it, Singles)]
+        assert keys_taken == [keys.meas("r1", f"x{i}") for i in range(n)]
+        svc.queries.answer(items[-1])
+        assert unpack(next(iter(replies)).ok.payload.to_bytes())["queue"] == 0
+    finally:
+        if svc is not None:
+            svc.close()
+        feed.close()
+        session.close()

@@ -19,8 +19,7 @@ from numpy._core.multiarray import c_einsum
 from .. import defaults
 from ..estimation import kalman, models
 from ..estimation.scratch import span
-from ..wire import SHOWN, STATUSES
-from .clock import TOL
+from ..wire import SHOWN, STATUSES, TIME_TOL
 from .frame import FrameColumns
 from .status import status_codes
 from .store import Columns, TrackArrays, TrackStore
@@ -113,7 +112,7 @@ def axis_traces(p: np.ndarray, order: int, dim: int) -> np.ndarray:
 
 def frame_before(t: np.ndarray, rate: float) -> np.ndarray:
     """The last display instant n / rate strictly before t (same tolerance as the clock)."""
-    return (np.ceil((np.asarray(t, dtype=float) - TOL) * rate) - 1.0) / rate
+    return (np.ceil((np.asarray(t, dtype=float) - TIME_TOL) * rate) - 1.0) / rate
 
 
 def blend_period(offset: np.ndarray, period: float, speed: float) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The service's outputs on Zenoh: `tracks/` states, 30 Hz `display/` and `frame`,
+"""The last stage: the service's outputs on Zenoh: `tracks/` states, 30 Hz `display/` and `frame`,
 deletions and `errors/`, each encoded in bulk from the tracker's columns (`encode`),
 with the counters that `status` reports.
 
@@ -18,14 +18,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from . import defaults
+from .. import defaults
+from ..tracking.bulk import BatchOutcome
+from ..tracking.display import Snapshot
+from ..tracking.store import States
+from ..tracking.tracker import Outcome
+from ..wire import CHUNK, MSGPACK_ENCODING, Keys, pack, reason_code
 from .encode import pack_displays, pack_frame, pack_states, pack_tracks
 from .listeners import Listeners
-from .tracking.bulk import BatchOutcome
-from .tracking.display import Snapshot
-from .tracking.store import States
-from .tracking.tracker import Outcome
-from .wire import CHUNK, MSGPACK_ENCODING, Keys, pack, reason_code
 
 MSGPACK = zenoh.Encoding(MSGPACK_ENCODING)
 
@@ -94,26 +94,29 @@ class FrameSender:
 
 
 class Publisher:
-    """Everything the service puts. `realtime`: display keys may drop under congestion
-    (a stale frame is worthless); `tracks/`, `states`, deletions and errors never do.
+    """Everything the service puts. `anytime` (frames on the wall clock, `Clock.anytime`):
+    display keys may drop under congestion (a stale frame is worthless) and frames go out
+    from a thread of their own; `tracks/`, `states`, deletions and errors never drop.
     `per_target_display` False: no `display/<id>` even when someone listens."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys, realtime: bool,
-                 per_target_display: bool, refresh: float = defaults.LISTENERS_REFRESH
-                 ) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, anytime: bool,
+                 per_target_display: bool) -> None:
         self.session, self.keys = session, keys
         self.per_target_display = per_target_display
         self.count = Counters()
         self.log_after = 0.0  # wall time before which no rejection is logged
         cc = zenoh.CongestionControl
-        self.display_cc = cc.DROP if realtime else cc.BLOCK
+        self.display_cc = cc.DROP if anytime else cc.BLOCK
         self.block = cc.BLOCK
         self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc,
                                                    encoding=MSGPACK)
         # realtime frames go out from a thread of their own; lockstep ones in order, here
-        self.sender = FrameSender(self.pub_frame) if realtime else None
+        self.sender = FrameSender(self.pub_frame) if anytime else None
         self.pub_states = session.declare_publisher(keys.states, congestion_control=self.block,
                                                     encoding=MSGPACK)
+        # who listens is read again every `refresh` s; at every step when frames follow the
+        # inputs (a replay must not miss a subscriber)
+        refresh = defaults.LISTENERS_REFRESH if anytime else 0.0
         self.display_listeners = Listeners(session, keys.display("").rstrip("/"), refresh)
         self.track_listeners = Listeners(session, keys.tracks("").rstrip("/"), refresh)
         # key expressions of each track's display/ and tracks/ keys, made once per track;
@@ -138,6 +141,11 @@ class Publisher:
         self.session.put(self.keys.errors(sensor if CHUNK.fullmatch(sensor) else "unknown"),
                          pack({"key": key, "reason": reason, "code": code, "t_wall": now}),
                          congestion_control=zenoh.CongestionControl.BLOCK, encoding=MSGPACK)
+
+    @property
+    def replaced(self) -> int:
+        """Frames replaced by a newer one before they went out (`FrameSender`)."""
+        return 0 if self.sender is None else self.sender.replaced
 
     def look(self) -> None:
         """Bring the listeners of `display/` and `tracks/` up to date (once per step)."""

@@ -1,7 +1,7 @@
 """`track-service --state PATH`: the track table kept in a file across restarts.
 
-The worker thread copies a checkpoint (`tracking.checkpoint.capture`: the tracks, the
-display clock, the last `seq` per sensor) every `--state-period` seconds (default 1 s)
+The worker thread copies a checkpoint (`TrackService.checkpoint`: the tracks, the display
+clock, the last `seq` per sensor) every `--state-period` seconds (default 1 s)
 and hands it to a writer thread, which encodes it and writes it atomically: a temporary
 file in the same directory, flushed and fsync'ed, then `os.replace` over PATH, so PATH
 always holds one whole checkpoint. On SIGTERM/SIGINT the service stops its worker and
@@ -19,13 +19,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from . import defaults
-from .tracking import checkpoint
-from .tracking.clock import Lockstep, Realtime
-from .wire.cli import fail
+from .. import defaults
+from ..tracking import checkpoint
+from ..wire.cli import fail
 
 if TYPE_CHECKING:
-    from .node import TrackService
+    from .worker import TrackService
 
 log = logging.getLogger("track-service")
 
@@ -51,11 +50,11 @@ class StateFile:
         now = time.monotonic()
         if now >= self.next_due:
             self.next_due = now + self.period
-            self._hand_over(capture(svc))
+            self._hand_over(svc.checkpoint())
 
     def final(self, svc: TrackService) -> None:
         """The last checkpoint, once the worker has stopped; written before returning."""
-        data = capture(svc)
+        data = svc.checkpoint()
         with self.cond:
             self.closed, self.pending = True, None
             self.cond.notify_all()
@@ -107,51 +106,10 @@ class StateFile:
         except OSError as exc:
             fail(f"cannot read the state file {self.path}: {exc.strerror}")
         try:
-            meta = checkpoint.load(svc.tracker, data)
+            tracks, age, note = svc.restore(data)
         except checkpoint.CheckpointError as exc:
             refused = self.path.with_name(self.path.name + ".refused")
             os.replace(self.path, refused)
             return f"state file {self.path} refused ({exc}; kept as {refused}): starting empty"
-        extra = meta.get("extra", {})
-        note = _restore_clock(svc, extra.get("clock"))
-        seq = extra.get("last_seq", {})
-        if isinstance(seq, dict):
-            svc.last_seq.update({k: v for k, v in seq.items()
-                                 if isinstance(k, str) and isinstance(v, int)})
-        age = time.time() - extra.get("wall", time.time())
-        return (f"restored {len(svc.tracker)} tracks from {self.path} "
+        return (f"restored {tracks} tracks from {self.path} "
                 f"(written {age:.1f} s ago{note})")
-
-
-def capture(svc: TrackService) -> Any:
-    """The service's checkpoint (`checkpoint.capture`, on the worker): its tracker's
-    tracks with the clock and `seq` state."""
-    clock: dict[str, Any]
-    if isinstance(svc.clock, Realtime):
-        clock = {"kind": "realtime", "offset": svc.clock.offset}
-    else:
-        clock = {"kind": "lockstep", "next_n": svc.clock.next_n, "picture_t": svc.picture_t}
-    return checkpoint.capture(svc.tracker, extra={"clock": clock, "last_seq": svc.last_seq,
-                                                  "wall": time.time(), "ns": svc.keys.ns})
-
-
-def _restore_clock(svc: TrackService, clock: Any) -> str:
-    """The display clock where the checkpoint left it: realtime frames go on at once
-    (the offset of simulation time to wall time kept), lockstep frames resume after the
-    last instant published. A clock of the other kind is not taken."""
-    if not isinstance(clock, dict):
-        return ""
-    if isinstance(svc.clock, Realtime) and clock.get("kind") == "realtime":
-        off = clock.get("offset")
-        if isinstance(off, int | float) and abs(off) < 1e12:
-            wall = time.time()
-            svc.clock.observe(wall + off, wall)
-            return f"; realtime frames resume at t={wall + off:.3f}"
-    elif isinstance(svc.clock, Lockstep) and clock.get("kind") == "lockstep":
-        n, t = clock.get("next_n"), clock.get("picture_t")
-        if isinstance(n, int):
-            svc.clock.next_n = n
-        if isinstance(t, int | float):
-            svc.picture_t = float(t)
-            return f"; lockstep picture at t={t:.3f}"
-    return ""

@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .wire import Singles
-from .wire.keys import BOUNDS, MAX_SEQ
-from .wire.scans import _IDS, ScanColumns
-from .wire.singles import FIELDS, value_offsets
+from ..wire import Singles
+from ..wire.keys import BOUNDS, MAX_SEQ
+from ..wire.scans import _IDS, ScanColumns
+from ..wire.singles import FIELDS, value_offsets
 
 LAYOUT_MIN = 8  # messages in a take from which this is tried (fewer: decoding each is cheaper)
 HELD = 64  # layouts remembered (a feed sends one or a few)

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from .wire import pack
+from ..wire import pack
 
 Column = tuple[str, "np.ndarray | tuple[list[str], np.ndarray]"]
 

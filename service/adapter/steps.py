@@ -1,0 +1,61 @@
+"""The worker's calls into the tracker, every one of them, in one place (`Tracking`): the
+rest of the adapter reaches the tracker through these methods only."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..tracking import checkpoint
+from ..tracking.bulk import BatchOutcome, Rows, Want, track_columns
+from ..tracking.display import Snapshot
+from ..tracking.tracker import Outcome, Tracker
+from ..wire import PlotScan
+
+
+class Tracking:
+    """Every call the adapter makes into the tracker, in one place."""
+
+    def __init__(self, tracker: Tracker) -> None:
+        self.tracker = tracker
+
+    def __len__(self) -> int:
+        return len(self.tracker)
+
+    def rows(self, rows: Rows, want: Want | None, pause: Any) -> BatchOutcome:
+        """Labelled rows, in order, in one pass over their columns (`pause`: called
+        between parts of a long update)."""
+        return track_columns(self.tracker, rows.ids, rows.sensors, rows.batch, want, pause)
+
+    def scan(self, scan: PlotScan) -> tuple[list[Outcome], list[str]]:
+        """An unlabelled scan: each detection's outcome, the tracks deleted."""
+        return self.tracker.track_scan(scan)
+
+    def instant(self, t: float) -> list[str]:
+        """A display instant: an empty scan (coast and delete); the tracks deleted."""
+        return self.tracker.step([], now=t)
+
+    def delete(self, t: float) -> list[str]:
+        return self.tracker.delete(t)
+
+    def drop_newer(self, t: float) -> list[str]:
+        return self.tracker.drop_newer(t)
+
+    def snapshot(self, t: float) -> Snapshot:
+        return self.tracker.snapshot(t, detail=False)
+
+    def ids(self) -> list[str]:
+        return list(self.tracker.store.where)
+
+    def has(self, track_id: str) -> bool:
+        return track_id in self.tracker.store
+
+    def state(self, track_id: str) -> dict[str, Any]:
+        return self.tracker.state(track_id)
+
+    def capture(self, extra: dict[str, Any]) -> Any:
+        return checkpoint.capture(self.tracker, extra=extra)
+
+    def load(self, data: bytes) -> dict[str, Any]:
+        return checkpoint.load(self.tracker, data)
+
+
