@@ -106,3 +106,9 @@ def compiled_kernels() -> None:
     from service.estimation import imm_jit
 
     imm_jit.warm()
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--update-digests", action="store_true", default=False,
+                     help="tests/test_same_bytes.py: write the output digests of this run "
+                          "to tests/data/same_bytes.json instead of comparing")
