@@ -12,8 +12,8 @@ messages once they have all arrived in the channel, and its thread CPU is split 
     take     taking the messages from the channel into the worker's batch
     look     who listens to tracks/ (`Publisher.look`)
     parse    `_take_singles`: keys, `wire.parse_singles`, seq, time policy, clock
-    bulk     `tracking.bulk.track_columns` outside the filter (ids, deletion, states)
-    filter   `Tracker.update_rows`: the IMM kernel (service/estimation)
+    bulk     `Tracker.step` outside the filter (association, deletion, initiation, states)
+    filter   `Tracker.update`: the IMM kernel (service/estimation)
     outputs  `Publisher.batch`: counts, the tracks/<id> bodies and puts
     rest     the rest of `_process` / `_flush`
 
@@ -54,7 +54,7 @@ class Stopwatch:
 
 
 def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) -> None:
-    import service.inputs as inputs
+    from service.tracking.batches import Instant
     from service.wire import Keys, free_port, pack, peer_config
     from service.wire.session import admin_space
 
@@ -137,10 +137,11 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
         svc._take_singles = watch.wrap("parse", svc._take_singles)  # type: ignore[method-assign]
         svc.out.look = watch.wrap("look", svc.out.look)  # type: ignore[method-assign]
         svc.out.batch = watch.wrap("outputs", svc.out.batch)  # type: ignore[method-assign]
-        svc.tracker.update_rows = watch.wrap(  # type: ignore[method-assign]
-            "filter", svc.tracker.update_rows)
-        plain = inputs.track_columns
-        inputs.track_columns = watch.wrap("bulk", plain)  # type: ignore[assignment]
+        svc.tracker.update = watch.wrap(  # type: ignore[method-assign]
+            "filter", svc.tracker.update)
+        plain, timed = svc.tracker.step, watch.wrap("bulk", svc.tracker.step)
+        svc.tracker.step = lambda scan, *a, **k: (  # type: ignore[method-assign]
+            plain if isinstance(scan, Instant) else timed)(scan, *a, **k)  # frames: "rest"
         clock = time.thread_time
         log(f"worker CPU per pass of k single messages at {tracks} tracks (no flags: IMM, "
             f"realtime; a consumer of tracks/swarm-$*0), median of {reps} passes, us:")
@@ -176,7 +177,7 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
                     + f" {m['total']:>8.0f} {m['non-filter']:>8.0f}"
                     f" {m['total'] / k:>8.1f}")
         finally:
-            inputs.track_columns = plain  # type: ignore[assignment]
+            del svc.tracker.step  # the class's own again
         summary(medians, log)
         consumer.stdin.write("\n")  # type: ignore[union-attr]
         consumer.stdin.flush()  # type: ignore[union-attr]

@@ -41,17 +41,17 @@ def measure(root: Path, kind: str, reps: int) -> tuple[float, str]:
             tracker = ba.our_tracker(kind, sc)
             for s, outcomes in [(s, ba.records(s, sc.sigma)) for s in ss]:
                 t0 = time.thread_time()
-                tracker.step(outcomes, s.t, tracker.scan_associator)
+                got = ba.apply_scan(tracker, s, outcomes)
                 cpu += time.thread_time() - t0
                 count += 1
                 if rep == 0:
-                    _digest(h, tracker, outcomes, np)
+                    _digest(h, tracker, got, np)
         best = min(best, 1e3 * cpu / count)
         digest = digest or h.hexdigest()[:16]
     return best, digest
 
 
-def _digest(h, tracker, outcomes, np) -> None:  # noqa: ANN001
+def _digest(h, tracker, outcome, np) -> None:  # noqa: ANN001
     a = tracker.store.layouts.get(2)
     if a is not None:
         rows = a.rows()
@@ -59,11 +59,8 @@ def _digest(h, tracker, outcomes, np) -> None:  # noqa: ANN001
                     a.hits[rows], a.misses[rows], a.confirmed[rows]):
             h.update(np.ascontiguousarray(col).tobytes())
         h.update(",".join(a.ids[r] for r in rows.tolist()).encode())
-    blocks = {}
-    for o in outcomes:
-        h.update(repr((o.reason, o.nis)).encode())
-        if o.states is not None:
-            blocks[id(o.states)] = o.states
+    h.update(repr((outcome.accepted, outcome.rejected, outcome.deleted)).encode())
+    blocks = {id(st): st for st in outcome.states}
     for st in blocks.values():
         h.update(",".join(st.ids).encode())
         for f in ("t", "pos", "vel", "x", "p", "nis", "updates"):

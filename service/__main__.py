@@ -14,8 +14,8 @@ from . import __version__, defaults
 from .estimation.catalog import FILTERS, FilterSpec
 from .node import TrackService
 from .state import StateFile
-from .tracking.association import SensorModels
 from .tracking.display import DisplayConfig
+from .tracking.plot_association import SensorModels
 from .tracking.tracker import Tracker, TrackerConfig
 from .wire import Keys, add_zenoh_args, fail, open_session, read_file
 

@@ -17,7 +17,9 @@ import numpy as np
 
 from .estimation.measurements import MeasurementBatch
 from .layouts import by_layout
-from .tracking.bulk import BatchOutcome, Rows, track_columns
+from .tracking.batches import Labelled as Rows
+from .tracking.batches import StepOutcome as BatchOutcome
+from .tracking.batches import Unlabelled
 from .wire import (
     PlotScan,
     Rejected,
@@ -366,14 +368,14 @@ class Inputs:
     def _apply_scan(self, key: str, scan: PlotScan) -> None:
         if not self.realtime:
             self._frames_before(scan.t, [])
-        outcomes, deleted = self.tracker.track_scan(scan)
-        self.out.deleted(deleted)
+        outcome = self.tracker.step(Unlabelled.of(scan.sensor, scan.t, scan.detections))
+        self.out.deleted(outcome.deleted)
         self.count.scans_applied += 1
-        self.out.states(outcomes, key)
+        self.out.scan(key, scan.sensor, outcome)
 
     def _flush(self, pending: list[Rows]) -> None:
         """Apply the measurements waiting, in order, in one pass over their columns
-        (`tracking.bulk`, as a batched scan's rows; one pass per dimension when they mix
+        (`Tracker.step`, as a batched scan's rows; one pass per dimension when they mix
         2-D and 3-D). Realtime, the frame due goes out before the pass and after it,
         before the states (a step of a burst spends most of its time in the pass)."""
         if not pending:
@@ -383,8 +385,7 @@ class Inputs:
         for rows in Rows.joined(pending):
             if pause:
                 self._frame_between()
-            outcome = track_columns(self.tracker, rows.ids, rows.sensors, rows.batch, want,
-                                    pause)
+            outcome = self.tracker.step(rows, want, pause)
             self.out.deleted(outcome.deleted)
             if pause:
                 self._frame_between()

@@ -28,7 +28,8 @@ import zenoh
 from . import __version__, defaults
 from .inputs import Inputs
 from .outputs import MSGPACK, Publisher
-from .tracking.bulk import Rows
+from .tracking.batches import Instant
+from .tracking.batches import Labelled as Rows
 from .tracking.clock import Lockstep, Realtime
 from .tracking.reorder import ReorderBuffer
 from .tracking.timeline import Timeline
@@ -311,7 +312,7 @@ class TrackService(Inputs):
                 self._publish_frame(instant)
 
     def _publish_frame(self, t: float) -> None:
-        self.out.deleted(self.tracker.step([], now=t))  # an empty scan: coast and delete
+        self.out.deleted(self.tracker.step(Instant(t)).deleted)  # no input: coast, delete
         self.unswept = None
         self.out.frame(t, self.tracker.snapshot(t, detail=False))
 
@@ -341,7 +342,7 @@ class TrackService(Inputs):
         if instant is not None:
             self._publish_frame(instant)
         elif self.unswept is not None:  # a frame went out within the step: its coast and
-            self.out.deleted(self.tracker.step([], now=self.unswept))  # delete, now
+            self.out.deleted(self.tracker.step(Instant(self.unswept)).deleted)  # delete, now
             self.unswept = None
 
     # ------------------------------------------------------------ queries

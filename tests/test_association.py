@@ -8,13 +8,16 @@ import itertools
 
 import numpy as np
 import pytest
+from reference.record import Outcome, scan_step
 
 from service.estimation import models
 from service.estimation.catalog import FilterSpec
 from service.estimation.measurements import MeasurementBatch
-from service.tracking import association, gating
-from service.tracking.association import GNNAssociator, JPDAAssociator, SensorModels
-from service.tracking.tracker import Outcome, Tracker, TrackerConfig
+from service.tracking import gating
+from service.tracking import plot_association as association
+from service.tracking.batches import Detections
+from service.tracking.plot_association import GNNAssociator, JPDAAssociator, SensorModels
+from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Measurement
 
 SIGMA = 25.0
@@ -28,7 +31,7 @@ def det(t: float, pos, sensor: str = "r1", sigma: float = SIGMA) -> Measurement:
 
 def scan(tracker: Tracker, t: float, positions, sensor: str = "r1") -> list[Outcome]:
     outcomes = [Outcome(det(t, p, sensor)) for p in positions]
-    tracker.step(outcomes, t, tracker.scan_associator)
+    scan_step(tracker, outcomes, t)
     return outcomes
 
 
@@ -117,7 +120,7 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
         meas = [det(2.0, p) for p in pts + rng.normal(0, 40, pts.shape)] + \
             [det(2.0, p) for p in rng.uniform(0, 1000, (3, 2))]
         assoc = tracker.scan_associator
-        hyp = assoc.associate(store, meas)
+        hyp = assoc.associate(store, Detections("r1", 2.0, MeasurementBatch.of(meas, 2)))
         arrays = store.layout(2)  # all tentative: the nearest-neighbour stage
         z, r = gating.convert(MeasurementBatch.of(meas, 2))
         g = gating.gate(arrays, arrays.rows(), z, r, 2.0, 1.0, gating.gate_threshold(0.999, 2))
@@ -126,8 +129,8 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
                  zip(g.ti, g.dj, np.log(pd) + g.loglik - np.log(lam), strict=True)}
         miss = np.log1p(-pd)
         row_of = {r: i for i, r in enumerate(g.rows.tolist())}  # store row -> track index
-        rows = np.concatenate(hyp.rows.get(2, [np.zeros(0, int)])).tolist()
-        chosen = {(row_of[k], j) for j, k in zip(hyp.updates.get(2, []), rows, strict=True)}
+        index, rows = hyp.pairs()
+        chosen = {(row_of[k], j) for j, k in zip(index.tolist(), rows.tolist(), strict=True)}
 
         n_rows = len(g.rows)
 

@@ -63,6 +63,9 @@ class SingleModelFilter:
     def labels(self, arrays: Any, rows: np.ndarray) -> list[str]:
         return [self.kind] * len(rows)
 
+    def warm(self) -> None:
+        """Nothing to compile: NumPy only."""
+
 
 def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
               q: float | np.ndarray, batch: MeasurementBatch) -> Result:

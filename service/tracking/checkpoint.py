@@ -58,8 +58,7 @@ def capture(tracker: Tracker, extra: dict[str, Any] | None = None
     as arrays), quick enough for the thread that owns the tracker; `encode` makes the
     bytes of it on any thread. `extra`: the adapter's own JSON-serialisable state."""
     meta = header(tracker)
-    meta.update(numbers=dict(tracker.numbers), last=dict(tracker.associator.last),
-                extra=extra or {}, layouts=sorted(tracker.store.layouts))
+    meta.update(**tracker.memory(), extra=extra or {}, layouts=sorted(tracker.store.layouts))
     arrays: dict[str, np.ndarray] = {}
     for dim, lay in tracker.store.layouts.items():
         rows, ids = lay.live()
@@ -103,15 +102,9 @@ def load(tracker: Tracker, data: bytes) -> dict[str, Any]:
     numbers, last = meta.get("numbers", {}), meta.get("last", {})
     if not (_str_map(numbers, int) and _str_map(last, str)):
         raise CheckpointError("malformed track numbers or last sensors")
-    store = tracker.store
     for dim, (ids, cols) in tables.items():
-        lay = store.layout(dim)
-        rows = store.add_many(ids, dim)[1]
-        for name, values in cols.items():
-            getattr(lay, name)[rows] = values
-        tracker.display.initiate(lay, rows)
-    tracker.numbers.update(numbers)
-    tracker.associator.last.update({k: v for k, v in last.items() if k in store})
+        tracker.restore(dim, ids, cols)
+    tracker.recall({"numbers": numbers, "last": last})
     return meta
 
 

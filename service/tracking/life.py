@@ -1,7 +1,7 @@
 """Track life of unlabelled tracks: M-of-N confirmation and the misses that end tracks.
 
 Each scan that could have seen a track counts it as detected or missed
-(`associator.Hypotheses.seen`) and adds its log-likelihood ratio to the
+(`hypotheses.Hypotheses.seen`) and adds its log-likelihood ratio to the
 track's score (a detection ln(Pd N(nu; 0, S) / lambda), a miss ln(1 - Pd): the
 sequential test of Blackman & Popoli 1999, sec. 6.2). A track keeps its last N outcomes
 as bits; it is confirmed once M of them are detections and its score has reached the
@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .associator import Seen
+from .hypotheses import Seen
 from .store import TrackStore
 
 

@@ -184,7 +184,7 @@ class TrackStore:
             arrays.remove(rows)
 
     def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray,
-               labels: list, x: np.ndarray | None = None, p: np.ndarray | None = None
+               labels: Sequence, x: np.ndarray | None = None, p: np.ndarray | None = None
                ) -> States:
         """The filtered states of rows of one layout, as columns (`labels`: the filter's
         model label of each row; x (N, n), P (N, n, n): their states and covariances as

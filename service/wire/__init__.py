@@ -31,6 +31,7 @@ from .keys import (
     PROTOCOL_VERSION,
     SHOWN,
     STATUSES,
+    TIME_TOL,
     Keys,
 )
 from .messages import Measurement, parse_clock, parse_full, parse_measurement
@@ -57,7 +58,7 @@ from .singles import Singles, parse_singles
 __all__ = [
     "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "CONNECT_RETRY", "DEFAULT_ENDPOINT", "DEFAULT_NS",
     "MAX_DETECTIONS", "MAX_MEAS_BYTES", "MAX_ROWS", "MAX_SCAN_BYTES", "MAX_TIME",
-    "MSGPACK_ENCODING", "PROTOCOL_VERSION", "REASON_CODES", "SHOWN", "STATUSES", "Keys",
+    "TIME_TOL", "MSGPACK_ENCODING", "PROTOCOL_VERSION", "REASON_CODES", "SHOWN", "STATUSES", "Keys",
     "LabelledScan", "Measurement", "PlotScan", "Rejected", "add_zenoh_args", "bad_rows",
     "check_size", "decode_frame", "decode_map", "f64_bin", "f64_list", "free_port",
     "open_session", "pack", "parse_clock", "parse_full", "parse_measurement", "parse_plots",

@@ -17,6 +17,9 @@ MAX_MEAS_BYTES = 64 * 1024  # bytes of one meas/ or clock payload
 MAX_SCAN_BYTES = 16 * 1024 * 1024  # bytes of one plots/ (or scan/) payload
 MAX_ROWS = 100_000  # detections of one plots/ scan (rows of one scan/ message)
 MAX_TIME = 1e10  # s: |t| beyond this is absurd (Unix seconds reach it in the year 2286)
+# s: times this close are one instant: "strictly before t" (a display instant before an
+# input), "older than the track's last update", "at the same time" (a duplicate)
+TIME_TOL = 1e-6
 MAX_DISTANCE = 1e9  # m: range, every coordinate and every distance noise
 # angles: additive noise carries a measurement of a target at the zenith (scenario B's
 # overhead pass) or at az = 2 pi a little past the bound; ANGLE_MARGIN (about 6 sigma of
