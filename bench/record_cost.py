@@ -65,7 +65,7 @@ def main() -> None:
         cmkf_step(x, pc, np.full(len(batch), 0.5), 2, 3, 1.0, batch)
         core = min(core, clock() - t0)
     per, core_per = spent / n * 1e6, core / len(batch) * 1e6
-    print(f"{os.getcwd()}: {n} targets, record path (parse_scan + Tracker.track) "
+    print(f"{os.getcwd()}: {n} targets, records (parse_scan, columns again, Tracker.step) "
           f"{per:.2f} us of CPU per measurement; filter core {core_per:.2f} us per row; "
           f"ratio {per / core_per:.1f}; load average "
           f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}")

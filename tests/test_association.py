@@ -8,6 +8,7 @@ import itertools
 
 import numpy as np
 import pytest
+from reference.association import assign_reference
 from reference.record import Outcome, scan_step
 
 from service.estimation import models
@@ -164,7 +165,7 @@ def test_near_pairs_equal_the_distance_matrix(tracks, dets):
 
 def test_packed_assignment_equals_one_cluster_at_a_time():
     """GNN's block-diagonal packing of small clusters (`assign`) chooses the same pairs
-    as solving each cluster alone (`assign_reference`), with clusters of every size."""
+    as solving each cluster alone (`reference.association`), with clusters of every size."""
     rng = np.random.default_rng(7)
     tracker = make(confirm_m=1, confirm_score=-100.0)
     pairs = rng.uniform(0, 50_000, (30, 2))
@@ -189,7 +190,7 @@ def test_packed_assignment_equals_one_cluster_at_a_time():
     assert len(np.unique(g.ti[every[1]])) <= association.PACK
     for part in every:
         got = np.sort(np.concatenate(association.assign(g, part, score, miss)))
-        ref = np.sort(np.concatenate(association.assign_reference(g, part, score, miss)))
+        ref = np.sort(np.concatenate(assign_reference(g, part, score, miss)))
         np.testing.assert_array_equal(got, ref)
         assert len(got) > 8
 

@@ -54,9 +54,11 @@ class ModeSet:
 
 def standard_modes(q: float = defaults.Q_CV, ct_q: float = 3.0, turn_deg: float = 1.8
                    ) -> tuple[Mode, ...]:
-    """The modes of the IMM the service used by default until issue 14 (name, kind, q,
-    omega): CV and CA with white noise `q` (m/s^2 for CV, m/s^3 for CA) and coordinated
-    turns at +- `turn_deg` deg/s with `ct_q` x q (sojourn 200 s, evenly left)."""
+    """The modes of the IMM the service used by default before the quiet/nominal/CA set
+    of `ModeSet` (a bare `IMM()`'s, and bench/imm_design.py's "old"): (name, kind, q,
+    omega) of CV and CA with white noise `q` (m/s^2 for CV, m/s^3 for CA) and
+    coordinated turns at +- `turn_deg` deg/s with `ct_q` x q (sojourn 200 s, evenly
+    left)."""
     w = np.radians(turn_deg)
     return (("cv", "cv", q, 0.0), ("ca", "ca", q, 0.0),
             ("ct+", "ct", ct_q * q, w), ("ct-", "ct", ct_q * q, -w))

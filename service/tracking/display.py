@@ -14,13 +14,12 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy._core.multiarray import c_einsum
 
 from .. import defaults
 from ..estimation import kalman, models
+from ..estimation.batch import einsum_as_is
 from ..estimation.scratch import span
-from ..wire import SHOWN, STATUSES
-from .clock import TOL
+from ..wire import SHOWN, STATUSES, TIME_TOL
 from .frame import FrameColumns
 from .status import status_codes
 from .store import Columns, TrackArrays, TrackStore
@@ -34,7 +33,7 @@ def predicted(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t: np.nd
     d, o = dim, order
     dt = t - t_state
     phi = models.axis_transition(dt, o)  # (N, o, o)
-    xs = phi @ x.reshape(-1, o, d)  # matmul: ~5x faster than einsum here
+    xs = phi @ x.reshape(-1, o, d)  # matmul: BLAS-backed, quicker than einsum here
     c0 = phi[:, 0, :]
     g0 = models.axis_noise_gain(np.abs(dt), o)[:, 0]
     var = d * (q * g0) ** 2  # c0' axis_cov c0 term by term: small-axis reductions are slow
@@ -108,12 +107,12 @@ def axis_traces(p: np.ndarray, order: int, dim: int) -> np.ndarray:
     """(N, order, order): the covariances summed over the spatial axes, block by block
     (derivative i with derivative j); the position variance of a prediction follows from
     them without the full matrix."""
-    return c_einsum("naibi->nab", p.reshape(-1, order, dim, order, dim))  # np.einsum's kernel
+    return einsum_as_is("naibi->nab", p.reshape(-1, order, dim, order, dim))
 
 
 def frame_before(t: np.ndarray, rate: float) -> np.ndarray:
     """The last display instant n / rate strictly before t (same tolerance as the clock)."""
-    return (np.ceil((np.asarray(t, dtype=float) - TOL) * rate) - 1.0) / rate
+    return (np.ceil((np.asarray(t, dtype=float) - TIME_TOL) * rate) - 1.0) / rate
 
 
 def blend_period(offset: np.ndarray, period: float, speed: float) -> np.ndarray:

@@ -206,7 +206,8 @@ def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list
     `linear_sum_assignment`). Clusters are solved together, as one block-diagonal matrix,
     while they hold at most `PACK` tracks in all: a pair of two clusters costs UNLIKELY,
     never better than a miss, so each block's optimum is its cluster's, and up to PACK
-    tracks the clusters need not even be found. `assign_reference` solves them one by one."""
+    tracks the clusters need not even be found. tests/reference/association.py solves them
+    one by one."""
     from scipy.optimize import linear_sum_assignment  # SciPy only once scans come
 
     if not len(multi):
@@ -266,26 +267,6 @@ def _number(node: np.ndarray, cl: np.ndarray | None, n_nodes: int, n_clusters: i
     number = np.empty(n_nodes, dtype=int)
     number[order] = np.arange(len(order))
     return number[node], np.bincount(cluster[order], minlength=n_clusters)
-
-
-def assign_reference(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float
-                     ) -> list[np.ndarray]:
-    """`assign`, one cluster at a time with dictionaries (the textbook form)."""
-    from scipy.optimize import linear_sum_assignment
-
-    out = []
-    for k in split(g, multi):
-        tracks, ti = np.unique(g.ti[k], return_inverse=True)
-        dets, dj = np.unique(g.dj[k], return_inverse=True)
-        nt, nd = len(tracks), len(dets)
-        cost = np.full((nt, nd + nt), UNLIKELY)
-        cost[ti, dj] = -score[k]
-        cost[np.arange(nt), nd + np.arange(nt)] = -miss
-        r, c = linear_sum_assignment(cost)
-        lookup = {(a, b): pair for a, b, pair in zip(ti, dj, k, strict=True)}
-        out.append(np.array([lookup[a, b] for a, b in zip(r, c, strict=True)
-                             if (a, b) in lookup], dtype=int))
-    return out
 
 
 class GNNAssociator(_ScanAssociator):
