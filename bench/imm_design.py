@@ -71,7 +71,7 @@ def tracker(updater: IMM | None, spec: FilterSpec | None = None) -> Tracker:
         return Tracker(TrackerConfig(filter=spec or FilterSpec()))
     tr = Tracker()
     tr.updater = updater
-    tr.store = TrackStore(updater.order, updater.fields)
+    tr.store = TrackStore(updater.order, updater.fields, tr.store.columns)
     tr.display = DisplayState(tr.config.display, 1.0)
     return tr
 

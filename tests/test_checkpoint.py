@@ -40,12 +40,13 @@ def busy_tracker(name: str = "imm") -> Tracker:
 
 
 def table(tr: Tracker) -> dict:
-    """Every live track's columns, by id (order of rows ignored)."""
+    """Every live track's saved columns (what the display makes again from them is
+    not saved), by id (order of rows ignored)."""
     out = {}
     for dim, lay in tr.store.layouts.items():
         rows, ids = lay.live()
         for r, i in zip(rows.tolist(), ids, strict=True):
-            out[i] = (dim, {k: np.array(getattr(lay, k)[r]) for k in lay.shapes})
+            out[i] = (dim, {k: np.array(getattr(lay, k)[r]) for k in lay.saved})
     return out
 
 

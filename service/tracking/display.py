@@ -22,7 +22,7 @@ from ..estimation.scratch import span
 from ..wire import SHOWN, STATUSES, TIME_TOL
 from .frame import FrameColumns
 from .status import status_codes
-from .store import Columns, TrackArrays, TrackStore
+from .store import Column, Columns, TrackArrays, TrackStore
 
 
 def predicted(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t: np.ndarray | float,
@@ -222,33 +222,28 @@ class Snapshot:
 
 
 # the display's columns beside each layout of the store
-DISPLAY_COLUMNS = {"offset": "d", "blend_start": "", "blend_period": "",
-                   "prev_x": "n", "prev_p": "nn", "prev_t": "", "axis_cov": "oo"}
+# the display state's per-row columns in the store (not saved: `initiate` makes them
+# again from a restored track's state): the blend offset, its start and period, the
+# previous filtered state (for smoothing) and the covariance's axis sums (the predicted
+# sigma)
+DISPLAY_COLUMNS = {name: Column(code, saved=False) for name, code in (
+    ("offset", "d"), ("blend_start", ""), ("blend_period", ""), ("prev_x", "n"),
+    ("prev_p", "nn"), ("prev_t", ""), ("axis_cov", "oo"))}
 
 
 class DisplayState:
     """What the display draws of every track: the filtered state predicted to the display
     instant, with corrections blended in and lagged instants smoothed (`DisplayConfig`).
-    Keeps its own per-row columns beside each layout of the store: the blend offset, its
-    start and period, the previous filtered state (for smoothing) and the covariance's
-    axis sums (for the predicted sigma)."""
+    Keeps its per-row fields in the store's layouts (`DISPLAY_COLUMNS`)."""
 
     def __init__(self, config: DisplayConfig, q: float) -> None:
         self.config, self.q = config, q
-        self.cols: dict[int, Columns] = {}
         self.frames: dict[int, FrameColumns] = {}  # the frames' inputs (`frame`)
         self._ids_cache: tuple[tuple, list[str], list] | None = None
 
     def columns(self, arrays: TrackArrays) -> Columns:
-        """The display's columns of one layout, as many rows as the store has."""
-        cols = self.cols.get(arrays.dim)
-        if cols is None:
-            d, n, o = arrays.dim, arrays.n, arrays.order
-            sizes = {"": (), "d": (d,), "n": (n,), "nn": (n, n), "oo": (o, o)}
-            cols = self.cols[arrays.dim] = Columns(
-                {k: sizes[code] for k, code in DISPLAY_COLUMNS.items()})
-        cols.grow(arrays.capacity)
-        return cols
+        """The display's columns of one layout: the layout's own (`DISPLAY_COLUMNS`)."""
+        return arrays
 
     def initiate(self, arrays: TrackArrays, rows: np.ndarray, x: np.ndarray | None = None,
                  p: np.ndarray | None = None) -> None:

@@ -20,7 +20,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from .hypotheses import Seen
-from .store import TrackStore
+from .store import Column, TrackStore
+
+# the life of a track of unlabelled scans, per row of the store, zero for a new track:
+# whether it is one, its detections in the last scans as bits (newest lowest), the
+# scans that could have seen it, its consecutive misses, its score, whether confirmed
+LIFE_COLUMNS = {"plot": Column(dtype=bool, fresh=True), "hits": Column(dtype=np.int64, fresh=True),
+                "scans": Column(dtype=np.int64, fresh=True),
+                "misses": Column(dtype=np.int64, fresh=True), "score": Column(fresh=True),
+                "confirmed": Column(dtype=bool, fresh=True)}
 
 
 def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:

@@ -24,11 +24,11 @@ from ..estimation.measurements import MeasurementBatch
 from ..wire import TIME_TOL
 from .batches import Instant, Labelled, Scan, StepOutcome, Want, all_states
 from .deleter import CompositeDeleter, UpdateTimeDeleter
-from .display import DisplayConfig, DisplayState, Snapshot
+from .display import DISPLAY_COLUMNS, DisplayConfig, DisplayState, Snapshot
 from .hypotheses import Hypotheses, WeightedUpdate
 from .initiator import SinglePointInitiator
 from .label_association import LabelAssociator
-from .life import MofNDeleter, update_life
+from .life import LIFE_COLUMNS, MofNDeleter, update_life
 from .plot_association import GNNAssociator, JPDAAssociator, SensorModels
 from .protocols import Associator, Deleter, Initiator, Updater
 from .store import States, TrackArrays, TrackStore
@@ -105,7 +105,8 @@ class Tracker:
             UpdateTimeDeleter(c.delete_after),
             MofNDeleter(c.confirm_m, c.confirm_n, c.delete_misses, c.delete_sigma))
         self.display = DisplayState(c.display, built.q)
-        self.store = TrackStore(self.updater.order, self.updater.fields)
+        self.store = TrackStore(self.updater.order, self.updater.fields,
+                                {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
         self.numbers = TrackNumbers()
 
     def __len__(self) -> int:
