@@ -346,7 +346,7 @@ def main(argv: list[str] | None = None) -> None:
           "  step = filters.cmkf_step: predict + convert + update on arrays, in one pass;\n"
           "  predict, convert, update = the parts through their own entry points (each with\n"
           "  its own row-major input and output: they add up to more than step);\n"
-          "  p+u = predict + update; apply = Tracker.track, the whole table step (decode,\n"
+          "  p+u = predict + update; apply = Tracker.step, the whole table step (decode,\n"
           "  bookkeeping, tracks/ message dicts); faults = minor page faults per step call;\n"
           "  ref = us of the reference np.multiply, timed just before step")
 

@@ -11,12 +11,14 @@ import pytest
 from reference.association import assign_reference
 from reference.record import Outcome, scan_step
 
+import service.tracking.tracker as tracker_module
 from service.estimation import models
 from service.estimation.catalog import FilterSpec
 from service.estimation.measurements import MeasurementBatch
 from service.tracking import gating
 from service.tracking import plot_association as association
 from service.tracking.batches import Detections
+from service.tracking.hypotheses import Hypotheses
 from service.tracking.plot_association import GNNAssociator, JPDAAssociator, SensorModels
 from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Measurement
@@ -364,3 +366,42 @@ def test_cluster_propagation_equals_connected_components():
         # the same partition of the pairs (labels may differ)
         assert len(set(zip(a.tolist(), b.tolist(), strict=True))) == len(set(a.tolist())) \
             == len(set(b.tolist()))
+
+
+class EveryDetectionNew:
+    """The trivial associator of docs/architecture.md's "Where to add": no detection
+    updates a track, each starts one (one class satisfying `protocols.Associator`)."""
+
+    def __init__(self, q: float, sensors: SensorModels | None = None,
+                 gate_probability: float = 0.999) -> None:
+        self.inner = GNNAssociator(q, sensors, gate_probability)
+
+    def split(self, scan):
+        return self.inner.split(scan)  # one part per dimension, as every scan associator
+
+    def associate(self, store, part) -> Hypotheses:
+        return Hypotheses(part.batch.dim if part.batch is not None else 0,
+                          unassociated=list(range(len(part))))
+
+
+def test_a_new_associator_is_one_class_and_one_registration(monkeypatch):
+    """The recipe tried: registered in `SCAN_ASSOCIATORS`, chosen by name (as
+    `--associator` would), it runs the tracker's one loop unchanged."""
+    monkeypatch.setitem(tracker_module.SCAN_ASSOCIATORS, "every-new", EveryDetectionNew)
+    tracker = make("every-new")
+    assert isinstance(tracker.scan_associator, EveryDetectionNew)
+    pts = np.array([[0.0, 0.0], [500.0, 0.0], [0.0, 900.0]])
+    scan(tracker, 0.0, pts)
+    out = scan(tracker, 1.0, pts + 1.0)
+    assert all(o.reason is None for o in out)
+    assert sorted(tracker.store.where) == [f"r1-{i}" for i in range(1, 7)]
+    assert {tracker.state(k)["updates"] for k in tracker.store.where} == {1}
+    assert "every-new" in parser_choices(monkeypatch)
+
+
+def parser_choices(monkeypatch) -> tuple[str, ...]:
+    """--associator's choices, read from the registry when the parser is built."""
+    from service.__main__ import parser
+
+    action = next(a for a in parser()._actions if "--associator" in a.option_strings)
+    return tuple(action.choices)
