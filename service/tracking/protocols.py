@@ -6,11 +6,12 @@ one module that satisfies its protocol plus one registration (docs/architecture.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from ..estimation.measurements import MeasurementBatch
+from .batches import Detections, Labelled, Unlabelled
 from .hypotheses import Hypotheses
 from .store import TrackArrays, TrackStore
 
@@ -46,16 +47,22 @@ class Updater(Protocol):
         ...
 
 
-class Associator(Protocol):
-    """Which measurement of a scan updates which track."""
+ScanT = TypeVar("ScanT", Labelled, Unlabelled, contravariant=True)
+PartT = TypeVar("PartT", Labelled, Detections)
 
-    def split(self, scan: Any) -> list[tuple[list[int], Any]]:
+
+class Associator(Protocol[ScanT, PartT]):
+    """Which measurement of a scan updates which track: of labelled scans
+    (`Associator[Labelled, Labelled]`) or of unlabelled ones
+    (`Associator[Unlabelled, Detections]`)."""
+
+    def split(self, scan: ScanT) -> list[tuple[list[int], PartT]]:
         """The parts of a scan associated one after the other, each with the indices of
         its rows in the scan (labelled: a target at most once a part; unlabelled: one
         dimension a part)."""
         ...
 
-    def associate(self, store: TrackStore, part: Any) -> Hypotheses: ...
+    def associate(self, store: TrackStore, part: PartT) -> Hypotheses: ...
 
 
 class Initiator(Protocol):

@@ -13,7 +13,7 @@ JPDA associator (`plot_association`), and their tracks live by M of N (`life`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,7 +22,7 @@ from .. import defaults
 from ..estimation.catalog import FilterSpec
 from ..estimation.measurements import MeasurementBatch
 from ..wire import TIME_TOL
-from .batches import Instant, Labelled, Scan, StepOutcome, Want, all_states
+from .batches import Detections, Instant, Labelled, Scan, StepOutcome, Unlabelled, Want, all_states
 from .deleter import CompositeDeleter, UpdateTimeDeleter
 from .display import DISPLAY_COLUMNS, DisplayConfig, DisplayState, Snapshot
 from .hypotheses import Hypotheses, WeightedUpdate
@@ -97,8 +97,8 @@ class Tracker:
         built = c.filter.build()
         self.updater: Updater = built.updater
         self.conversion = built.conversion
-        self.associator = LabelAssociator()
-        self.scan_associator: Associator = SCAN_ASSOCIATORS[c.associator](
+        self.associator: Associator[Labelled, Labelled] = LabelAssociator()
+        self.scan_associator: Associator[Unlabelled, Detections] = SCAN_ASSOCIATORS[c.associator](
             built.q, c.sensors, c.gate_probability)
         self.initiator: Initiator = SinglePointInitiator(c.init_speed, c.init_accel)
         self.deleter: Deleter = CompositeDeleter(
@@ -126,10 +126,7 @@ class Tracker:
         if isinstance(scan, Instant):
             out.deleted += self.delete(scan.t)
             return out
-        associator: Associator = self.associator if isinstance(scan, Labelled) \
-            else self.scan_associator
-        for index, part in associator.split(scan):
-            hyp = associator.associate(self.store, part)
+        for index, part, hyp in self._associated(scan):
             bad = hyp.rejected
             self._update(hyp, part.batch, bad, out, want, pause)
             for weighted in hyp.weighted:
@@ -145,6 +142,17 @@ class Tracker:
         return out
 
     # ------------------------------------------------------------ the stages
+    def _associated(self, scan: Labelled | Unlabelled
+                    ) -> Iterator[tuple[list[int], Labelled | Detections, Hypotheses]]:
+        """Each part of a scan with its hypotheses, associated when its turn comes (after
+        the parts before it changed the store)."""
+        if isinstance(scan, Labelled):
+            for index, part in self.associator.split(scan):
+                yield index, part, self.associator.associate(self.store, part)
+        else:
+            for index, det in self.scan_associator.split(scan):
+                yield index, det, self.scan_associator.associate(self.store, det)
+
     def _update(self, hyp: Hypotheses, batch: MeasurementBatch | None, bad: dict[int, str],
                 out: StepOutcome, want: Want | None,
                 pause: Callable[[StepOutcome], None] | None) -> None:
@@ -229,16 +237,17 @@ class Tracker:
         self.associator.forget(ids)
         return ids
 
-    def _initiate(self, hyp: Hypotheses, part: Labelled | object, bad: dict[int, str],
+    def _initiate(self, hyp: Hypotheses, part: Labelled | Detections, bad: dict[int, str],
                   out: StepOutcome, want: Want | None) -> None:
         """Start a track from each unassociated measurement of a part: named by its
         label, or, unlabelled, `<sensor>-<n>` (`TrackNumbers`)."""
-        new, batch = hyp.unassociated, part.batch  # type: ignore[attr-defined]
+        new, batch = hyp.unassociated, part.batch
+        assert batch is not None  # a part with measurements
         if isinstance(part, Labelled):
             ids, speed = [part.ids[i] for i in new], None
             batch = batch if len(new) == len(part) else batch.take(new)
         else:
-            ids, speed = self.numbers.new(part.sensor, len(new)), self.config.max_speed / 3  # type: ignore[attr-defined]
+            ids, speed = self.numbers.new(part.sensor, len(new)), self.config.max_speed / 3
             batch = batch.take(new)
         arrays, rows, reasons = self.initiate(hyp.dim, batch, ids, speed)
         for i, reason in zip(new, reasons, strict=True):
