@@ -11,7 +11,7 @@ import numpy as np
 from .. import defaults
 from . import imm_jit, kalman, models
 from .batch import einsum
-from .filters import Convert, Result, moments, predict
+from .filters import Convert, Result, Rows, moments, predict
 from .ucm import CMKFConversion
 
 Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct"), q, omega (rad/s)
@@ -99,7 +99,7 @@ class IMM:
         m = len(self.modes)
         return {"mode_x": ("n", m), "mode_p": ("nn", m), "mode_prob": ("", m)}
 
-    def initiate(self, arrays: Any, rows: np.ndarray) -> None:
+    def initiate(self, arrays: Rows, rows: np.ndarray) -> None:
         arrays.mode_x[rows] = arrays.x[rows, None]
         arrays.mode_p[rows] = arrays.p[rows, None]
         m = len(self.modes)
@@ -141,7 +141,7 @@ class IMM:
         p0 = einsum("nij,nijxy->njxy", w, ps + d[..., :, None] * d[..., None, :])
         return c, x0, p0
 
-    def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
+    def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         if isinstance(convert, CMKFConversion) and imm_jit.applies(self):
             return imm_jit.step(self, arrays, rows, dt, convert.batch)  # the same, compiled
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
@@ -185,12 +185,12 @@ class IMM:
         if imm_jit.applies(self):
             imm_jit.warm()
 
-    def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
+    def inflate(self, arrays: Rows, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the combined covariances of rows (the spread of a PDA
         update): every mode's covariance takes it too."""
         arrays.mode_p[rows] += dp[:, None]
 
-    def labels(self, arrays: Any, rows: np.ndarray) -> ModeProbabilities:
+    def labels(self, arrays: Rows, rows: np.ndarray) -> ModeProbabilities:
         return ModeProbabilities([name for name, *_ in self.modes], arrays.mode_prob[rows])
 
 

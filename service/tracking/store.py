@@ -70,6 +70,11 @@ class Columns:
             setattr(self, name, grown)
         self.capacity = capacity
 
+    def __getattr__(self, name: str) -> np.ndarray:
+        """Only for what is not a column (they are attributes): says so, and tells type
+        checkers that a column read by name is an array (`estimation.filters.Rows`)."""
+        raise AttributeError(f"no per-row column {name!r}")
+
 
 class TrackArrays(Columns):
     """Tracks of one layout: the `CORE` columns (states x (cap, n), covariances p
