@@ -14,7 +14,7 @@ over the predicted position: `convert.cmkf_soa`).
   (`measurements.MeasurementBatch`), timed as one vectorised step; building those columns
   from the validated `Measurement` records is timed on its own ("decode"), and the parts
   through their own entry points (`models.predict`, `ucm.cmkf_arrays` on the
-  columns, `kalman.update`). Also the whole table step `Tracker.track` (which adds
+  columns, `kalman.update`). Also the whole table step `Tracker.step` (which adds
   decoding, the bookkeeping and the per-track `tracks/` message dicts) on the following
   scans.
 - FilterPy: one `filterpy.kalman.KalmanFilter` per target, F and Q (Q from FilterPy's own
@@ -84,7 +84,7 @@ DIM, ORDER, N_STATE = 3, 2, 6
 T = 1.0  # s, scan period
 Q = 1.0  # m/s^2, white acceleration std per axis
 SR, SA = 20.0, math.radians(0.2)  # radar noise: range m, azimuth and elevation rad
-PRIOR_SCANS = 3  # scans through Tracker.track before the timed step (initiate + 2)
+PRIOR_SCANS = 3  # scans through Tracker.step before the timed step (initiate + 2)
 CHECK = 5  # targets whose posteriors are compared across the three filters
 RTOL = 1e-6
 # ours [x y z vx vy vz] <-> Stone Soup [x vx y vy z vz]
@@ -330,7 +330,7 @@ def main(argv: list[str] | None = None) -> None:
         progress.write(f"# N={n}: done ({timed})", file=sys.stdout)
         progress.update(1)
     progress.close()
-    agree = ", ".join(["ours", "ours by parts", "Tracker.track", *(k for k, _ in peers)])
+    agree = ", ".join(["ours", "ours by parts", "Tracker.step", *(k for k, _ in peers)])
     print(f"# posteriors of the first {CHECK} targets agree to {RTOL:g} relative: {agree}")
 
     print("\nours, one vectorised step over N targets (us per target-step)")
