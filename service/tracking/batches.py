@@ -139,11 +139,12 @@ class StepOutcome:
     deleted: list[str] = field(default_factory=list)
     states: list[States] = field(default_factory=list)
 
-    def keep(self, states: Callable[[np.ndarray], States], ids: list[str | None],
+    def keep(self, states: Callable[[np.ndarray | None], States], ids: list[str | None],
              rows: np.ndarray, want: Want | None) -> None:
-        """Keep the states of `rows` (of a layout whose ids are `ids`) that `want` picks."""
+        """Keep the states of the `rows` (of a layout whose ids are `ids`) that `want`
+        picks; `states(pick)` makes those of rows[pick] (None: of all)."""
         if want is None or not len(rows):
             return
         pick = want([ids[r] for r in rows.tolist()])  # type: ignore[misc]
         if pick is None or len(pick):
-            self.states.append(states(rows if pick is None else rows[pick]))
+            self.states.append(states(None if pick is None else np.asarray(pick, dtype=int)))

@@ -130,8 +130,9 @@ class Tracker:
             bad = hyp.rejected
             self._update(hyp, part.batch, bad, out, want, pause)
             for weighted in hyp.weighted:
-                good = self.update_weighted(weighted, part.t)
-                out.keep(self._states_of(weighted.arrays), weighted.arrays.ids, good, want)
+                good, x, p = self._update_weighted(weighted, part.t)
+                out.keep(self._block(weighted.arrays, good, x, p), weighted.arrays.ids, good,
+                         want)
             self.count_detections(hyp)
             out.deleted += self.delete(part.t)
             if hyp.unassociated:
@@ -165,20 +166,24 @@ class Tracker:
         order = np.argsort(rows, kind="stable")  # the rows in store order: a row's
         upd, rows = upd[order], rows[order]  # result does not depend on the others
         cut = len(rows) if pause is None else PART
-        states = self._states_of(arrays)
         for lo in range(0, len(rows), cut):
             if lo:
                 pause(out)  # type: ignore[misc]
             part = upd[lo:lo + cut]
-            good, ok, _ = self.update(arrays, rows[lo:lo + cut], batch.take(part))
+            good, ok, _, x, p = self._update_rows(arrays, rows[lo:lo + cut], batch.take(part))
             for j in np.flatnonzero(~ok).tolist():
                 bad[int(part[j])] = NON_FINITE
-            out.keep(states, arrays.ids, good, want)
+            out.keep(self._block(arrays, good, x, p), arrays.ids, good, want)
 
     def update(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predict and update `rows` of `arrays` with `batch` (row i with measurement i):
         the rows updated (those whose result is finite), the mask of them and every NIS."""
+        return self._update_rows(arrays, rows, batch)[:3]
+
+    def _update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
+                     ) -> tuple[np.ndarray, ...]:
+        """`update`, and the new states and covariances of the rows updated."""
         t = batch.t
         xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows],
                                               self.conversion(batch))
@@ -192,12 +197,13 @@ class Tracker:
         arrays.x[good], arrays.p[good], arrays.nis[good] = xn, pn, nis_ok
         arrays.t[good] = t
         arrays.updates[good] += 1
-        return good, ok, nis
+        return good, ok, nis, xn, pn
 
-    def update_weighted(self, w: WeightedUpdate, t: float) -> np.ndarray:
+    def _update_weighted(self, w: WeightedUpdate, t: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Update tracks each with the equivalent measurement of its weighted detections
         (JPDA), then add the spread of those detections to their covariances; the rows
-        updated."""
+        updated, their new states and covariances."""
         arrays, rows = w.arrays, w.rows
         times = np.full(len(rows), t)
         xn, pn, nis, ok = self.updater.update(arrays, rows, times - arrays.t[rows],
@@ -209,7 +215,7 @@ class Tracker:
         arrays.x[good], arrays.p[good], arrays.nis[good] = xn, pn, nis[ok]
         arrays.t[good] = t
         arrays.updates[good] += 1
-        return good
+        return good, xn, pn
 
     def count_detections(self, hyp: Hypotheses) -> None:
         """The unlabelled tracks in view count the scan as a detection or a miss (M of
@@ -249,11 +255,11 @@ class Tracker:
         else:
             ids, speed = self.numbers.new(part.sensor, len(new)), self.config.max_speed / 3
             batch = batch.take(new)
-        arrays, rows, reasons = self.initiate(hyp.dim, batch, ids, speed)
+        arrays, rows, reasons, x, p = self._start(hyp.dim, batch, ids, speed)
         for i, reason in zip(new, reasons, strict=True):
             if reason is not None:
                 bad[i] = reason
-        out.keep(self._states_of(arrays), arrays.ids, rows, want)
+        out.keep(self._block(arrays, rows, x, p), arrays.ids, rows, want)
 
     def initiate(self, dim: int, batch: MeasurementBatch, ids: Sequence[str],
                  speed: float | None = None) -> tuple[TrackArrays, np.ndarray,
@@ -262,14 +268,20 @@ class Tracker:
         prior's std, given for unlabelled tracks, which are tentative until confirmed M
         of N): the layout, the rows started and each measurement's reason for starting
         none (None: started)."""
+        return self._start(dim, batch, ids, speed)[:3]
+
+    def _start(self, dim: int, batch: MeasurementBatch, ids: Sequence[str],
+               speed: float | None) -> tuple:
+        """`initiate`, and the new tracks' states and covariances."""
         arrays, rows, reasons = self.initiator.initiate(self.store, dim, batch, ids, speed)
         if speed is not None:
             arrays.plot[rows], arrays.hits[rows], arrays.scans[rows] = True, 1, 1
             arrays.confirmed[rows] = self.config.confirm_m <= 1 and \
                 self.config.confirm_score <= 0
         self.updater.initiate(arrays, rows)
-        self.display.initiate(arrays, rows)
-        return arrays, rows, reasons
+        x, p = arrays.x[rows], arrays.p[rows]
+        self.display.initiate(arrays, rows, x, p)
+        return arrays, rows, reasons, x, p
 
     def warm(self) -> None:
         """Compile the filter's kernels (or load them from their cache) before the first
@@ -303,8 +315,14 @@ class Tracker:
         r = np.asarray(rows, dtype=int)
         return self.store.states(arrays, r, self.updater.labels(arrays, r))
 
-    def _states_of(self, arrays: TrackArrays) -> Callable[[np.ndarray], States]:
-        return lambda rows: self.states(arrays, rows)
+    def _block(self, arrays: TrackArrays, rows: np.ndarray, x: np.ndarray, p: np.ndarray
+               ) -> Callable[[np.ndarray | None], States]:
+        """How to make the states of rows[pick] (None: all) of a layout, from their new
+        states x and covariances p (not gathered from the store again)."""
+        def make(pick: np.ndarray | None) -> States:
+            r, xs, ps = (rows, x, p) if pick is None else (rows[pick], x[pick], p[pick])
+            return self.store.states(arrays, r, self.updater.labels(arrays, r), xs, ps)
+        return make
 
     def state(self, track_id: str) -> dict:
         """The filtered state of one track (the `tracks/<id>` message body)."""
