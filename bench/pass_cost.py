@@ -13,7 +13,7 @@ messages once they have all arrived in the channel, and its thread CPU is split 
     look     who listens to tracks/ (`Publisher.look`)
     parse    `_take_singles`: keys, `wire.parse_singles`, seq, time policy, clock
     bulk     `Tracker.step` outside the filter (association, deletion, initiation, states)
-    filter   `Tracker.update`: the IMM kernel (service/estimation)
+    filter   `Tracker._update_rows` (`Tracker.update`): the IMM kernel (service/estimation)
     outputs  `Publisher.batch`: counts, the tracks/<id> bodies and puts
     rest     the rest of `_process` / `_flush`
 
@@ -137,8 +137,8 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
         svc._take_singles = watch.wrap("parse", svc._take_singles)  # type: ignore[method-assign]
         svc.out.look = watch.wrap("look", svc.out.look)  # type: ignore[method-assign]
         svc.out.batch = watch.wrap("outputs", svc.out.batch)  # type: ignore[method-assign]
-        svc.tracker.update = watch.wrap(  # type: ignore[method-assign]
-            "filter", svc.tracker.update)
+        svc.tracker._update_rows = watch.wrap(  # type: ignore[method-assign]
+            "filter", svc.tracker._update_rows)
         plain, timed = svc.tracker.step, watch.wrap("bulk", svc.tracker.step)
         svc.tracker.step = lambda scan, *a, **k: (  # type: ignore[method-assign]
             plain if isinstance(scan, Instant) else timed)(scan, *a, **k)  # frames: "rest"
