@@ -62,8 +62,9 @@ from clients.gospa import Evaluation, evaluate  # noqa: E402
 from clients.progress import bar  # noqa: E402
 from service import defaults  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.tracking.association import SensorModels  # noqa: E402
-from service.tracking.tracker import Outcome, Tracker, TrackerConfig  # noqa: E402
+from service.tracking.batches import StepOutcome, Unlabelled  # noqa: E402
+from service.tracking.plot_association import SensorModels  # noqa: E402
+from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
 from service.wire import Measurement  # noqa: E402
 
 try:
@@ -108,7 +109,7 @@ def ours(kind: str, sc: plotgen.Scenario, scans: list[plotgen.Scan]) -> Run:
     for s in scans:
         outcomes = records(s, sc.sigma)
         t0 = time.perf_counter()
-        tracker.step(outcomes, s.t, tracker.scan_associator)
+        apply_scan(tracker, s, outcomes)
         run.times.append(time.perf_counter() - t0)
         run.scans.append((s.t, established(tracker, s.t), truth(s)))
     run.confirmed_end = len(run.scans[-1][1]) if run.scans else 0
@@ -124,10 +125,15 @@ def our_tracker(kind: str, sc: plotgen.Scenario) -> Tracker:
                                                       clutter_density=sc.clutter_density)))
 
 
-def records(s: plotgen.Scan, sigma: float) -> list[Outcome]:
+def apply_scan(tracker: Tracker, s: plotgen.Scan, dets: list[Measurement]) -> StepOutcome:
+    """One scan through the tracker's loop (`Tracker.step`)."""
+    return tracker.step(Unlabelled.of(s.sensor, s.t, dets))
+
+
+def records(s: plotgen.Scan, sigma: float) -> list[Measurement]:
     """The scan's detections as Cartesian `Measurement` records (tests/test_association)."""
     sig = (sigma, sigma)
-    return [Outcome(Measurement(s.sensor, "", s.t, 2, False, (x, y), sig, s.sensor_pos, None))
+    return [Measurement(s.sensor, "", s.t, 2, False, (x, y), sig, s.sensor_pos, None)
             for x, y in s.dets.tolist()]
 
 
@@ -257,7 +263,7 @@ def scale(kind: str) -> None:
     for s in sc:
         outcomes = records(s, sc.sigma)
         t0 = time.perf_counter()
-        tracker.step(outcomes, s.t, tracker.scan_associator)
+        apply_scan(tracker, s, outcomes)
         times.append(time.perf_counter() - t0)
         dets.append(len(outcomes))
     est = established(tracker, sc.scans - 1.0)
@@ -272,7 +278,7 @@ def scale(kind: str) -> None:
         s = s._replace(dets=s.dets[:10_000])
         outcomes = records(s, big.sigma)
         t0 = time.perf_counter()
-        tracker.step(outcomes, s.t, tracker.scan_associator)
+        apply_scan(tracker, s, outcomes)
         out.append(f"{len(outcomes)} dets {1e3 * (time.perf_counter() - t0):.0f} ms")
     print(f"  {kind.upper():<4} 10,000 detections per scan, 3 scans: {'; '.join(out)}; "
           f"{len(tracker)} tracks")

@@ -15,6 +15,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.tracking import checkpoint  # noqa: E402
+from service.tracking.batches import Labelled  # noqa: E402
 from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
 from service.wire import Measurement  # noqa: E402
 
@@ -22,9 +23,9 @@ from service.wire import Measurement  # noqa: E402
 def tracker(name: str, n: int) -> Tracker:
     tr = Tracker(TrackerConfig(filter=FilterSpec(name)))
     for k in range(3):
-        tr.track([Measurement("r", f"t{i}", float(k), 3, True,
+        tr.step(Labelled.of([Measurement("r", f"t{i}", float(k), 3, True,
                               (5000.0 + i + 10 * k, 0.0005 * i, 0.1), (10.0, 0.01, 0.01),
-                              (0.0, 0.0, 0.0), None) for i in range(n)])
+                              (0.0, 0.0, 0.0), None) for i in range(n)]))
     return tr
 
 

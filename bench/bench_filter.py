@@ -14,7 +14,7 @@ over the predicted position: `convert.cmkf_soa`).
   (`measurements.MeasurementBatch`), timed as one vectorised step; building those columns
   from the validated `Measurement` records is timed on its own ("decode"), and the parts
   through their own entry points (`models.predict`, `ucm.cmkf_arrays` on the
-  columns, `kalman.update`). Also the whole table step `Tracker.track` (which adds
+  columns, `kalman.update`). Also the whole table step `Tracker.step` (which adds
   decoding, the bookkeeping and the per-track `tracks/` message dicts) on the following
   scans.
 - FilterPy: one `filterpy.kalman.KalmanFilter` per target, F and Q (Q from FilterPy's own
@@ -57,6 +57,7 @@ from service.estimation import filters, kalman, models  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.estimation.measurements import MeasurementBatch  # noqa: E402
 from service.estimation.ucm import cmkf_arrays  # noqa: E402
+from service.tracking.batches import Labelled  # noqa: E402
 from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
 from service.wire import Measurement  # noqa: E402
 
@@ -83,7 +84,7 @@ DIM, ORDER, N_STATE = 3, 2, 6
 T = 1.0  # s, scan period
 Q = 1.0  # m/s^2, white acceleration std per axis
 SR, SA = 20.0, math.radians(0.2)  # radar noise: range m, azimuth and elevation rad
-PRIOR_SCANS = 3  # scans through Tracker.track before the timed step (initiate + 2)
+PRIOR_SCANS = 3  # scans through Tracker.step before the timed step (initiate + 2)
 CHECK = 5  # targets whose posteriors are compared across the three filters
 RTOL = 1e-6
 # ours [x y z vx vy vz] <-> Stone Soup [x vx y vy z vz]
@@ -161,7 +162,7 @@ def bench_ours(n: int, reps: int, seed: int) -> dict:
     data = scans(n, PRIOR_SCANS + 1 + reps, seed)
     table = Tracker(TrackerConfig(filter=FilterSpec({2: "cv", 3: "ca"}[ORDER], Q)))
     for scan in data[:PRIOR_SCANS]:
-        assert all(o.reason is None for o in table.track(scan)[0])
+        assert not table.step(Labelled.of(scan)).rejected
     x0, p0 = prior(table, data[PRIOR_SCANS])
     meas = data[PRIOR_SCANS]
     dt = np.full(n, T)
@@ -188,9 +189,9 @@ def bench_ours(n: int, reps: int, seed: int) -> dict:
     # the whole table step: the table moves on, so the best of R *successive* scans,
     # after the timed step's own scan as warm-up (where it must give the same posterior)
     first, *later = data[PRIOR_SCANS:]
-    table.track(first)
+    table.step(Labelled.of(first))
     xa, pa = prior(table, first[:CHECK])
-    same_posterior("Tracker.track", xa, pa, xn[:CHECK], pn[:CHECK])
+    same_posterior("Tracker.step", xa, pa, xn[:CHECK], pn[:CHECK])
     res["apply"] = min(_timed_apply(table, scan) for scan in later)
     res.update(x0=x0, p0=p0, z=z, r=r, xn=xn, pn=pn)
     return res
@@ -206,9 +207,9 @@ def prior(table: Tracker, meas: list[Measurement]) -> tuple[np.ndarray, np.ndarr
 
 def _timed_apply(table: Tracker, scan: list[Measurement]) -> float:
     t0 = time.perf_counter()
-    out = table.track(scan)[0]
+    out = table.step(Labelled.of(scan))
     dt = time.perf_counter() - t0
-    assert all(o.reason is None for o in out)
+    assert not out.rejected
     return dt
 
 
@@ -329,7 +330,7 @@ def main(argv: list[str] | None = None) -> None:
         progress.write(f"# N={n}: done ({timed})", file=sys.stdout)
         progress.update(1)
     progress.close()
-    agree = ", ".join(["ours", "ours by parts", "Tracker.track", *(k for k, _ in peers)])
+    agree = ", ".join(["ours", "ours by parts", "Tracker.step", *(k for k, _ in peers)])
     print(f"# posteriors of the first {CHECK} targets agree to {RTOL:g} relative: {agree}")
 
     print("\nours, one vectorised step over N targets (us per target-step)")
@@ -345,7 +346,7 @@ def main(argv: list[str] | None = None) -> None:
           "  step = filters.cmkf_step: predict + convert + update on arrays, in one pass;\n"
           "  predict, convert, update = the parts through their own entry points (each with\n"
           "  its own row-major input and output: they add up to more than step);\n"
-          "  p+u = predict + update; apply = Tracker.track, the whole table step (decode,\n"
+          "  p+u = predict + update; apply = Tracker.step, the whole table step (decode,\n"
           "  bookkeeping, tracks/ message dicts); faults = minor page faults per step call;\n"
           "  ref = us of the reference np.multiply, timed just before step")
 

@@ -29,6 +29,7 @@ from clients import scenarios  # noqa: E402
 from service.estimation import models  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.estimation.imm import IMM, ModeSet  # noqa: E402
+from service.tracking.batches import Labelled  # noqa: E402
 from service.tracking.tracker import Tracker  # noqa: E402
 
 PHASES = scenarios.ManeuverC.phases
@@ -45,7 +46,7 @@ def collect(tr: Tracker, runs: int, seed: int) -> dict[str, np.ndarray]:
     out: dict[str, list] = {"t": [], "nees": [], "mode_nees": [], "mu": [], "vsig": [],
                             "verr": [], "inflow": []}
     for t, meas, truth in scenarios.maneuver(runs=runs, seed=seed):
-        tr.track([measurement(t, n, m) for n, m in meas])
+        tr.step(Labelled.of([measurement(t, n, m) for n, m in meas]))
         a = tr.store.layout(2)
         rows = np.array([tr.store.where[n][1] for n, _ in meas])
         x = np.array([s["pos"][:2] + s["vel"][:2] for _, s in truth])
@@ -120,8 +121,8 @@ def own_model_targets(imm: IMM, runs: int, seed: int, scans: int = 400, period: 
                 chol = np.linalg.cholesky(q[0] + 1e-12 * np.eye(6))
                 x[sel] = x[sel] @ f[0].T + rng.standard_normal((sel.sum(), 6)) @ chol.T
         z = x[:, :2] + sigma * rng.standard_normal((runs, 2))
-        tr.track([measurement(k * period, n, {"pos": z[i].tolist(), "sigma": sigma})
-                  for i, n in enumerate(names)])
+        tr.step(Labelled.of([measurement(k * period, n, {"pos": z[i].tolist(), "sigma": sigma})
+                  for i, n in enumerate(names)]))
         a = tr.store.layout(2)
         rows = np.array([tr.store.where[n][1] for n in names])
         out.append((nees(a.x[rows, :4] - x[:, :4], a.p[rows, :4, :4]), mode, since))

@@ -24,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from service.estimation import imm_jit  # noqa: E402
 from service.estimation.measurements import MeasurementBatch  # noqa: E402
 from service.estimation.ucm import CMKFConversion  # noqa: E402
+from service.tracking.batches import Labelled  # noqa: E402
 from service.tracking.tracker import Tracker  # noqa: E402
 from service.wire import Measurement  # noqa: E402
 
@@ -55,7 +56,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     tracker = Tracker()
     for t in (0.0, 1.0, 2.0):
-        tracker.track(swarm(args.tracks, t, rng))
+        tracker.step(Labelled.of(swarm(args.tracks, t, rng)))
     imm, arrays = tracker.updater, tracker.store.layout(3)
     live = arrays.live()[0]
     print(f"{'k':>7} {'compiled ms':>12} {'us/row':>8} {'textbook ms':>12} {'us/row':>8} "

@@ -22,6 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from clients import metrics, scenarios  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.estimation.imm import IMM, ModeSet, standard_modes  # noqa: E402
+from service.tracking.batches import Labelled  # noqa: E402
 from service.tracking.display import DisplayState  # noqa: E402
 from service.tracking.store import TrackStore  # noqa: E402
 from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
@@ -70,7 +71,7 @@ def tracker(updater: IMM | None, spec: FilterSpec | None = None) -> Tracker:
         return Tracker(TrackerConfig(filter=spec or FilterSpec()))
     tr = Tracker()
     tr.updater = updater
-    tr.store = TrackStore(updater.order, updater.fields)
+    tr.store = TrackStore(updater.order, updater.fields, tr.store.columns)
     tr.display = DisplayState(tr.config.display, 1.0)
     return tr
 
@@ -88,7 +89,7 @@ def run(scenario: str, runs: int, tr: Tracker, seed: int = 0) -> dict:
     dim = 2 if scenario == "maneuver" else 3
     ts, est, cov, tru, frames, quiet, mu = [], [], [], [], [], [], []
     for t, meas, truth in scenarios.SCENARIOS[scenario](runs=runs, seed=seed):
-        tr.track([measurement(t, n, m) for n, m in meas])
+        tr.step(Labelled.of([measurement(t, n, m) for n, m in meas]))
         arrays = tr.store.layout(dim)
         rows = np.array([tr.store.where[n][1] for n, _ in meas])
         ts.append(t)

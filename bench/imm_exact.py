@@ -43,6 +43,7 @@ from service import defaults  # noqa: E402
 from service.estimation import models  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.estimation.imm import IMM, ModeSet  # noqa: E402
+from service.tracking.batches import Labelled  # noqa: E402
 
 C = scenarios.ManeuverC
 EPS = 0.2  # share of the proposal spread evenly over the modes
@@ -128,7 +129,7 @@ def filtered(tr: object, runs: int, seed: int, until: float = C.duration
     for t, meas, truth in scenarios.maneuver(runs=runs, seed=seed):
         if t > until:
             break
-        tr.track([measurement(t, n, mm) for n, mm in meas])
+        tr.step(Labelled.of([measurement(t, n, mm) for n, mm in meas]))
         a = tr.store.layout(2)
         rows = np.array([tr.store.where[n][1] for n, _ in meas])
         x = np.array([s["pos"][:2] + s["vel"][:2] for _, s in truth])

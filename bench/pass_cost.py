@@ -12,8 +12,8 @@ messages once they have all arrived in the channel, and its thread CPU is split 
     take     taking the messages from the channel into the worker's batch
     look     who listens to tracks/ (`Publisher.look`)
     parse    `_take_singles`: keys, `wire.parse_singles`, seq, time policy, clock
-    bulk     `Tracking.rows` (`tracking.bulk.track_columns`) outside the filter
-    filter   `Tracker.update_rows`: the IMM kernel (service/estimation)
+    bulk     `Tracker.step` outside the filter (association, deletion, initiation, states)
+    filter   `Tracker._update_rows` (`Tracker.update`): the IMM kernel (service/estimation)
     outputs  `Publisher.batch`: counts, the tracks/<id> bodies and puts
     rest     the rest of `_process` / `_flush`
 
@@ -54,6 +54,7 @@ class Stopwatch:
 
 
 def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) -> None:
+    from service.tracking.batches import Instant
     from service.wire import Keys, free_port, pack, peer_config
     from service.wire.session import admin_space
 
@@ -142,9 +143,11 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
         svc._take_singles = watch.wrap("parse", svc._take_singles)  # type: ignore[method-assign]
         svc.out.look = watch.wrap("look", svc.out.look)  # type: ignore[method-assign]
         svc.out.batch = watch.wrap("outputs", svc.out.batch)  # type: ignore[method-assign]
-        svc.tracker.update_rows = watch.wrap(  # type: ignore[method-assign]
-            "filter", svc.tracker.update_rows)
-        svc.tracking.rows = watch.wrap("bulk", svc.tracking.rows)  # type: ignore[method-assign]
+        svc.tracker._update_rows = watch.wrap(  # type: ignore[method-assign]
+            "filter", svc.tracker._update_rows)
+        plain, timed = svc.tracker.step, watch.wrap("bulk", svc.tracker.step)
+        svc.tracker.step = lambda scan, *a, **k: (  # type: ignore[method-assign]
+            plain if isinstance(scan, Instant) else timed)(scan, *a, **k)  # frames: "rest"
         clock = time.thread_time
         log(f"worker CPU per pass of k single messages at {tracks} tracks (no flags: IMM, "
             f"realtime; a consumer of tracks/swarm-$*0), median of {reps} passes, us:")
@@ -152,32 +155,35 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
             f"{'non-filt':>8} {'per row':>8}")
         medians: dict[int, dict[str, float]] = {}
         start = 0
-        for k in sizes:
-            full_scan()  # no track ages out while the small passes run
-            per: dict[str, list[float]] = defaultdict(list)
-            for _ in range(reps):
-                send(range(start, start + k))
-                start = (start + k) % tracks
-                watch.spent.clear()
-                c0 = clock()
-                batch = gather(k)
-                c1 = clock()
-                svc._process(batch)  # type: ignore[union-attr]
-                c2 = clock()
-                assert messages(batch) == k, (messages(batch), k)
-                s = watch.spent
-                per["take"].append(c1 - c0)
-                per["bulk"].append(s["bulk"] - s["filter"])
-                for name in ("look", "parse", "filter", "outputs"):
-                    per[name].append(s[name])
-                per["rest"].append(c2 - c1 - s["look"] - s["parse"] - s["bulk"]
-                                   - s["outputs"])
-                per["total"].append(c2 - c0)
-                per["non-filter"].append(c2 - c0 - s["filter"])
-            m = medians[k] = {n: float(np.median(v)) * 1e6 for n, v in per.items()}
-            log(f"{k:>6} " + " ".join(f"{m[s]:>8.0f}" for s in STAGES)
-                + f" {m['total']:>8.0f} {m['non-filter']:>8.0f}"
-                f" {m['total'] / k:>8.1f}")
+        try:
+            for k in sizes:
+                full_scan()  # no track ages out while the small passes run
+                per: dict[str, list[float]] = defaultdict(list)
+                for _ in range(reps):
+                    send(range(start, start + k))
+                    start = (start + k) % tracks
+                    watch.spent.clear()
+                    c0 = clock()
+                    batch = gather(k)
+                    c1 = clock()
+                    svc._process(batch)  # type: ignore[union-attr]
+                    c2 = clock()
+                    assert messages(batch) == k, (messages(batch), k)
+                    s = watch.spent
+                    per["take"].append(c1 - c0)
+                    per["bulk"].append(s["bulk"] - s["filter"])
+                    for name in ("look", "parse", "filter", "outputs"):
+                        per[name].append(s[name])
+                    per["rest"].append(c2 - c1 - s["look"] - s["parse"] - s["bulk"]
+                                       - s["outputs"])
+                    per["total"].append(c2 - c0)
+                    per["non-filter"].append(c2 - c0 - s["filter"])
+                m = medians[k] = {n: float(np.median(v)) * 1e6 for n, v in per.items()}
+                log(f"{k:>6} " + " ".join(f"{m[s]:>8.0f}" for s in STAGES)
+                    + f" {m['total']:>8.0f} {m['non-filter']:>8.0f}"
+                    f" {m['total'] / k:>8.1f}")
+        finally:
+            del svc.tracker.step  # the class's own again
         summary(medians, log)
         consumer.stdin.write("\n")  # type: ignore[union-attr]
         consumer.stdin.flush()  # type: ignore[union-attr]

@@ -9,11 +9,12 @@ measures an earlier commit from a worktree:
     git worktree add /tmp/base 4bdd515 && (cd /tmp/base && python <this file>)
 
 A swarm of N targets in one scan a second (`clients.scenarios.swarm`, --sectors 1), each
-scan as a `scan/<sensor>` payload checked into records (`parse_scan`) and applied by
-`Tracker.track` with the default filter; turns 0-1 warm up, turn 2 is measured. Beside it,
-the filter core (`filters.cmkf_step`, CV) on as many rows in the same process: the ratio
-does not depend on how busy the machine is. `bench_capacity.py --scan-cost` measures the
-one-pass path of the current code the same way.
+scan as a `scan/<sensor>` payload checked into records (`parse_scan`), made columns again
+and applied by `Tracker.step` with the default filter; turns 0-1 warm up, turn 2 is
+measured. Beside it, the filter core (`filters.cmkf_step`, CV) on as many rows in the
+same process: the ratio does not depend on how busy the machine is.
+`bench_capacity.py --scan-cost` measures the one-pass path of the current code the same
+way.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from clients import scenarios  # noqa: E402
 from service import defaults  # noqa: E402
 from service.estimation.filters import cmkf_step  # noqa: E402
 from service.estimation.measurements import MeasurementBatch  # noqa: E402
+from service.tracking.batches import Labelled  # noqa: E402
 from service.tracking.tracker import Tracker  # noqa: E402
 from service.wire import pack, parse_scan  # noqa: E402
 
@@ -49,7 +51,7 @@ def main() -> None:
     clock, tracker, spent = time.process_time, Tracker(), 0.0
     for k, payload in enumerate(turns[:3]):
         t0 = clock()
-        tracker.track(parse_scan("radar1", payload, defaults.NOISE).measurements)
+        tracker.step(Labelled.of(parse_scan("radar1", payload, defaults.NOISE).measurements))
         if k == 2:
             spent = clock() - t0
     arrays = tracker.store.layout(3)
@@ -63,7 +65,7 @@ def main() -> None:
         cmkf_step(x, pc, np.full(len(batch), 0.5), 2, 3, 1.0, batch)
         core = min(core, clock() - t0)
     per, core_per = spent / n * 1e6, core / len(batch) * 1e6
-    print(f"{os.getcwd()}: {n} targets, record path (parse_scan + Tracker.track) "
+    print(f"{os.getcwd()}: {n} targets, records (parse_scan, columns again, Tracker.step) "
           f"{per:.2f} us of CPU per measurement; filter core {core_per:.2f} us per row; "
           f"ratio {per / core_per:.1f}; load average "
           f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}")

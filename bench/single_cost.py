@@ -110,11 +110,11 @@ def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
 
 def step_cost(log: Any, tracks: int = 10_000, sizes: tuple[int, ...] = (1, 64, 312, 1024),
               reps: int = 20) -> None:
-    """CPU of one pass of labelled rows (`bulk.track_columns`, the default IMM) at
+    """CPU of one pass of labelled rows (`Tracker.step`, the default IMM) at
     `tracks` tracks, by the rows in the pass: the fixed cost of a worker step, which
     decides the latency of small batches (a sector of 10,000 targets in 32 is 312)."""
     from service.estimation.measurements import MeasurementBatch
-    from service.tracking.bulk import track_columns
+    from service.tracking.batches import Labelled
     from service.tracking.tracker import Tracker
     from service.wire import Measurement
 
@@ -129,15 +129,15 @@ def step_cost(log: Any, tracks: int = 10_000, sizes: tuple[int, ...] = (1, 64, 3
 
     tracker = Tracker()
     for t in (0.0, 1.0):
-        track_columns(tracker, ids, "r", batch(t, tracks), want=None)
-    log(f"one pass of k rows at {tracks} tracks (track_columns, IMM), CPU, median of {reps}:")
+        tracker.step(Labelled(["r"] * tracks, ids, batch(t, tracks)), want=None)
+    log(f"one pass of k rows at {tracks} tracks (Tracker.step, IMM), CPU, median of {reps}:")
     t = 2.0
     for k in sizes:
         spent = []
         for _ in range(reps):
             b, t = batch(t, k), t + 0.01
             c0 = time.thread_time()
-            track_columns(tracker, ids[:k], "r", b, want=None)
+            tracker.step(Labelled(["r"] * k, ids[:k], b), want=None)
             spent.append(time.thread_time() - c0)
         ms = float(np.median(spent)) * 1e3
         log(f"  k = {k:>5}: {ms:6.2f} ms per pass, {ms * 1e3 / k:7.1f} us per row")

@@ -15,8 +15,7 @@ batched line is the service alone.
 `frame_cost`: the worker's CPU per frame at N tracks of the default IMM, in this process
 on a real Zenoh session: the empty step (coast, delete), the snapshot (every track drawn
 at the instant) and `Publisher.frame` (check, `pack_frame`, put), as
-`Frames.publish` (service/adapter/schedule.py) runs them, with a sector of the tracks
-updated between
+`Frames.publish` runs them, with a sector of the tracks updated between
 frames.
 """
 
@@ -134,9 +133,8 @@ print(n[0], flush=True)
 
 def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     """The worker's CPU (thread time) per frame at N tracks of the default IMM, as
-    `Frames.publish` (service/adapter/schedule.py) spends it on a real Zenoh session:
-    the empty step that
-    coasts and deletes (`tracker.step([], now=t)`), the snapshot (every track drawn at
+    `Frames.publish` spends it on a real Zenoh session: the empty step that
+    coasts and deletes (`tracker.step(Instant(t))`), the snapshot (every track drawn at
     the instant) and `Publisher.frame` (the finiteness check, `pack_frame`, the put). The
     tracks are a swarm updated in three passes (as single_cost.step_cost makes them), and
     between two frames a thirtieth of them (a sector of azimuth at 1 Hz: rows scattered
@@ -145,7 +143,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     Medians over `frames` frames with nobody subscribed to `frame`, then as many with a
     subscriber in another process (Zenoh's put then sends the body)."""
     from service.adapter import TrackService
-    from service.tracking.bulk import track_columns
+    from service.tracking.batches import Instant, Labelled
     from service.tracking.tracker import Tracker
 
     clock = time.thread_time
@@ -164,7 +162,8 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
             ids = [f"swarm-{i:06d}" for i in range(n)]
             tracker = Tracker()
             for t in (0.0, 1.0, 2.0):
-                track_columns(tracker, ids, "r", _swarm_batch(t, r, az, range(n)), want=None)
+                tracker.step(Labelled(["r"] * n, ids, _swarm_batch(t, r, az, range(n))),
+                             want=None)
             keys = Keys(f"fc{os.getpid()}{n}")
             svc = TrackService(session, keys, tracker, clock="realtime")
             sector = max(1, n // 30)
@@ -185,10 +184,10 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
                     t = 3.0 + k / 30
                     lo = (k * sector) % n
                     rows = np.sort(by_azimuth[lo:lo + sector]).tolist()
-                    track_columns(tracker, [ids[i] for i in rows], "r",
-                                  _swarm_batch(t - 0.01, r, az, rows), want=None)
+                    tracker.step(Labelled(["r"] * len(rows), [ids[i] for i in rows],
+                                          _swarm_batch(t - 0.01, r, az, rows)), want=None)
                     c0 = clock()
-                    svc.out.deleted(tracker.step([], now=t))  # as Frames.publish
+                    svc.out.deleted(tracker.step(Instant(t)).deleted)  # as Frames.publish
                     c1 = clock()
                     snap = tracker.snapshot(t, detail=False)
                     c2 = clock()
@@ -211,7 +210,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
                 f"{total2:>8.2f} {total2 / (1e3 / 30) * 100:>10.1f}")
     finally:
         session.close()
-    log("  step: tracker.step([], now=t) (coast, delete); snapshot: tracker.snapshot(t); "
+    log("  step: tracker.step(Instant(t)) (coast, delete); snapshot: tracker.snapshot(t); "
         "publish: Publisher.frame (check, pack_frame, put); total: median of the sums; "
         "% of the display period with a subscriber")
 
@@ -230,7 +229,7 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
     """CPU time of the worker's parts for batched scans, in this process: a swarm of N
     targets reported in scans of `rows` rows (N / rows sectors per turn, one turn per
     second); per row the check of the columns (`parse_scan_columns`, `MeasurementBatch.
-    of_scan`) and the one-pass application (`tracking.bulk.track_columns`, the default
+    of_scan`) and the one-pass application (`Tracker.step`, the default
     IMM), against the filter core (`filters.cmkf_step`, CV) on as many rows in the same
     run; the frame at N tracks (snapshot + pack_frame); and what one core could then
     sustain: measurements per second with 30 frames per second."""
@@ -239,7 +238,7 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
     from service.adapter.encode import pack_frame
     from service.estimation.filters import cmkf_step
     from service.estimation.measurements import MeasurementBatch
-    from service.tracking.bulk import track_columns
+    from service.tracking.batches import Labelled
     from service.tracking.tracker import Tracker
     from service.wire import pack, parse_scan, parse_scan_columns
 
@@ -264,18 +263,19 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
                 cols = parse_scan_columns("radar1", payload, defaults.NOISE)
                 batch = MeasurementBatch.of_scan(cols)
                 t1 = clock()
-                track_columns(tracker, cols.ids, "radar1", batch, want=None)
+                tracker.step(Labelled(["radar1"] * len(cols.ids), cols.ids, batch), want=None)
                 t2 = clock()
                 if k == 2:
                     check, apply, count = check + t1 - t0, apply + t2 - t1, count + len(cols.ids)
-        # the record path (parse_scan + Tracker.track) on the same scans, small N only
+        # records (parse_scan, made columns again) on the same scans, small N only
         records = float("nan")
         if n <= 20_000:
             spent = 0.0
             for k, turn in enumerate(turns):
                 for payload in turn:
                     t0 = clock()
-                    ref.track(parse_scan("radar1", payload, defaults.NOISE).measurements)
+                    ref.step(Labelled.of(parse_scan("radar1", payload,
+                                                    defaults.NOISE).measurements))
                     if k == 2:
                         spent += clock() - t0
             records = spent / count * 1e6

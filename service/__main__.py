@@ -14,9 +14,9 @@ from . import __version__, defaults
 from .adapter import TrackService
 from .adapter.state import StateFile
 from .estimation.catalog import FILTERS, FilterSpec
-from .tracking.association import SensorModels
 from .tracking.display import DisplayConfig
-from .tracking.tracker import Tracker, TrackerConfig
+from .tracking.plot_association import SensorModels
+from .tracking.tracker import SCAN_ASSOCIATORS, Tracker, TrackerConfig
 from .wire import Keys, add_zenoh_args, fail, open_session, read_file
 
 
@@ -141,7 +141,7 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--plots", action="append", default=[], metavar="KEYEXPR",
                    help="scan key expression(s) this instance tracks (repeatable; default "
                         "<ns>/plots/*): shards partition scans by sensor")
-    g.add_argument("--associator", choices=("gnn", "jpda"), default=defaults.ASSOCIATOR,
+    g.add_argument("--associator", choices=tuple(SCAN_ASSOCIATORS), default=defaults.ASSOCIATOR,
                    help="gnn: global nearest neighbour (default); jpda: joint probabilistic "
                         "data association")
     g.add_argument("--pd", type=float, default=defaults.PD,

@@ -8,13 +8,19 @@ import itertools
 
 import numpy as np
 import pytest
+from reference.association import assign_reference
+from reference.record import Outcome, scan_step
 
+import service.tracking.tracker as tracker_module
 from service.estimation import models
 from service.estimation.catalog import FilterSpec
 from service.estimation.measurements import MeasurementBatch
-from service.tracking import association, gating
-from service.tracking.association import GNNAssociator, JPDAAssociator, SensorModels
-from service.tracking.tracker import Outcome, Tracker, TrackerConfig
+from service.tracking import gating
+from service.tracking import plot_association as association
+from service.tracking.batches import Detections
+from service.tracking.hypotheses import Hypotheses
+from service.tracking.plot_association import GNNAssociator, JPDAAssociator, SensorModels
+from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Measurement
 
 SIGMA = 25.0
@@ -28,7 +34,7 @@ def det(t: float, pos, sensor: str = "r1", sigma: float = SIGMA) -> Measurement:
 
 def scan(tracker: Tracker, t: float, positions, sensor: str = "r1") -> list[Outcome]:
     outcomes = [Outcome(det(t, p, sensor)) for p in positions]
-    tracker.step(outcomes, t, tracker.scan_associator)
+    scan_step(tracker, outcomes, t)
     return outcomes
 
 
@@ -117,7 +123,7 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
         meas = [det(2.0, p) for p in pts + rng.normal(0, 40, pts.shape)] + \
             [det(2.0, p) for p in rng.uniform(0, 1000, (3, 2))]
         assoc = tracker.scan_associator
-        hyp = assoc.associate(store, meas)
+        hyp = assoc.associate(store, Detections("r1", 2.0, MeasurementBatch.of(meas, 2)))
         arrays = store.layout(2)  # all tentative: the nearest-neighbour stage
         z, r = gating.convert(MeasurementBatch.of(meas, 2))
         g = gating.gate(arrays, arrays.rows(), z, r, 2.0, 1.0, gating.gate_threshold(0.999, 2))
@@ -126,8 +132,8 @@ def test_gnn_single_pairs_and_clusters_match_brute_force():
                  zip(g.ti, g.dj, np.log(pd) + g.loglik - np.log(lam), strict=True)}
         miss = np.log1p(-pd)
         row_of = {r: i for i, r in enumerate(g.rows.tolist())}  # store row -> track index
-        rows = np.concatenate(hyp.rows.get(2, [np.zeros(0, int)])).tolist()
-        chosen = {(row_of[k], j) for j, k in zip(hyp.updates.get(2, []), rows, strict=True)}
+        index, rows = hyp.pairs()
+        chosen = {(row_of[k], j) for j, k in zip(index.tolist(), rows.tolist(), strict=True)}
 
         n_rows = len(g.rows)
 
@@ -161,7 +167,7 @@ def test_near_pairs_equal_the_distance_matrix(tracks, dets):
 
 def test_packed_assignment_equals_one_cluster_at_a_time():
     """GNN's block-diagonal packing of small clusters (`assign`) chooses the same pairs
-    as solving each cluster alone (`assign_reference`), with clusters of every size."""
+    as solving each cluster alone (`reference.association`), with clusters of every size."""
     rng = np.random.default_rng(7)
     tracker = make(confirm_m=1, confirm_score=-100.0)
     pairs = rng.uniform(0, 50_000, (30, 2))
@@ -186,7 +192,7 @@ def test_packed_assignment_equals_one_cluster_at_a_time():
     assert len(np.unique(g.ti[every[1]])) <= association.PACK
     for part in every:
         got = np.sort(np.concatenate(association.assign(g, part, score, miss)))
-        ref = np.sort(np.concatenate(association.assign_reference(g, part, score, miss)))
+        ref = np.sort(np.concatenate(assign_reference(g, part, score, miss)))
         np.testing.assert_array_equal(got, ref)
         assert len(got) > 8
 
@@ -360,3 +366,42 @@ def test_cluster_propagation_equals_connected_components():
         # the same partition of the pairs (labels may differ)
         assert len(set(zip(a.tolist(), b.tolist(), strict=True))) == len(set(a.tolist())) \
             == len(set(b.tolist()))
+
+
+class EveryDetectionNew:
+    """The trivial associator of docs/architecture.md's "Where to add": no detection
+    updates a track, each starts one (one class satisfying `protocols.Associator`)."""
+
+    def __init__(self, q: float, sensors: SensorModels | None = None,
+                 gate_probability: float = 0.999) -> None:
+        self.inner = GNNAssociator(q, sensors, gate_probability)
+
+    def split(self, scan):
+        return self.inner.split(scan)  # one part per dimension, as every scan associator
+
+    def associate(self, store, part) -> Hypotheses:
+        return Hypotheses(part.batch.dim if part.batch is not None else 0,
+                          unassociated=list(range(len(part))))
+
+
+def test_a_new_associator_is_one_class_and_one_registration(monkeypatch):
+    """The recipe tried: registered in `SCAN_ASSOCIATORS`, chosen by name (as
+    `--associator` would), it runs the tracker's one loop unchanged."""
+    monkeypatch.setitem(tracker_module.SCAN_ASSOCIATORS, "every-new", EveryDetectionNew)
+    tracker = make("every-new")
+    assert isinstance(tracker.scan_associator, EveryDetectionNew)
+    pts = np.array([[0.0, 0.0], [500.0, 0.0], [0.0, 900.0]])
+    scan(tracker, 0.0, pts)
+    out = scan(tracker, 1.0, pts + 1.0)
+    assert all(o.reason is None for o in out)
+    assert sorted(tracker.store.where) == [f"r1-{i}" for i in range(1, 7)]
+    assert {tracker.state(k)["updates"] for k in tracker.store.where} == {1}
+    assert "every-new" in parser_choices(monkeypatch)
+
+
+def parser_choices(monkeypatch) -> tuple[str, ...]:
+    """--associator's choices, read from the registry when the parser is built."""
+    from service.__main__ import parser
+
+    action = next(a for a in parser()._actions if "--associator" in a.option_strings)
+    return tuple(action.choices)

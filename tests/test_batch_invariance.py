@@ -8,6 +8,7 @@ import random
 
 import numpy as np
 import pytest
+from reference.record import track
 
 from clients import scenarios
 from service import defaults
@@ -34,7 +35,7 @@ def published(measurements: list, sizes, filter_name: str) -> list[bytes]:
     while i < len(measurements):
         batch = measurements[i:i + sizes()]
         i += len(batch)
-        outcomes, _ = tracker.track(batch)
+        outcomes, _ = track(tracker, batch)
         for o in outcomes:
             assert o.reason is None, o.reason
             k = o.states.ids.index(o.meas.target)

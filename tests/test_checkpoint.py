@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from reference.record import track, track_scan
 
 from service.estimation.catalog import FilterSpec
 from service.tracking import checkpoint
@@ -29,22 +30,23 @@ def busy_tracker(name: str = "imm") -> Tracker:
     tr = Tracker(TrackerConfig(filter=FilterSpec(name)))
     for k in range(4):
         t = float(k)
-        tr.track([polar(f"a{i}", t, 5000 + 100 * i + 50 * k, 0.1 * i) for i in range(6)]
+        track(tr, [polar(f"a{i}", t, 5000 + 100 * i + 50 * k, 0.1 * i) for i in range(6)]
                  + [polar(f"b{i}", t, 8000 + 30 * k, 0.2 * i, 0.05) for i in range(3)])
         scan = {"t": t, "dets": [{"r": 3000 + 40 * k + 500 * j, "az": 1.0 + 0.3 * j}
                                  for j in range(3)]}
-        tr.track_scan(parse_plots("r2", pack(scan), NOISE))
+        track_scan(tr, parse_plots("r2", pack(scan), NOISE))
     tr.remove(["a1", "a4"])
     return tr
 
 
 def table(tr: Tracker) -> dict:
-    """Every live track's columns, by id (order of rows ignored)."""
+    """Every live track's saved columns (what the display makes again from them is
+    not saved), by id (order of rows ignored)."""
     out = {}
     for dim, lay in tr.store.layouts.items():
         rows, ids = lay.live()
         for r, i in zip(rows.tolist(), ids, strict=True):
-            out[i] = (dim, {k: np.array(getattr(lay, k)[r]) for k in lay.shapes})
+            out[i] = (dim, {k: np.array(getattr(lay, k)[r]) for k in lay.saved})
     return out
 
 
@@ -61,7 +63,7 @@ def test_roundtrip_keeps_every_column_and_the_picture(name):
         assert after[i][0] == dim
         for k, v in cols.items():
             np.testing.assert_array_equal(after[i][1][k], v, err_msg=f"{i} {k}")
-    assert back.numbers == tr.numbers and back.associator.last == tr.associator.last
+    assert back.memory() == tr.memory()
     # the picture drawn after the restore is the one the first tracker draws
     s1, s2 = tr.snapshot(10.0), back.snapshot(10.0)
     order = [s2.ids.index(i) for i in s1.ids]
@@ -76,7 +78,7 @@ def test_roundtrip_keeps_every_column_and_the_picture(name):
     assert all(st == "coasting" for i, st in zip(late.ids, late.status, strict=True)
                if not i.startswith("r2-"))
     # tracking carries on: the next measurement updates the restored track
-    out, _ = back.track([polar("a0", 4.0, 5200, 0.0)])
+    out, _ = track(back, [polar("a0", 4.0, 5200, 0.0)])
     assert out[0].reason is None and back.state("a0")["updates"] == 5
 
 
@@ -85,9 +87,9 @@ def test_unlabelled_ids_continue_after_restore():
     back = Tracker(TrackerConfig(filter=FilterSpec("cv")))
     checkpoint.load(back, checkpoint.dump(tr))
     far = {"t": 4.0, "dets": [{"r": 90000.0, "az": -2.0}]}
-    back.track_scan(parse_plots("r2", pack(far), NOISE))
+    track_scan(back, parse_plots("r2", pack(far), NOISE))
     new = set(back.store.where) - set(tr.store.where)
-    assert new == {f"r2-{tr.numbers['r2'] + 1}"}
+    assert new == {f"r2-{tr.memory()['numbers']['r2'] + 1}"}
 
 
 def rewrite(data: bytes, edit) -> bytes:
@@ -140,7 +142,7 @@ def test_corrupt_checkpoint_is_refused_and_changes_nothing(case):
     with pytest.raises(CheckpointError) as err:
         checkpoint.load(fresh, bad)
     assert str(err.value) and "\n" not in str(err.value)
-    assert len(fresh) == 0 and not fresh.numbers and not fresh.store.layouts or \
+    assert len(fresh) == 0 and not fresh.memory()["numbers"] and not fresh.store.layouts or \
         all(not len(lay.live()[0]) for lay in fresh.store.layouts.values())
 
 

@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 from conftest import make_tracker as make
+from reference.record import track
 
 from service.tracking import display
 from service.tracking.tracker import Tracker
@@ -50,7 +51,7 @@ def replay(config: dict, jumps: dict[str, float], t_jump: float = 4.0,
     for k in range(int(t_jump) + 1):
         if k > 3:
             frames_until(k)
-        table.track([cart(name, k, (10.0 * k, d if k >= t_jump else 0.0, 0.0))
+        track(table, [cart(name, k, (10.0 * k, d if k >= t_jump else 0.0, 0.0))
                      for name, d in jumps.items()])
     frames_until(t_end)
     return table, np.array(instants), {k: np.array(v) for k, v in drawn.items()}, shown
@@ -137,13 +138,13 @@ def test_tentative_tracks_snap_to_their_first_estimates():
     # a CA track is tentative until its third update: the one-point start (velocity 0)
     # is no display state worth blending from, so the second update is drawn at once
     table = make(order=3, q=0.5, blend_speed=2.4)
-    table.track([cart("a", 0.0, (0.0, 0.0, 0.0))])
-    table.track([cart("a", 1.0, (10.0, 0.0, 0.0))])
+    track(table, [cart("a", 0.0, (0.0, 0.0, 0.0))])
+    track(table, [cart("a", 1.0, (10.0, 0.0, 0.0))])
     snap = table.snapshot(1.0)
     assert snap.shown == ["prediction"]
     np.testing.assert_allclose(snap.pos[0], [10.0, 0.0, 0.0], atol=1e-9)
-    table.track([cart("a", 2.0, (20.0, 0.0, 0.0))])
-    table.track([cart("a", 3.0, (31.0, 0.0, 0.0))])  # confirmed: a 1 m surprise blends
+    track(table, [cart("a", 2.0, (20.0, 0.0, 0.0))])
+    track(table, [cart("a", 3.0, (31.0, 0.0, 0.0))])  # confirmed: a 1 m surprise blends
     assert table.snapshot(3.0).shown == ["blend"]
 
 
@@ -178,7 +179,7 @@ def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
 
     tracker = Tracker()
     for k in range(6):  # accelerating targets: the CA mode gains weight
-        tracker.track([cart(f"a{i}", k, (100.0 * k + 4.0 * i * k * k, 50.0 * i, 0.0))
+        track(tracker, [cart(f"a{i}", k, (100.0 * k + 4.0 * i * k * k, 50.0 * i, 0.0))
                        for i in range(8)])
     arrays = tracker.store.layout(3)
     rows = arrays.live()[0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference.record import track
 from test_checkpoint import busy_tracker, polar
 
 from service.adapter.encode import pack_frame
@@ -66,11 +67,11 @@ def test_frames_equal_the_plain_prediction_as_tracks_come_change_and_go(name, ch
     tr = busy_tracker(name)
     for t in (3.0, 3.4, 5.0, 11.0, 2.5):
         assert_frame(tr, t)
-    tr.track([polar(f"a{i}", 4.0, 5300 + 100 * i, 0.1 * i) for i in (0, 2, 3)])
+    track(tr, [polar(f"a{i}", 4.0, 5300 + 100 * i, 0.1 * i) for i in (0, 2, 3)])
     assert_frame(tr, 4.0)
     tr.remove(["a0", "b1"])
     assert_frame(tr, 4.5)
-    tr.track([polar("new", 4.6, 7000.0, 0.3), polar("a1", 4.6, 5100.0, 0.1)])
+    track(tr, [polar("new", 4.6, 7000.0, 0.3), polar("a1", 4.6, 5100.0, 0.1)])
     for t in (4.6, 4.7, 9.0, 40.0):
         assert_frame(tr, t)
 
@@ -83,7 +84,7 @@ def test_frames_follow_many_updates_beyond_one_chunk(chunk):
     r, az = rng.uniform(5e3, 8e4, n), rng.uniform(-3, 3, n)
     for k in range(4):
         pick = range(n) if k < 3 else range(0, n, 3)
-        tr.track([polar(f"s{i}", k + 0.01 * (i % 7), r[i] + 20 * k, az[i]) for i in pick])
+        track(tr, [polar(f"s{i}", k + 0.01 * (i % 7), r[i] + 20 * k, az[i]) for i in pick])
         for dt in (0.0, 1 / 30, 0.5, 2.9):
             assert_frame(tr, k + dt)
 
@@ -115,10 +116,10 @@ def test_a_row_reused_at_the_same_time_is_read_again():
     """A track deleted and another started in its row with the same time: the display's
     `initiate` marks the row (its time alone would not tell)."""
     tr = Tracker()
-    tr.track([polar("a", 1.0, 5000.0, 0.1), polar("b", 1.0, 6000.0, 0.2)])
+    track(tr, [polar("a", 1.0, 5000.0, 0.1), polar("b", 1.0, 6000.0, 0.2)])
     assert_frame(tr, 1.5)
     tr.remove(["a"])
-    tr.track([polar("z", 1.0, 9000.0, -0.4)])
+    track(tr, [polar("z", 1.0, 9000.0, -0.4)])
     assert tr.store.where["z"][1] == 0
     assert_frame(tr, 1.5)
 

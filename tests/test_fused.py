@@ -7,13 +7,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference.record import Outcome, scan_step
 
 from service.estimation import kalman, models
 from service.estimation.linalg import ldl_inverse
 from service.estimation.measurements import MeasurementBatch
 from service.estimation.ucm import at_point, cmkf_arrays, cmkf_soa
-from service.tracking import association, gating
-from service.tracking.tracker import Outcome, Tracker, TrackerConfig
+from service.tracking import gating
+from service.tracking import plot_association as association
+from service.tracking.tracker import Tracker, TrackerConfig
 from service.wire import Measurement
 
 
@@ -131,8 +133,8 @@ def test_cut_gatings_read_their_source_on_first_use():
     tracker = Tracker(TrackerConfig(associator="gnn"))
     pts = rng.uniform(0, 3000, (12, 2))
     for k in range(2):
-        tracker.step([Outcome(det(float(k), q)) for q in pts + rng.normal(0, 20, pts.shape)],
-                     float(k), tracker.scan_associator)
+        scan_step(tracker, [Outcome(det(float(k), q))
+                            for q in pts + rng.normal(0, 20, pts.shape)], float(k))
     arrays = tracker.store.layout(2)
     rows = arrays.rows()
     dets = np.vstack([pts + rng.normal(0, 30, pts.shape), rng.uniform(0, 3000, (20, 2))])
@@ -190,8 +192,8 @@ def test_batch_columns_check_every_record():
     assert same_bits(b.sigmas, np.array([[3.0, 4.0], [3.0, 4.0]]))
 
 
-def test_track_ids_of_one_sensor_and_of_several():
-    tracker = Tracker()
-    assert tracker._new_ids(["a", "a", "a"]) == ["a-1", "a-2", "a-3"]
-    assert tracker._new_ids(["b", "a", "b"]) == ["b-1", "a-4", "b-2"]
-    assert tracker._new_ids(["a"]) == ["a-5"] and tracker._new_ids([]) == []
+def test_track_ids_count_per_sensor():
+    numbers = Tracker().numbers
+    assert numbers.new("a", 3) == ["a-1", "a-2", "a-3"]
+    assert numbers.new("b", 1) == ["b-1"] and numbers.new("a", 1) == ["a-4"]
+    assert numbers.new("a", 0) == [] and numbers.new("a", 1) == ["a-5"]

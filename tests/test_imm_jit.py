@@ -9,6 +9,7 @@ import copy
 
 import numpy as np
 import pytest
+from reference.record import track
 
 from service.estimation import imm_jit
 from service.estimation.catalog import FilterSpec
@@ -48,7 +49,7 @@ def test_compiled_imm_is_the_textbook_imm(dim, count):
     imm = tracker.updater
     assert imm_jit.applies(imm)
     for t in range(5):  # tracks with a history: modes apart, probabilities moved
-        tracker.track(measurements(40, float(t), dim, rng))
+        track(tracker, measurements(40, float(t), dim, rng))
     arrays = tracker.store.layout(dim)
     bad = min(7, count - 1)
     rows = arrays.live()[0][::-1][:count]  # store rows in any order
@@ -75,5 +76,5 @@ def test_compiled_imm_is_the_textbook_imm(dim, count):
 
 
 def test_turn_modes_take_the_textbook_code():
-    imm = FilterSpec("imm", imm_turn=2.0).build()[0]
+    imm = FilterSpec("imm", imm_turn=2.0).build().updater
     assert not imm_jit.applies(imm)

@@ -218,7 +218,7 @@ def test_predict_is_symmetric_and_matches_f_p_ft_plus_q():
 def test_predict_position_is_the_position_part_of_the_textbook_prediction(order, dim,
                                                                          per_row_q):
     """The gate's shortcut equals the position rows of F P F' + Q (reference form)."""
-    from service.estimation import reference
+    from reference import estimation as reference
 
     rng = np.random.default_rng(order * 10 + dim)
     n_rows, n = 40, order * dim

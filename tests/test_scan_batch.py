@@ -1,5 +1,5 @@
 """A batched labelled scan applied in one pass over its columns (`wire.parse_scan_columns`,
-`MeasurementBatch.of_scan`, `tracking.bulk.track_columns`) gives exactly what its rows
+`MeasurementBatch.of_scan`, `Tracker.step` on `batches.Labelled`) gives exactly what its rows
 give as single measurements: the same rows rejected with the same reasons, the same
 tracks to the last bit (repeated targets, out-of-sequence and duplicate rows, a track of
 the other dimension, the time policy), here and through the real service."""
@@ -12,10 +12,11 @@ import time
 
 import numpy as np
 import pytest
+from reference.record import track
 
 from service import defaults
 from service.estimation.measurements import MeasurementBatch
-from service.tracking.bulk import track_columns
+from service.tracking.batches import Labelled
 from service.tracking.tracker import Tracker
 from service.wire import (
     Rejected,
@@ -140,8 +141,8 @@ def test_one_pass_gives_the_single_messages_tracks():
     flat = parse_measurement("s", "flat", pack({"t": 0.0, "pos": [1.0, 2.0], "sigma": 3.0}),
                              NOISE)
     one, many = Tracker(), Tracker()
-    one.track([flat])
-    many.track([flat])
+    track(one, [flat])
+    track(many, [flat])
     cut = random.Random(4)
     seen: set[str] = set()
     for msg in msgs:
@@ -150,12 +151,12 @@ def test_one_pass_gives_the_single_messages_tracks():
         i = 0
         while i < len(ms):  # the worker's batches: any sizes
             k = cut.randint(1, 12)
-            outcomes, _ = one.track(ms[i:i + k])
+            outcomes, _ = track(one, ms[i:i + k])
             reasons.update({i + j: o.reason for j, o in enumerate(outcomes) if o.reason})
             i += k
         cols = parse_scan_columns("s", pack(msg), NOISE)
         assert not cols.rejected
-        got = track_columns(many, cols.ids, "s", MeasurementBatch.of_scan(cols))
+        got = many.step(Labelled(["s"] * len(cols.ids), cols.ids, MeasurementBatch.of_scan(cols)))
         assert dict(got.rejected) == reasons
         assert got.accepted == len(ms) - len(reasons)
         seen |= {r.split(":")[0] for r in reasons.values()}
@@ -225,17 +226,17 @@ def test_service_takes_a_scan_as_its_single_messages(service_factory):
 def test_an_update_in_parts_gives_the_same_tracks(monkeypatch):
     """A realtime service publishes a due frame between parts of a scan's update
     (`pause`): the tracks are those of the update in one part."""
-    import service.tracking.bulk as bulk
+    import service.tracking.tracker as tracker_module
 
     rng = random.Random(5)
     msgs = scans(rng)
     whole, parts = Tracker(), Tracker()
     pauses = []
-    monkeypatch.setattr(bulk, "PART", 7)
+    monkeypatch.setattr(tracker_module, "PART", 7)
     for msg in msgs:
         cols = parse_scan_columns("s", pack(msg), NOISE)
-        a = track_columns(whole, cols.ids, "s", MeasurementBatch.of_scan(cols))
-        b = track_columns(parts, cols.ids, "s", MeasurementBatch.of_scan(cols),
+        a = whole.step(Labelled(["s"] * len(cols.ids), cols.ids, MeasurementBatch.of_scan(cols)))
+        b = parts.step(Labelled(["s"] * len(cols.ids), cols.ids, MeasurementBatch.of_scan(cols)),
                           pause=lambda so_far: pauses.append(len(so_far.states)))
         assert a.rejected == b.rejected and a.accepted == b.accepted
     assert len(pauses) >= 3 * 4  # 30 rows in parts of 7: 4 pauses per scan after the first

@@ -19,10 +19,9 @@ import numpy as np
 import zenoh
 
 from .. import defaults
-from ..tracking.bulk import BatchOutcome
+from ..tracking.batches import StepOutcome as BatchOutcome
 from ..tracking.display import Snapshot
 from ..tracking.store import States
-from ..tracking.tracker import Outcome
 from ..wire import CHUNK, MSGPACK_ENCODING, Keys, pack, reason_code
 from .encode import pack_displays, pack_frame, pack_states, pack_tracks
 from .listeners import Listeners
@@ -158,19 +157,13 @@ class Publisher:
         self.display_listeners.close()
         self.track_listeners.close()
 
-    def states(self, outcomes: list[Outcome], key: str | None = None) -> None:
-        """Count and report each measurement's outcome; put the `tracks/` bodies of the
-        tracks updated, once each (`key`: the scan key of unlabelled detections)."""
-        blocks: dict[int, States] = {}  # the updated tracks, in order, once each block
-        for out in outcomes:
-            m = out.meas
-            if out.reason is not None:
-                self.reject(key or self.keys.meas(m.sensor, m.target), m.sensor, out.reason)
-                continue
-            self.count.meas_accepted += 1
-            if out.states is not None:
-                blocks.setdefault(id(out.states), out.states)
-        self.put_states(list(blocks.values()))
+    def scan(self, key: str, sensor: str, outcome: BatchOutcome) -> None:
+        """Count and report the outcome of an unlabelled scan's detections (a rejection
+        on the scan's key) and put the states of the tracks they updated or started."""
+        for _, reason in outcome.rejected:
+            self.reject(key, sensor, reason)
+        self.count.meas_accepted += outcome.accepted
+        self.put_states(outcome.states)
 
     def wanted(self, ids: list[str]) -> list[int] | None:
         """Which of these tracks' states are to be put (`states` subscribed: all, None;

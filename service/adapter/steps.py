@@ -6,9 +6,11 @@ from __future__ import annotations
 from typing import Any
 
 from ..tracking import checkpoint
-from ..tracking.bulk import BatchOutcome, Rows, Want, track_columns
+from ..tracking.batches import Instant, Unlabelled, Want
+from ..tracking.batches import Labelled as Rows
+from ..tracking.batches import StepOutcome as BatchOutcome
 from ..tracking.display import Snapshot
-from ..tracking.tracker import Outcome, Tracker
+from ..tracking.tracker import Tracker
 from ..wire import PlotScan
 
 
@@ -24,15 +26,15 @@ class Tracking:
     def rows(self, rows: Rows, want: Want | None, pause: Any) -> BatchOutcome:
         """Labelled rows, in order, in one pass over their columns (`pause`: called
         between parts of a long update)."""
-        return track_columns(self.tracker, rows.ids, rows.sensors, rows.batch, want, pause)
+        return self.tracker.step(rows, want, pause)
 
-    def scan(self, scan: PlotScan) -> tuple[list[Outcome], list[str]]:
-        """An unlabelled scan: each detection's outcome, the tracks deleted."""
-        return self.tracker.track_scan(scan)
+    def scan(self, scan: PlotScan) -> BatchOutcome:
+        """An unlabelled scan."""
+        return self.tracker.step(Unlabelled.of(scan.sensor, scan.t, scan.detections))
 
     def instant(self, t: float) -> list[str]:
-        """A display instant: an empty scan (coast and delete); the tracks deleted."""
-        return self.tracker.step([], now=t)
+        """A display instant: no input (coast and delete); the tracks deleted."""
+        return self.tracker.step(Instant(t)).deleted
 
     def delete(self, t: float) -> list[str]:
         return self.tracker.delete(t)

@@ -23,7 +23,8 @@ import zenoh
 
 from .. import defaults
 from ..estimation.measurements import MeasurementBatch
-from ..tracking.bulk import BatchOutcome, Rows
+from ..tracking.batches import Labelled as Rows
+from ..tracking.batches import StepOutcome as BatchOutcome
 from ..tracking.tracker import Tracker
 from ..wire import Keys, PlotScan
 from .admit import Admit
@@ -367,10 +368,10 @@ class TrackService:
     def _apply_scans(self, scans: list[tuple[str, PlotScan]]) -> None:
         for key, scan in scans:
             self._frames_before(scan.t)
-            outcomes, deleted = self.tracking.scan(scan)
-            self.out.deleted(deleted)
+            outcome = self.tracking.scan(scan)
+            self.out.deleted(outcome.deleted)
             self.count.scans_applied += 1
-            self.out.states(outcomes, key)
+            self.out.scan(key, scan.sensor, outcome)
 
     # ------------------------------------------------------------ schedule
     def _frames_before(self, t: float) -> None:

@@ -29,7 +29,8 @@ def einsum(subscripts: str, *operands: np.ndarray, out: np.ndarray | None = None
            ) -> np.ndarray:
     """np.einsum(subscripts, *operands, out=out) over a batch axis named `n` (explicit
     `->` form), the same bits for a row whatever the batch's length. Calls np.einsum's
-    C kernel directly (what np.einsum does without `optimize`, minus 3 us of Python)."""
+    C kernel directly (what np.einsum does without `optimize`, without its Python
+    wrapper's argument parsing, which small batches would pay for every call)."""
     axes, res = _axes(subscripts)
     first = axes[0]
     if first < 0 or res < 0 or operands[0].shape[first] != 1:
@@ -43,3 +44,11 @@ def einsum(subscripts: str, *operands: np.ndarray, out: np.ndarray | None = None
         return row
     out[...] = row
     return out
+
+
+def einsum_as_is(subscripts: str, *operands: np.ndarray) -> np.ndarray:
+    """np.einsum's C kernel as np.einsum calls it (the loop chosen by the axes' lengths,
+    a one-row batch included): for contractions whose bits are not a track's state and
+    so need not be the same for every batch length (gating distances, the display's
+    covariance sums)."""
+    return c_einsum(subscripts, *operands)

@@ -3,15 +3,32 @@ are the service's (`service.defaults`): the CLI and the tracker build them the s
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 from .. import defaults
-from .filters import SingleModelFilter
-from .imm import ModeSet
+from .ekf import EKFConversion
+from .filters import Convert, SingleModelFilter
+from .imm import IMM, ModeSet
+from .measurements import MeasurementBatch
+from .ucm import CMKFConversion
 from .vdf import VDF
 
 FILTERS = ("imm", "cv", "ca", "ekf", "vdf")
+
+
+Conversion = Callable[[MeasurementBatch], Convert]  # how a batch enters the filter
+
+
+@dataclass(frozen=True)
+class Filter:
+    """A built filter: the updater, the white noise q the display and the gating predict
+    with, and how a batch of measurements enters its update (`conversion(batch)`:
+    `CMKFConversion`, converted, or `EKFConversion`, linearised polar)."""
+
+    updater: SingleModelFilter | IMM | VDF
+    q: float
+    conversion: Conversion
 
 
 @dataclass(frozen=True)
@@ -31,20 +48,21 @@ class FilterSpec:
     vdf_detect: float = defaults.VDF_DETECT
     vdf_settle: float = defaults.VDF_SETTLE
 
-    def build(self) -> tuple[Any, float, str]:
-        """The updater, the noise q the display and the gating predict with, and how
-        polar measurements enter ("cmkf": converted, "ekf": linearised)."""
+    def build(self) -> Filter:
+        """The filter of this name, with its noise and its measurement conversion."""
         if self.name not in FILTERS:
             raise ValueError(f"unknown filter {self.name!r}; one of {', '.join(FILTERS)}")
         if self.name == "imm":
             q = defaults.Q_CV if self.q is None else self.q
             modes = ModeSet(q=q, sojourn=self.imm_sojourn, ct_q=self.imm_ct_q,
                             turn_deg=self.imm_turn)
-            return modes.imm(), q, "cmkf"
+            return Filter(modes.imm(), q, CMKFConversion)
         if self.name == "vdf":
-            return VDF(detect=self.vdf_detect, settle=self.vdf_settle), 0.0, "cmkf"
+            return Filter(VDF(detect=self.vdf_detect, settle=self.vdf_settle), 0.0,
+                          CMKFConversion)
         if self.name == "ca":
             q = defaults.Q_CA if self.q is None else self.q
-            return SingleModelFilter("ca", q, 3), q, "cmkf"
+            return Filter(SingleModelFilter("ca", q, 3), q, CMKFConversion)
         q = defaults.Q_CV if self.q is None else self.q
-        return SingleModelFilter("cv", q, 2), q, "ekf" if self.name == "ekf" else "cmkf"
+        return Filter(SingleModelFilter("cv", q, 2), q,
+                      EKFConversion if self.name == "ekf" else CMKFConversion)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 
@@ -28,6 +28,21 @@ Convert = Callable[[np.ndarray, np.ndarray], tuple]
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # x, P, nis, ok
 
 
+class Rows(Protocol):
+    """What a filter reads and writes of a layout of tracks (`tracking.store.TrackArrays`):
+    its dimension and model order, the stacked states x (cap, n), covariances p
+    (cap, n, n) and update times t, and the per-row fields the filter declared
+    (`fields`), by name."""
+
+    dim: int
+    order: int
+    x: np.ndarray
+    p: np.ndarray
+    t: np.ndarray
+
+    def __getattr__(self, name: str) -> np.ndarray: ...
+
+
 @dataclass(frozen=True)
 class SingleModelFilter:
     """One motion model ("cv" or "ca") with the CMKF, or the EKF on polar input."""
@@ -41,10 +56,10 @@ class SingleModelFilter:
         """Per-row arrays this filter keeps in the track store: none."""
         return {}
 
-    def initiate(self, arrays: Any, rows: np.ndarray) -> None:
+    def initiate(self, arrays: Rows, rows: np.ndarray) -> None:
         """Nothing beyond the table's own x and P."""
 
-    def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
+    def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         standard = (self.kind, self.order) in (("cv", 2), ("ca", 3))  # F, Q of models.predict
         if standard and isinstance(convert, CMKFConversion):
             return cmkf_step(arrays.x[rows], arrays.p[rows], dt, self.order, arrays.dim, self.q,
@@ -57,11 +72,14 @@ class SingleModelFilter:
             xp, pp = predict(arrays.x[rows], arrays.p[rows], f, qm)
         return kalman.update(xp, pp, *convert(xp, pp))
 
-    def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
+    def inflate(self, arrays: Rows, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the covariances of rows: nothing more is kept."""
 
-    def labels(self, arrays: Any, rows: np.ndarray) -> list[str]:
+    def labels(self, arrays: Rows, rows: np.ndarray) -> list[str]:
         return [self.kind] * len(rows)
+
+    def warm(self) -> None:
+        """Nothing to compile: NumPy only."""
 
 
 def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,

@@ -11,7 +11,7 @@ import numpy as np
 from .. import defaults
 from . import imm_jit, kalman, models
 from .batch import einsum
-from .filters import Convert, Result, moments, predict
+from .filters import Convert, Result, Rows, moments, predict
 from .ucm import CMKFConversion
 
 Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct"), q, omega (rad/s)
@@ -54,9 +54,11 @@ class ModeSet:
 
 def standard_modes(q: float = defaults.Q_CV, ct_q: float = 3.0, turn_deg: float = 1.8
                    ) -> tuple[Mode, ...]:
-    """The modes of the IMM the service used by default until issue 14 (name, kind, q,
-    omega): CV and CA with white noise `q` (m/s^2 for CV, m/s^3 for CA) and coordinated
-    turns at +- `turn_deg` deg/s with `ct_q` x q (sojourn 200 s, evenly left)."""
+    """The modes of the IMM the service used by default before the quiet/nominal/CA set
+    of `ModeSet` (a bare `IMM()`'s, and bench/imm_design.py's "old"): (name, kind, q,
+    omega) of CV and CA with white noise `q` (m/s^2 for CV, m/s^3 for CA) and
+    coordinated turns at +- `turn_deg` deg/s with `ct_q` x q (sojourn 200 s, evenly
+    left)."""
     w = np.radians(turn_deg)
     return (("cv", "cv", q, 0.0), ("ca", "ca", q, 0.0),
             ("ct+", "ct", ct_q * q, w), ("ct-", "ct", ct_q * q, -w))
@@ -97,7 +99,7 @@ class IMM:
         m = len(self.modes)
         return {"mode_x": ("n", m), "mode_p": ("nn", m), "mode_prob": ("", m)}
 
-    def initiate(self, arrays: Any, rows: np.ndarray) -> None:
+    def initiate(self, arrays: Rows, rows: np.ndarray) -> None:
         arrays.mode_x[rows] = arrays.x[rows, None]
         arrays.mode_p[rows] = arrays.p[rows, None]
         m = len(self.modes)
@@ -139,7 +141,7 @@ class IMM:
         p0 = einsum("nij,nijxy->njxy", w, ps + d[..., :, None] * d[..., None, :])
         return c, x0, p0
 
-    def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
+    def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         if isinstance(convert, CMKFConversion) and imm_jit.applies(self):
             return imm_jit.step(self, arrays, rows, dt, convert.batch)  # the same, compiled
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
@@ -183,12 +185,12 @@ class IMM:
         if imm_jit.applies(self):
             imm_jit.warm()
 
-    def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
+    def inflate(self, arrays: Rows, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the combined covariances of rows (the spread of a PDA
         update): every mode's covariance takes it too."""
         arrays.mode_p[rows] += dp[:, None]
 
-    def labels(self, arrays: Any, rows: np.ndarray) -> ModeProbabilities:
+    def labels(self, arrays: Rows, rows: np.ndarray) -> ModeProbabilities:
         return ModeProbabilities([name for name, *_ in self.modes], arrays.mode_prob[rows])
 
 

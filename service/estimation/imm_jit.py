@@ -13,7 +13,7 @@ a service says it is ready (about 10 s the first time on a 2-core machine, 0.5 s
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,18 +21,22 @@ from .imm_kernel import BLOCK
 from .imm_kernel import update_rows as _rows
 from .measurements import MeasurementBatch
 
+if TYPE_CHECKING:
+    from .filters import Rows
+    from .imm import IMM
+
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 __all__ = ["BLOCK", "applies", "design", "step", "warm"]
 
 
-def applies(imm: Any) -> bool:
+def applies(imm: IMM) -> bool:
     """Whether `step` computes this IMM's update: CV and CA modes in the order-3 state,
     unbiased mixing, each mode's own R (the default's options)."""
     return (imm.order == 3 and imm.unbiased_mixing and imm.mode_conversion
             and all(kind in ("cv", "ca") for _, kind, _, _ in imm.modes))
 
 
-def step(imm: Any, arrays: Any, rows: np.ndarray, dt: np.ndarray,
+def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
          batch: MeasurementBatch) -> Result:
     """`IMM.update` of `rows` of `arrays` over their own dt with the measurements of
     `batch` (converted by the CMKF): writes the modes' posteriors and probabilities of the
@@ -55,7 +59,7 @@ def step(imm: Any, arrays: Any, rows: np.ndarray, dt: np.ndarray,
 _DESIGNS: dict[int, tuple] = {}
 
 
-def design(imm: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The IMM's constants as arrays (as `IMM.transition` reads them): sojourns (M,), the
     normalised destinations of a mode left (M, M), the kinds (1: CA, 0: CV) and the
     noise of each mode."""

@@ -1,6 +1,6 @@
 """Linear Kalman update on stacked arrays, position-measurement form (H = [I 0 ...]):
-the fast batch-last kernel `update_soa` (textbook form: `reference.joseph_update`) and
-the EKF's linearised update.
+the fast batch-last kernel `update_soa` (textbook form: `joseph_update` in
+tests/reference/estimation.py) and the EKF's linearised update.
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """Small linear-algebra kernels on batch-last arrays (an m x m matrix over N rows is
 an (m, m, N) array): the closed-form symmetric eigen-decomposition for d <= 3 and the
-LDL' inverse and solve, entry by entry. `reference` holds their textbook forms.
+LDL' inverse and solve, entry by entry. tests/reference/estimation.py holds their
+textbook forms.
 """
 
 from __future__ import annotations

@@ -18,10 +18,11 @@ import threading
 
 import numpy as np
 
-# Rows per kernel pass. Every kernel call costs a fixed ~0.5 ms of NumPy call overhead
-# per chunk, so chunks should be long; beyond ~10,000 rows the per-row arrays (N,) of
-# the kernels' temporaries reach glibc's 128 KiB mmap threshold and the work arrays
-# leave the caches. 5,000 to 10,000 measured best (bench_filter, N = 10,000 and 100,000).
+# Rows per kernel pass. Every kernel call has a fixed cost of NumPy call overhead per
+# chunk, so chunks should be long; beyond ~10,000 rows the per-row arrays (N,) of the
+# kernels' temporaries reach glibc's 128 KiB mmap threshold (16,384 float64) and the
+# work arrays leave the caches. `python bench/bench_filter.py --sizes 10000 100000`
+# compares chunk sizes (5,000 to 10,000 came out best).
 CHUNK = 10_000
 
 _local = threading.local()
@@ -88,8 +89,9 @@ BLOCK = 256  # rows per block of a transposing copy: its source and target stay 
 
 def gather_soa(a: np.ndarray, rows: np.ndarray | slice, out: np.ndarray) -> np.ndarray:
     """a[rows] (k, *shape) into out (*shape, k), batch axis last, a block of rows at a
-    time (3 x faster than a gather then a transposing copy at 10,000 rows of 243 numbers:
-    each block's rows and columns stay in the cache)."""
+    time (each block's rows and columns stay in the cache, which a gather then a
+    transposing copy of 10,000 rows of 243 numbers does not; `python bench/imm_cost.py`
+    times the kernel that reads through it)."""
     flat, dst = a.reshape(len(a), -1), out.reshape(-1, out.shape[-1])
     k = dst.shape[1]
     base = rows.start if isinstance(rows, slice) else 0

@@ -4,7 +4,7 @@ covariance averaged over the predicted position, which keeps the gain uncorrelat
 the measurement error (Bordonaro, Willett & Bar-Shalom, IEEE TAES 50(2), 2014).
 `cmkf_soa` converts a `MeasurementBatch` with the batch axis last (see `scratch`); the
 other functions are vectorised over a leading batch axis. The plain forms these kernels
-are tested against are in `polar` and `reference`.
+are tested against are in `polar` and tests/reference/estimation.py.
 """
 
 from __future__ import annotations

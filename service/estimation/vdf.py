@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from .. import defaults
 from . import kalman, models
 from .batch import einsum
-from .filters import Convert, Result, predict
+from .filters import Convert, Result, Rows, predict
 
 
 @dataclass(frozen=True)
@@ -44,12 +43,12 @@ class VDF:
                        "hist_x": ("n", w), "hist_p": ("nn", w), "hist_z": ("d", w),
                        "hist_r": ("dd", w), "hist_t": ("", w), "hist_count": ("", None)}
 
-    def initiate(self, arrays: Any, rows: np.ndarray) -> None:
+    def initiate(self, arrays: Rows, rows: np.ndarray) -> None:
         arrays.ca[rows], arrays.armed[rows], arrays.rho[rows] = 1, 0, 0.0
         arrays.hist_count[rows] = 0
         self._remember(arrays, rows, arrays.x[rows], arrays.p[rows], None, None, arrays.t[rows])
 
-    def _remember(self, arrays: Any, rows: np.ndarray, x: np.ndarray, p: np.ndarray,
+    def _remember(self, arrays: Rows, rows: np.ndarray, x: np.ndarray, p: np.ndarray,
                   z: np.ndarray | None, r: np.ndarray | None, t: np.ndarray) -> None:
         """Shift the per-track history (oldest first) and append this update."""
         for name, v in (("hist_x", x), ("hist_p", p), ("hist_z", z), ("hist_r", r), ("hist_t", t)):
@@ -58,7 +57,7 @@ class VDF:
             a[rows, -1] = np.nan if v is None else v
         arrays.hist_count[rows] += 1
 
-    def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
+    def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         d = arrays.dim
         x, p = arrays.x[rows].copy(), arrays.p[rows].copy()
         ca = arrays.ca[rows].astype(bool)
@@ -98,7 +97,7 @@ class VDF:
             arrays.ca[o_rows], arrays.rho[o_rows] = 1, 0.0
         return xn, pn, nis, ok
 
-    def _restart(self, arrays: Any, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _restart(self, arrays: Rows, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """CA from the CV estimate before the window, re-run over the window's measurements."""
         d = arrays.dim
         x = arrays.hist_x[rows, 0].copy()
@@ -113,9 +112,12 @@ class VDF:
             t = tk
         return x, p
 
-    def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
+    def inflate(self, arrays: Rows, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the covariances of rows: the history keeps the
         filtered states as they were."""
 
-    def labels(self, arrays: Any, rows: np.ndarray) -> list[str]:
+    def warm(self) -> None:
+        """Nothing to compile: NumPy only."""
+
+    def labels(self, arrays: Rows, rows: np.ndarray) -> list[str]:
         return ["ca" if ca else "cv" for ca in arrays.ca[rows].tolist()]

@@ -30,7 +30,6 @@ if TYPE_CHECKING:
 
 FORMAT = "zenoh-track-service checkpoint"
 VERSION = 1
-SKIP = ("alive",)  # per-row columns not saved: every saved row is a live track
 FINITE = ("x", "p", "t", "t_first")  # what the picture is drawn from (filters may keep NaN
 # in their own fields, e.g. the VDF's unfilled history)
 
@@ -48,8 +47,8 @@ def header(tracker: Tracker) -> dict[str, Any]:
 
 def template(tracker: Tracker, dim: int) -> dict[str, tuple[tuple[int, ...], str]]:
     """Each per-row column of a layout: (shape of a row, dtype kind)."""
-    lay = TrackArrays(dim, tracker.store.order, tracker.store.extra, capacity=0)
-    return {k: (s, getattr(lay, k).dtype.kind) for k, s in lay.shapes.items()}
+    lay = TrackArrays(dim, tracker.store.order, tracker.store.columns, capacity=0)
+    return {k: (lay.shapes[k], getattr(lay, k).dtype.kind) for k in lay.saved}
 
 
 def capture(tracker: Tracker, extra: dict[str, Any] | None = None
@@ -58,15 +57,13 @@ def capture(tracker: Tracker, extra: dict[str, Any] | None = None
     as arrays), quick enough for the thread that owns the tracker; `encode` makes the
     bytes of it on any thread. `extra`: the adapter's own JSON-serialisable state."""
     meta = header(tracker)
-    meta.update(numbers=dict(tracker.numbers), last=dict(tracker.associator.last),
-                extra=extra or {}, layouts=sorted(tracker.store.layouts))
+    meta.update(**tracker.memory(), extra=extra or {}, layouts=sorted(tracker.store.layouts))
     arrays: dict[str, np.ndarray] = {}
     for dim, lay in tracker.store.layouts.items():
         rows, ids = lay.live()
         arrays[f"{dim}/ids"] = np.array(ids, dtype=str)
-        for name in lay.shapes:
-            if name not in SKIP:
-                arrays[f"{dim}/{name}"] = getattr(lay, name)[rows]  # a copy
+        for name in lay.saved:  # not `alive` (every saved row is a live track) nor what
+            arrays[f"{dim}/{name}"] = getattr(lay, name)[rows]  # the display makes again
     return json.loads(json.dumps(meta)), arrays
 
 
@@ -103,15 +100,9 @@ def load(tracker: Tracker, data: bytes) -> dict[str, Any]:
     numbers, last = meta.get("numbers", {}), meta.get("last", {})
     if not (_str_map(numbers, int) and _str_map(last, str)):
         raise CheckpointError("malformed track numbers or last sensors")
-    store = tracker.store
     for dim, (ids, cols) in tables.items():
-        lay = store.layout(dim)
-        rows = store.add_many(ids, dim)[1]
-        for name, values in cols.items():
-            getattr(lay, name)[rows] = values
-        tracker.display.initiate(lay, rows)
-    tracker.numbers.update(numbers)
-    tracker.associator.last.update({k: v for k, v in last.items() if k in store})
+        tracker.restore(dim, ids, cols)
+    tracker.recall({"numbers": numbers, "last": last})
     return meta
 
 
@@ -156,7 +147,7 @@ def _check(dim: int, ids: list[str], cols: dict[str, np.ndarray], tracker: Track
         if not CHUNK.fullmatch(i) or i in seen:
             raise CheckpointError(f"layout {dim}: bad or repeated track id {i[:40]!r}")
         seen.add(i)
-    names = {k for k in lay if k not in SKIP}
+    names = set(lay)
     if set(cols) != names:
         raise CheckpointError(f"layout {dim}: columns {sorted(set(cols) ^ names)} differ")
     for name, (shape, kind) in ((k, lay[k]) for k in names):

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .store import TrackStore
+
+if TYPE_CHECKING:
+    from .protocols import Deleter
 
 
 class UpdateTimeDeleter:
@@ -30,11 +35,11 @@ class UpdateTimeDeleter:
 class CompositeDeleter:
     """Deletes what any of its deleters deletes."""
 
-    def __init__(self, *deleters: object) -> None:
+    def __init__(self, *deleters: Deleter) -> None:
         self.deleters = deleters
 
     def delete_tracks(self, store: TrackStore, now: float) -> list[str]:
         out: dict[str, None] = {}
         for deleter in self.deleters:
-            out.update(dict.fromkeys(deleter.delete_tracks(store, now)))  # type: ignore[attr-defined]
+            out.update(dict.fromkeys(deleter.delete_tracks(store, now)))
         return list(out)

@@ -14,15 +14,15 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy._core.multiarray import c_einsum
 
 from .. import defaults
 from ..estimation import kalman, models
+from ..estimation.batch import einsum_as_is
 from ..estimation.scratch import span
 from ..wire import SHOWN, STATUSES, TIME_TOL
 from .frame import FrameColumns
 from .status import status_codes
-from .store import Columns, TrackArrays, TrackStore
+from .store import Column, Columns, TrackArrays, TrackStore
 
 
 def predicted(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t: np.ndarray | float,
@@ -33,7 +33,7 @@ def predicted(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t: np.nd
     d, o = dim, order
     dt = t - t_state
     phi = models.axis_transition(dt, o)  # (N, o, o)
-    xs = phi @ x.reshape(-1, o, d)  # matmul: ~5x faster than einsum here
+    xs = phi @ x.reshape(-1, o, d)  # matmul: BLAS-backed, quicker than einsum here
     c0 = phi[:, 0, :]
     g0 = models.axis_noise_gain(np.abs(dt), o)[:, 0]
     var = d * (q * g0) ** 2  # c0' axis_cov c0 term by term: small-axis reductions are slow
@@ -107,7 +107,7 @@ def axis_traces(p: np.ndarray, order: int, dim: int) -> np.ndarray:
     """(N, order, order): the covariances summed over the spatial axes, block by block
     (derivative i with derivative j); the position variance of a prediction follows from
     them without the full matrix."""
-    return c_einsum("naibi->nab", p.reshape(-1, order, dim, order, dim))  # np.einsum's kernel
+    return einsum_as_is("naibi->nab", p.reshape(-1, order, dim, order, dim))
 
 
 def frame_before(t: np.ndarray, rate: float) -> np.ndarray:
@@ -222,33 +222,28 @@ class Snapshot:
 
 
 # the display's columns beside each layout of the store
-DISPLAY_COLUMNS = {"offset": "d", "blend_start": "", "blend_period": "",
-                   "prev_x": "n", "prev_p": "nn", "prev_t": "", "axis_cov": "oo"}
+# the display state's per-row columns in the store (not saved: `initiate` makes them
+# again from a restored track's state): the blend offset, its start and period, the
+# previous filtered state (for smoothing) and the covariance's axis sums (the predicted
+# sigma)
+DISPLAY_COLUMNS = {name: Column(code, saved=False) for name, code in (
+    ("offset", "d"), ("blend_start", ""), ("blend_period", ""), ("prev_x", "n"),
+    ("prev_p", "nn"), ("prev_t", ""), ("axis_cov", "oo"))}
 
 
 class DisplayState:
     """What the display draws of every track: the filtered state predicted to the display
     instant, with corrections blended in and lagged instants smoothed (`DisplayConfig`).
-    Keeps its own per-row columns beside each layout of the store: the blend offset, its
-    start and period, the previous filtered state (for smoothing) and the covariance's
-    axis sums (for the predicted sigma)."""
+    Keeps its per-row fields in the store's layouts (`DISPLAY_COLUMNS`)."""
 
     def __init__(self, config: DisplayConfig, q: float) -> None:
         self.config, self.q = config, q
-        self.cols: dict[int, Columns] = {}
         self.frames: dict[int, FrameColumns] = {}  # the frames' inputs (`frame`)
         self._ids_cache: tuple[tuple, list[str], list] | None = None
 
     def columns(self, arrays: TrackArrays) -> Columns:
-        """The display's columns of one layout, as many rows as the store has."""
-        cols = self.cols.get(arrays.dim)
-        if cols is None:
-            d, n, o = arrays.dim, arrays.n, arrays.order
-            sizes = {"": (), "d": (d,), "n": (n,), "nn": (n, n), "oo": (o, o)}
-            cols = self.cols[arrays.dim] = Columns(
-                {k: sizes[code] for k, code in DISPLAY_COLUMNS.items()})
-        cols.grow(arrays.capacity)
-        return cols
+        """The display's columns of one layout: the layout's own (`DISPLAY_COLUMNS`)."""
+        return arrays
 
     def initiate(self, arrays: TrackArrays, rows: np.ndarray, x: np.ndarray | None = None,
                  p: np.ndarray | None = None) -> None:

@@ -17,9 +17,9 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from numpy._core.multiarray import c_einsum
 
 from ..estimation import models, scratch
+from ..estimation.batch import einsum_as_is
 from ..estimation.linalg import ldl_inverse
 from ..estimation.measurements import MeasurementBatch
 from ..estimation.ucm import at_point
@@ -135,7 +135,7 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     # S^-1 and det S of every pair at once, batch axis last (`linalg.ldl_inverse`)
     sinv, det = np.empty((d, d, len(ti))), np.empty(len(ti))
     ldl_inverse(s, sinv, det)
-    d2 = c_einsum("in,ijn,jn->n", nut, sinv, nut)  # np.einsum's kernel
+    d2 = einsum_as_is("in,ijn,jn->n", nut, sinv, nut)
     keep = (d2 <= gamma) & (det > 0)
     ti, dj, d2, nu, det = ti[keep], dj[keep], d2[keep], nu[keep], det[keep]
     loglik = -0.5 * (d2 + np.log(det) + d * LOG_2PI)

@@ -1,7 +1,7 @@
 """Track life of unlabelled tracks: M-of-N confirmation and the misses that end tracks.
 
 Each scan that could have seen a track counts it as detected or missed
-(`associator.Hypotheses.seen`) and adds its log-likelihood ratio to the
+(`hypotheses.Hypotheses.seen`) and adds its log-likelihood ratio to the
 track's score (a detection ln(Pd N(nu; 0, S) / lambda), a miss ln(1 - Pd): the
 sequential test of Blackman & Popoli 1999, sec. 6.2). A track keeps its last N outcomes
 as bits; it is confirmed once M of them are detections and its score has reached the
@@ -19,8 +19,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .associator import Seen
-from .store import TrackStore
+from .hypotheses import Seen
+from .store import Column, TrackStore
+
+# the life of a track of unlabelled scans, per row of the store, zero for a new track:
+# whether it is one, its detections in the last scans as bits (newest lowest), the
+# scans that could have seen it, its consecutive misses, its score, whether confirmed
+LIFE_COLUMNS = {"plot": Column(dtype=bool, fresh=True), "hits": Column(dtype=np.int64, fresh=True),
+                "scans": Column(dtype=np.int64, fresh=True),
+                "misses": Column(dtype=np.int64, fresh=True), "score": Column(fresh=True),
+                "confirmed": Column(dtype=bool, fresh=True)}
 
 
 def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:

@@ -3,20 +3,47 @@
 Tracks with the same state layout (dimension 2 or 3, model order) share one
 `TrackArrays`: predicting all of them, or updating a batch of them, is one vectorised
 operation over their rows. A track's row stays its own until it is deleted; freed rows
-are reused. Other components keep their own per-row columns beside these (`Columns`:
-the filter's extra fields here, the display state's in `display`).
+are reused. Every other per-row field lives there too, as a named `Column` that a
+component declares: the filter's (`Updater.fields`), the track life of unlabelled tracks
+(`life.LIFE_COLUMNS`) and the display state's (`display.DISPLAY_COLUMNS`), all grown
+together with the rows.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 # shape codes of per-row columns: "" scalar, "n" state, "nn" covariance, "d" position,
-# "dd" position covariance
-SHAPE_CODES = ("", "n", "nn", "d", "dd")
+# "dd" position covariance, "oo" derivative by derivative (order x order)
+SHAPE_CODES = ("", "n", "nn", "d", "dd", "oo")
+
+
+@dataclass(frozen=True)
+class Column:
+    """One per-row field of a layout: the shape of a row (a shape code, with a leading
+    axis of `modes` when given), its dtype, whether a row given to a new track starts at
+    zero (`fresh`; else its owner sets it) and whether a checkpoint keeps it (`saved`;
+    else its owner makes it again from the saved ones)."""
+
+    code: str = ""
+    modes: int | None = None
+    dtype: type = float
+    fresh: bool = False
+    saved: bool = True
+
+    @classmethod
+    def of(cls, spec: Column | tuple) -> Column:
+        """A column, or a filter's (shape code, modes) pair (`Updater.fields`)."""
+        return spec if isinstance(spec, Column) else cls(*spec)
+
+
+# what every layout has: the filtered state, its times, the NIS and the update count
+CORE = {"x": Column("n"), "p": Column("nn"), "t": Column(), "t_first": Column(),
+        "nis": Column(), "updates": Column(dtype=np.int64), "alive": Column(dtype=bool,
+                                                                              saved=False)}
 
 
 class Columns:
@@ -43,32 +70,33 @@ class Columns:
             setattr(self, name, grown)
         self.capacity = capacity
 
+    def __getattr__(self, name: str) -> np.ndarray:
+        """Only for what is not a column (they are attributes): says so, and tells type
+        checkers that a column read by name is an array (`estimation.filters.Rows`)."""
+        raise AttributeError(f"no per-row column {name!r}")
+
 
 class TrackArrays(Columns):
-    """Tracks of one layout: states x (cap, n), covariances p (cap, n, n), the time of
-    the last update t, the first update t_first, the update count, the last NIS, and the
-    per-row fields a filter asks for (`extra`: name -> (shape code, modes))."""
+    """Tracks of one layout: the `CORE` columns (states x (cap, n), covariances p
+    (cap, n, n), the time of the last update t, the first update t_first, the update
+    count, the last NIS, whether a row is a live track) and the `columns` its users
+    declared."""
 
-    def __init__(self, dim: int, order: int, extra: dict[str, tuple] | None = None,
+    def __init__(self, dim: int, order: int, columns: Mapping[str, Column | tuple] | None = None,
                  capacity: int = 64) -> None:
         self.dim, self.order, self.n = dim, order, dim * order
         n = self.n
-        codes = dict(zip(SHAPE_CODES, ((), (n,), (n, n), (dim,), (dim, dim)), strict=True))
-        shapes: dict[str, tuple[int, ...]] = {
-            "x": (n,), "p": (n, n), "t": (), "t_first": (), "nis": (), "updates": (),
-            "alive": (),
-            # tracks of unlabelled scans: detections in the last scans as bits (newest
-            # lowest), scans seen, consecutive misses, track score, confirmed (M of N)
-            "plot": (), "hits": (), "scans": (), "misses": (), "score": (),
-            "confirmed": ()}
-        for name, (code, modes) in (extra or {}).items():
-            shapes[name] = ((modes,) if modes else ()) + codes[code]
+        codes = dict(zip(SHAPE_CODES, ((), (n,), (n, n), (dim,), (dim, dim), (order, order)),
+                         strict=True))
+        spec = {**CORE, **{k: Column.of(v) for k, v in (columns or {}).items()}}
+        shapes = {name: ((c.modes,) if c.modes else ()) + codes[c.code]
+                  for name, c in spec.items()}
+        self.saved = [name for name, c in spec.items() if c.saved]
+        self.fresh = [name for name, c in spec.items() if c.fresh]
         self.ids: list[str | None] = []
         self.free: list[int] = []
         self._live: tuple[np.ndarray, list[str]] | None = None
-        ints = dict.fromkeys(("updates", "hits", "scans", "misses"), np.int64)
-        super().__init__(shapes, {"alive": bool, "plot": bool, "confirmed": bool, **ints},
-                         capacity)
+        super().__init__(shapes, {name: c.dtype for name, c in spec.items()}, capacity)
 
     def grow(self, capacity: int) -> None:
         old = self.capacity
@@ -77,7 +105,8 @@ class TrackArrays(Columns):
         self.free.extend(range(self.capacity - 1, old - 1, -1))
 
     def add(self, track_ids: Sequence[str]) -> np.ndarray:
-        """Rows for new tracks (freed rows first, lowest first), their bookkeeping reset."""
+        """Rows for new tracks (freed rows first, lowest first), their `fresh` columns
+        zero."""
         k = len(track_ids)
         if len(self.free) < k:
             self.grow(max(2 * self.capacity, self.capacity + k))
@@ -87,9 +116,8 @@ class TrackArrays(Columns):
             self.ids[row] = track_id
         rows = np.array(taken, dtype=int)
         self.alive[rows] = True
-        self.plot[rows], self.confirmed[rows] = False, False
-        self.hits[rows] = self.scans[rows] = self.misses[rows] = 0
-        self.score[rows] = 0.0
+        for name in self.fresh:
+            getattr(self, name)[rows] = 0
         self._live = None
         return rows
 
@@ -144,10 +172,13 @@ class States:
 
 class TrackStore:
     """All tracks, keyed by id: one `TrackArrays` per dimension, all of one model order
-    (the filter's), with the filter's extra fields."""
+    (the filter's), with the filter's per-row fields (`extra`) and the other components'
+    (`columns`)."""
 
-    def __init__(self, order: int, extra: dict[str, tuple] | None = None) -> None:
+    def __init__(self, order: int, extra: Mapping[str, Column | tuple] | None = None,
+                 columns: Mapping[str, Column] | None = None) -> None:
         self.order, self.extra = order, dict(extra or {})
+        self.columns: dict[str, Column | tuple] = {**(columns or {}), **self.extra}
         self.layouts: dict[int, TrackArrays] = {}
         self.where: dict[str, tuple[TrackArrays, int]] = {}
 
@@ -159,7 +190,7 @@ class TrackStore:
 
     def layout(self, dim: int) -> TrackArrays:
         if dim not in self.layouts:
-            self.layouts[dim] = TrackArrays(dim, self.order, self.extra)
+            self.layouts[dim] = TrackArrays(dim, self.order, self.columns)
         return self.layouts[dim]
 
     def add_many(self, track_ids: Sequence[str], dim: int) -> tuple[TrackArrays, np.ndarray]:
@@ -184,7 +215,7 @@ class TrackStore:
             arrays.remove(rows)
 
     def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray,
-               labels: list, x: np.ndarray | None = None, p: np.ndarray | None = None
+               labels: Sequence, x: np.ndarray | None = None, p: np.ndarray | None = None
                ) -> States:
         """The filtered states of rows of one layout, as columns (`labels`: the filter's
         model label of each row; x (N, n), P (N, n, n): their states and covariances as

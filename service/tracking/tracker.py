@@ -1,38 +1,43 @@
 """The tracker: the loop of the field's textbook over the stacked track store.
 
-Each scan of measurements is associated with the tracks, the associated tracks are
-predicted and updated, the others coast, stale tracks are deleted and unassociated
-measurements start new tracks (`Tracker.step`). Each step is a component with Stone
-Soup's name (associator, updater, deleter, initiator) so that one can be swapped
-without touching the rest; the display state follows every change. Labelled
-measurements go through the `LabelAssociator`; unlabelled radar scans through the GNN
-or JPDA associator (`association`), and their tracks live by M of N (`life`).
+Every input enters one loop, `Tracker.step`, as one typed columnar batch (`batches`):
+labelled measurements, an unlabelled scan, or a display instant without any. Each part
+of a scan is associated with the tracks, the associated tracks are predicted and
+updated, the tracks in view count the scan as a detection or a miss, stale tracks are
+deleted and unassociated measurements start new tracks. Each stage is a component with
+Stone Soup's name (associator, updater, deleter, initiator; `protocols`) so that one can
+be swapped without touching the rest; the display state follows every change. Labelled
+measurements go through the `LabelAssociator`; unlabelled radar scans through the GNN or
+JPDA associator (`plot_association`), and their tracks live by M of N (`life`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .. import defaults
 from ..estimation.catalog import FilterSpec
-from ..estimation.ekf import EKFConversion
 from ..estimation.measurements import MeasurementBatch
-from ..estimation.ucm import CMKFConversion
-from ..wire import Measurement
-from .association import GNNAssociator, JPDAAssociator, SensorModels
-from .associator import Hypotheses, LabelAssociator, WeightedUpdate
+from ..wire import TIME_TOL
+from .batches import Detections, Instant, Labelled, Scan, StepOutcome, Unlabelled, Want, all_states
 from .deleter import CompositeDeleter, UpdateTimeDeleter
-from .display import DisplayConfig, DisplayState, Snapshot
+from .display import DISPLAY_COLUMNS, DisplayConfig, DisplayState, Snapshot
+from .hypotheses import Hypotheses, WeightedUpdate
 from .initiator import SinglePointInitiator
-from .life import MofNDeleter, update_life
+from .label_association import LabelAssociator
+from .life import LIFE_COLUMNS, MofNDeleter, update_life
+from .plot_association import GNNAssociator, JPDAAssociator, SensorModels
+from .protocols import Associator, Deleter, Initiator, Updater
 from .store import States, TrackArrays, TrackStore
 
-if TYPE_CHECKING:
-    from ..wire.plots import PlotScan
+NON_FINITE = "update gave a non-finite state"
+# rows of an update between two pauses (`Tracker.step`'s `pause`): a realtime frame due
+# meanwhile waits for one part (bench/pass_cost.py measures a part's CPU)
+PART = 1024
+SCAN_ASSOCIATORS = {"gnn": GNNAssociator, "jpda": JPDAAssociator}  # --associator
 
 
 @dataclass(frozen=True)
@@ -45,7 +50,7 @@ class TrackerConfig:
     delete_after: float = defaults.DELETE_AFTER  # s of simulation time without a measurement
     display: DisplayConfig = field(default_factory=DisplayConfig)
     # unlabelled scans (plots/)
-    associator: str = defaults.ASSOCIATOR  # "gnn" or "jpda"
+    associator: str = defaults.ASSOCIATOR  # a key of SCAN_ASSOCIATORS: "gnn" or "jpda"
     sensors: SensorModels = field(default_factory=SensorModels)
     gate_probability: float = defaults.GATE_PROBABILITY
     max_speed: float = defaults.MAX_SPEED  # m/s: a new track's velocity std is a third
@@ -58,8 +63,9 @@ class TrackerConfig:
 
 @dataclass(frozen=True)
 class EquivalentConversion:
-    """A PDA update as one equivalent measurement per track (`association.pda`): called
-    with the filter's own prediction it returns z and R~ = R / b + ((1 - b) / b) H P H'."""
+    """A PDA update as one equivalent measurement per track (`plot_association.pda`):
+    called with the filter's own prediction it returns z and
+    R~ = R / b + ((1 - b) / b) H P H'."""
 
     z: np.ndarray
     r: np.ndarray
@@ -70,14 +76,17 @@ class EquivalentConversion:
         return self.z, self.r / b + (1 - b) / b * pp[:, :d, :d]
 
 
-@dataclass
-class Outcome:
-    """What became of one measurement."""
+class TrackNumbers:
+    """Ids `<sensor>-<n>` of new unlabelled tracks, n counting per sensor from 1, never
+    reused in a run."""
 
-    meas: Measurement
-    reason: str | None = None  # None: accepted
-    nis: float = float("nan")
-    states: States | None = None  # accepted: the tracks updated with it, this one among them
+    def __init__(self) -> None:
+        self.last: dict[str, int] = {}  # per sensor: the last number given
+
+    def new(self, sensor: str, k: int) -> list[str]:
+        n0 = self.last.get(sensor, 0)
+        self.last[sensor] = n0 + k
+        return [f"{sensor}-{n}" for n in range(n0 + 1, n0 + 1 + k)]
 
 
 class Tracker:
@@ -85,109 +94,99 @@ class Tracker:
 
     def __init__(self, config: TrackerConfig | None = None) -> None:
         self.config = c = config or TrackerConfig()
-        self.updater, q, self.conversion = c.filter.build()
-        self.associator = LabelAssociator()
-        scans = {"gnn": GNNAssociator, "jpda": JPDAAssociator}[c.associator]
-        self.scan_associator = scans(q, c.sensors, c.gate_probability)
-        self.initiator = SinglePointInitiator(c.init_speed, c.init_accel)
-        self.deleter = CompositeDeleter(
+        built = c.filter.build()
+        self.updater: Updater = built.updater
+        self.conversion = built.conversion
+        self.associator: Associator[Labelled, Labelled] = LabelAssociator()
+        self.scan_associator: Associator[Unlabelled, Detections] = SCAN_ASSOCIATORS[c.associator](
+            built.q, c.sensors, c.gate_probability)
+        self.initiator: Initiator = SinglePointInitiator(c.init_speed, c.init_accel)
+        self.deleter: Deleter = CompositeDeleter(
             UpdateTimeDeleter(c.delete_after),
             MofNDeleter(c.confirm_m, c.confirm_n, c.delete_misses, c.delete_sigma))
-        self.display = DisplayState(c.display, q)
-        self.store = TrackStore(self.updater.order, self.updater.fields)
-        self.numbers: dict[str, int] = {}  # per sensor: the last track number given
+        self.display = DisplayState(c.display, built.q)
+        self.store = TrackStore(self.updater.order, self.updater.fields,
+                                {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
+        self.numbers = TrackNumbers()
 
     def __len__(self) -> int:
         return len(self.store)
 
-    def track(self, measurements: Sequence[Measurement]) -> tuple[list[Outcome], list[str]]:
-        """Apply a batch of measurements in order, one `step` per scan (the associator
-        splits the batch so that a scan holds each target at most once). Returns the
-        outcome of every measurement and the ids of the tracks deleted."""
-        outcomes = [Outcome(m) for m in measurements]
-        deleted: list[str] = []
-        for scan in self.associator.scans(measurements):
-            deleted += self.step([outcomes[i] for i in scan])
-        return outcomes, deleted
+    def step(self, scan: Scan, want: Want | None = all_states,
+             pause: Callable[[StepOutcome], None] | None = None) -> StepOutcome:
+        """Apply one input: each part of it (`Associator.split`) associated, its tracks
+        updated, the tracks in view counted as detected or missed, the stale tracks
+        deleted at its time and new tracks started; an `Instant` only deletes.
+        `want`: which of the tracks updated or started (given their ids) to return the
+        states of (None: none). `pause`: called between parts of `PART` rows of an
+        update with the outcome so far (a realtime service puts the states of the part
+        done and a due frame there; a row's update does not depend on the others, so the
+        parts give the same result)."""
+        out = StepOutcome()
+        if isinstance(scan, Instant):
+            out.deleted += self.delete(scan.t)
+            return out
+        for index, part, hyp in self._associated(scan):
+            bad = hyp.rejected
+            self._update(hyp, part.batch, bad, out, want, pause)
+            for weighted in hyp.weighted:
+                good, x, p = self._update_weighted(weighted, part.t)
+                out.keep(self._block(weighted.arrays, good, x, p), weighted.arrays.ids, good,
+                         want)
+            self.count_detections(hyp)
+            out.deleted += self.delete(part.t)
+            if hyp.unassociated:
+                self._initiate(hyp, part, bad, out, want)
+            out.rejected += [(index[i], reason) for i, reason in bad.items()]
+            out.accepted += len(index) - len(bad)
+        out.rejected.sort()
+        return out
 
-    def track_scan(self, scan: PlotScan) -> tuple[list[Outcome], list[str]]:
-        """Apply one unlabelled scan (all its detections at one time): one `step` with
-        the scan associator (one per dimension when it mixes 2-D and 3-D detections).
-        Returns each detection's outcome and the tracks deleted."""
-        outcomes = [Outcome(m) for m in scan.detections]
-        dims = {m.dim for m in scan.detections}
-        if len(dims) < 2:
-            return outcomes, self.step(outcomes, scan.t, self.scan_associator)
-        deleted: list[str] = []  # 2-D and 3-D detections in one scan: each with its tracks
-        for dim in sorted(dims):
-            deleted += self.step([o for o in outcomes if o.meas.dim == dim], scan.t,
-                                 self.scan_associator)
-        return outcomes, deleted
+    # ------------------------------------------------------------ the stages
+    def _associated(self, scan: Labelled | Unlabelled
+                    ) -> Iterator[tuple[list[int], Labelled | Detections, Hypotheses]]:
+        """Each part of a scan with its hypotheses, associated when its turn comes (after
+        the parts before it changed the store)."""
+        if isinstance(scan, Labelled):
+            for index, part in self.associator.split(scan):
+                yield index, part, self.associator.associate(self.store, part)
+        else:
+            for index, det in self.scan_associator.split(scan):
+                yield index, det, self.scan_associator.associate(self.store, det)
 
-    def step(self, scan: Sequence[Outcome], now: float | None = None,
-             associator: Any = None) -> list[str]:
-        """One scan at time `now` (default: its newest measurement): associate, predict
-        and update, coast, delete, initiate. Fills in each measurement's outcome and
-        returns the ids of the tracks deleted."""
-        meas = [o.meas for o in scan]
-        hypotheses = (associator or self.associator).associate(self.store, meas, now)
-        for i, reason in hypotheses.rejected.items():
-            scan[i].reason = reason
-        for dim, idx in hypotheses.updates.items():
-            rows = hypotheses.rows.get(dim)
-            self.update(dim, [scan[i] for i in idx],
-                        hypotheses.tracks[dim] if rows is None else np.concatenate(rows),
-                        hypotheses.batch(meas, dim, idx))
-        for weighted in hypotheses.weighted:
-            self.update_weighted(weighted, scan, now)
-        self.coast(hypotheses)
-        if now is None:
-            now = max((m.t for m in meas), default=None)
-        deleted = self.delete(now) if now is not None else []
-        for dim, idx in hypotheses.unassociated.items():
-            self.initiate(dim, [scan[i] for i in idx], hypotheses.batch(meas, dim, idx))
-        return deleted
-
-    # ------------------------------------------------------------ the steps
-    def update(self, dim: int, scan: list[Outcome], tracks: list[str] | np.ndarray,
-               batch: MeasurementBatch) -> None:
-        """Predict and update `tracks` (of one layout: ids, or their rows) with their
-        measurements (`batch`: the same as columns)."""
-        store = self.store
-        arrays = store.layout(dim)
-        rows = tracks if isinstance(tracks, np.ndarray) else \
-            np.array([store.where[k][1] for k in tracks], dtype=int)
-        good, ok, nis, xn, pn = self._update_rows(arrays, rows, batch)
-        if len(good) == len(rows):  # every row updated (the usual case)
-            block = self.states(arrays, good, xn, pn)
-            for out, v in zip(scan, nis.tolist(), strict=True):
-                out.reason, out.nis, out.states = None, v, block
+    def _update(self, hyp: Hypotheses, batch: MeasurementBatch | None, bad: dict[int, str],
+                out: StepOutcome, want: Want | None,
+                pause: Callable[[StepOutcome], None] | None) -> None:
+        """Predict and update the tracks associated, in store order, in parts of `PART`
+        rows when paused between them; a non-finite result rejects its measurement."""
+        upd, rows = hyp.pairs()
+        if not len(rows) or batch is None:
             return
-        self._settle(scan, arrays, good, [(None, v) if k else
-                                          ("update gave a non-finite state", np.nan)
-                                          for k, v in zip(ok.tolist(), nis.tolist(),
-                                                          strict=True)], xn, pn)
+        arrays = self.store.layout(hyp.dim)
+        order = np.argsort(rows, kind="stable")  # the rows in store order: a row's
+        upd, rows = upd[order], rows[order]  # result does not depend on the others
+        cut = len(rows) if pause is None else PART
+        for lo in range(0, len(rows), cut):
+            if lo:
+                pause(out)  # type: ignore[misc]
+            part = upd[lo:lo + cut]
+            good, ok, _, x, p = self._update_rows(arrays, rows[lo:lo + cut], batch.take(part))
+            for j in np.flatnonzero(~ok).tolist():
+                bad[int(part[j])] = NON_FINITE
+            out.keep(self._block(arrays, good, x, p), arrays.ids, good, want)
 
-    def warm(self) -> None:
-        """Compile the filter's kernels (or load them from their cache) before the first
-        measurement: seconds on a machine's first start, then a fraction of one."""
-        warm = getattr(self.updater, "warm", None)
-        if warm is not None:
-            warm()
-
-    def update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def update(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predict and update `rows` of `arrays` with `batch` (row i with measurement i):
         the rows updated (those whose result is finite), the mask of them and every NIS."""
         return self._update_rows(arrays, rows, batch)[:3]
 
     def _update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
                      ) -> tuple[np.ndarray, ...]:
-        """`update_rows`, and the new states and covariances of the rows updated."""
+        """`update`, and the new states and covariances of the rows updated."""
         t = batch.t
-        conversion = EKFConversion(batch) if self.conversion == "ekf" else \
-            CMKFConversion(batch)  # the filter core converts a CMKF batch in its kernel
-        xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows], conversion)
+        xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows],
+                                              self.conversion(batch))
         every = np.count_nonzero(ok) == len(ok)
         good = rows if every else rows[ok]
         if not every:
@@ -200,9 +199,11 @@ class Tracker:
         arrays.updates[good] += 1
         return good, ok, nis, xn, pn
 
-    def update_weighted(self, w: WeightedUpdate, scan: Sequence[Outcome], t: float) -> None:
+    def _update_weighted(self, w: WeightedUpdate, t: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Update tracks each with the equivalent measurement of its weighted detections
-        (JPDA), then add the spread of those detections to their covariances."""
+        (JPDA), then add the spread of those detections to their covariances; the rows
+        updated, their new states and covariances."""
         arrays, rows = w.arrays, w.rows
         times = np.full(len(rows), t)
         xn, pn, nis, ok = self.updater.update(arrays, rows, times - arrays.t[rows],
@@ -214,18 +215,15 @@ class Tracker:
         arrays.x[good], arrays.p[good], arrays.nis[good] = xn, pn, nis[ok]
         arrays.t[good] = t
         arrays.updates[good] += 1
-        block = self.states(arrays, good, xn, pn)
-        for out in scan:  # every detection shares the block of the tracks it updated
-            if out.states is None:
-                out.states = block
-                break
+        return good, xn, pn
 
-    def coast(self, hypotheses: Hypotheses) -> None:
-        """Tracks without a detection keep their filtered state, which the display state
-        predicts to every instant (labelled ones turn coasting with age); unlabelled ones
-        count the scan as a detection or a miss (M of N)."""
+    def count_detections(self, hyp: Hypotheses) -> None:
+        """The unlabelled tracks in view count the scan as a detection or a miss (M of
+        N, the track score). Tracks without a measurement keep their filtered state:
+        the display predicts it to every instant, and labelled ones turn coasting with
+        age."""
         c = self.config
-        update_life(hypotheses.seen, c.confirm_m, c.confirm_n, c.confirm_score)
+        update_life(hyp.seen, c.confirm_m, c.confirm_n, c.confirm_score)
 
     def delete(self, now: float) -> list[str]:
         """Remove the tracks the deleter picks at time `now`; their ids."""
@@ -237,7 +235,7 @@ class Tracker:
         ids: list[str] = []
         for arrays in self.store.layouts.values():
             rows, names = arrays.live()
-            ids += [names[i] for i in np.flatnonzero(arrays.t[rows] > t + 1e-6).tolist()]
+            ids += [names[i] for i in np.flatnonzero(arrays.t[rows] > t + TIME_TOL).tolist()]
         return self.remove(ids)
 
     def remove(self, ids: list[str]) -> list[str]:
@@ -245,58 +243,86 @@ class Tracker:
         self.associator.forget(ids)
         return ids
 
-    def initiate(self, dim: int, scan: list[Outcome], batch: MeasurementBatch) -> None:
-        """Start a track from each unassociated measurement of one layout: named by its
-        label, or, unlabelled, `<sensor>-<n>` with n counting per sensor from 1 (never
-        reused in a run), tentative until confirmed M of N."""
-        meas = [o.meas for o in scan]
-        unlabelled = bool(meas) and not meas[0].target
-        ids = self._new_ids([m.sensor for m in meas]) if unlabelled else \
-            [m.target for m in meas]
-        speed = self.config.max_speed / 3 if unlabelled else None
+    def _initiate(self, hyp: Hypotheses, part: Labelled | Detections, bad: dict[int, str],
+                  out: StepOutcome, want: Want | None) -> None:
+        """Start a track from each unassociated measurement of a part: named by its
+        label, or, unlabelled, `<sensor>-<n>` (`TrackNumbers`)."""
+        new, batch = hyp.unassociated, part.batch
+        assert batch is not None  # a part with measurements
+        if isinstance(part, Labelled):
+            ids, speed = [part.ids[i] for i in new], None
+            batch = batch if len(new) == len(part) else batch.take(new)
+        else:
+            ids, speed = self.numbers.new(part.sensor, len(new)), self.config.max_speed / 3
+            batch = batch.take(new)
+        arrays, rows, reasons, x, p = self._start(hyp.dim, batch, ids, speed)
+        for i, reason in zip(new, reasons, strict=True):
+            if reason is not None:
+                bad[i] = reason
+        out.keep(self._block(arrays, rows, x, p), arrays.ids, rows, want)
+
+    def initiate(self, dim: int, batch: MeasurementBatch, ids: Sequence[str],
+                 speed: float | None = None) -> tuple[TrackArrays, np.ndarray,
+                                                      list[str | None]]:
+        """New tracks named `ids`, one per measurement of `batch` (`speed`: the velocity
+        prior's std, given for unlabelled tracks, which are tentative until confirmed M
+        of N): the layout, the rows started and each measurement's reason for starting
+        none (None: started)."""
+        return self._start(dim, batch, ids, speed)[:3]
+
+    def _start(self, dim: int, batch: MeasurementBatch, ids: Sequence[str],
+               speed: float | None) -> tuple:
+        """`initiate`, and the new tracks' states and covariances."""
         arrays, rows, reasons = self.initiator.initiate(self.store, dim, batch, ids, speed)
-        if unlabelled:
+        if speed is not None:
             arrays.plot[rows], arrays.hits[rows], arrays.scans[rows] = True, 1, 1
             arrays.confirmed[rows] = self.config.confirm_m <= 1 and \
                 self.config.confirm_score <= 0
         self.updater.initiate(arrays, rows)
         x, p = arrays.x[rows], arrays.p[rows]
         self.display.initiate(arrays, rows, x, p)
-        self._settle(scan, arrays, rows, [(r, 0.0 if r is None else np.nan) for r in reasons],
-                     x, p)
+        return arrays, rows, reasons, x, p
 
-    def _settle(self, scan: list[Outcome], arrays: TrackArrays, good: np.ndarray,
-                results: list[tuple[str | None, float]], x: np.ndarray | None = None,
-                p: np.ndarray | None = None) -> None:
-        """Record each measurement's reason and NIS, and the accepted ones' new states
-        (one block of columns for all of them; x, P: their states and covariances, when
-        the caller has them as new arrays)."""
-        block = self.states(arrays, good, x, p)
-        for out, (reason, nis) in zip(scan, results, strict=True):
-            out.reason, out.nis = reason, nis
-            if reason is None:
-                out.states = block
+    def warm(self) -> None:
+        """Compile the filter's kernels (or load them from their cache) before the first
+        measurement: seconds on a machine's first start, then a fraction of one."""
+        self.updater.warm()
 
-    def _new_ids(self, sensors: list[str]) -> list[str]:
-        """Ids `<sensor>-<n>` for new unlabelled tracks of these sensors, n counting per
-        sensor from 1."""
-        numbers, out = self.numbers, []
-        if sensors and sensors.count(sensors[0]) == len(sensors):  # one sensor (a scan)
-            s, n0 = sensors[0], numbers.get(sensors[0], 0)
-            numbers[s] = n0 + len(sensors)
-            return [f"{s}-{n}" for n in range(n0 + 1, n0 + 1 + len(sensors))]
-        for sensor in sensors:
-            n = numbers[sensor] = numbers.get(sensor, 0) + 1
-            out.append(f"{sensor}-{n}")
-        return out
+    # ------------------------------------------------------------ checkpoints
+    def memory(self) -> dict[str, dict]:
+        """What the tracker keeps beside the store: the track numbers given per sensor
+        and the sensor of each labelled track's last update (JSON-serialisable)."""
+        return {"numbers": dict(self.numbers.last), "last": self.associator.memory()}
+
+    def restore(self, dim: int, ids: list[str], columns: Mapping[str, np.ndarray]) -> None:
+        """Tracks of one layout back from a checkpoint: their ids and every per-row
+        column of them."""
+        arrays, rows = self.store.add_many(ids, dim)
+        for name, values in columns.items():
+            getattr(arrays, name)[rows] = values
+        self.display.initiate(arrays, rows)
+
+    def recall(self, memory: Mapping[str, Mapping]) -> None:
+        """Take back what `memory` gave (after `restore`: the last sensors of tracks not
+        restored are dropped)."""
+        self.numbers.last.update(memory.get("numbers", {}))
+        self.associator.remember({k: v for k, v in memory.get("last", {}).items()
+                                  if k in self.store})
 
     # ------------------------------------------------------------ queries
-    def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray,
-               x: np.ndarray | None = None, p: np.ndarray | None = None) -> States:
-        """The filtered states of rows of one layout, as columns (x, P: those rows'
-        states and covariances, new arrays, if the caller has them)."""
+    def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray) -> States:
+        """The filtered states of rows of one layout, as columns."""
         r = np.asarray(rows, dtype=int)
-        return self.store.states(arrays, r, self.updater.labels(arrays, r), x, p)
+        return self.store.states(arrays, r, self.updater.labels(arrays, r))
+
+    def _block(self, arrays: TrackArrays, rows: np.ndarray, x: np.ndarray, p: np.ndarray
+               ) -> Callable[[np.ndarray | None], States]:
+        """How to make the states of rows[pick] (None: all) of a layout, from their new
+        states x and covariances p (not gathered from the store again)."""
+        def make(pick: np.ndarray | None) -> States:
+            r, xs, ps = (rows, x, p) if pick is None else (rows[pick], x[pick], p[pick])
+            return self.store.states(arrays, r, self.updater.labels(arrays, r), xs, ps)
+        return make
 
     def state(self, track_id: str) -> dict:
         """The filtered state of one track (the `tracks/<id>` message body)."""

@@ -29,17 +29,16 @@ from __future__ import annotations
 import functools
 import itertools
 import json
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .. import defaults
-from ..estimation.measurements import MeasurementBatch
-from ..wire import Measurement
-from .associator import Hypotheses, Seen, WeightedUpdate
+from ..wire import TIME_TOL
+from .batches import Detections, Unlabelled
 from .gating import Gating, convert, gate, gate_threshold, restrict, singles, split
+from .hypotheses import Hypotheses, Seen, WeightedUpdate
 from .store import TrackStore
 
 UNLIKELY = 1e12  # cost of a pair outside the gate in an assignment matrix
@@ -115,31 +114,35 @@ class _ScanAssociator:
         self.q, self.sensors = q, sensors or SensorModels()
         self.gate_probability = gate_probability
 
-    def scans(self, meas: Sequence[Measurement]) -> list[list[int]]:
-        return [list(range(len(meas)))] if meas else []
+    def split(self, scan: Unlabelled) -> list[tuple[list[int], Detections]]:
+        """The scan's detections one dimension at a time (2-D and 3-D detections in one
+        scan: each with the tracks of its dimension)."""
+        if not scan.parts:
+            return [([], Detections(scan.sensor, scan.t, None))]
+        return [(index, Detections(scan.sensor, scan.t, batch)) for index, batch in scan.parts]
 
-    def associate(self, store: TrackStore, scan: Sequence[Measurement],
-                  now: float | None = None) -> Hypotheses:
-        if not scan:
-            return self._nothing_seen(store, now)
-        m0 = scan[0]
-        arrays = store.layout(m0.dim)
+    def associate(self, store: TrackStore, part: Detections) -> Hypotheses:
+        batch = part.batch
+        if batch is None:
+            return self._nothing_seen(store, part.t)
+        t, n, dim = float(batch.t[0]), len(batch.t), batch.dim
+        arrays = store.layout(dim)
         rows = arrays.rows()
-        rows = rows[arrays.plot[rows] & (arrays.t[rows] <= m0.t + 1e-6)]
-        hyp = Hypotheses(columns=MeasurementBatch.of(scan, m0.dim))
-        z, r = convert(hyp.columns)
-        gamma = gate_threshold(self.gate_probability, m0.dim)
-        every = gate(arrays, rows, z, r, m0.t, self.q, gamma)
-        ungated = len(scan) - np.count_nonzero(np.bincount(every.dj, minlength=len(scan)))
-        lam = self.sensors.density(m0.sensor, z, ungated)
-        pd = self.sensors.model(m0.sensor).pd
+        rows = rows[arrays.plot[rows] & (arrays.t[rows] <= t + TIME_TOL)]
+        hyp = Hypotheses(dim)
+        z, r = convert(batch)
+        gamma = gate_threshold(self.gate_probability, dim)
+        every = gate(arrays, rows, z, r, t, self.q, gamma)
+        ungated = n - np.count_nonzero(np.bincount(every.dj, minlength=n))
+        lam = self.sensors.density(part.sensor, z, ungated)
+        pd = self.sensors.model(part.sensor).pd
         scores(every, pd, lam)  # once for both stages
         confirmed = arrays.confirmed[rows]
         g = restrict(every, confirmed)
-        free = self.resolve(g, np.arange(len(scan)), pd, lam, hyp)
+        free = self.resolve(g, np.arange(n), pd, lam, hyp)
         free = gnn(restrict(every, ~confirmed, free), free, pd, lam, hyp)
         if len(free):
-            hyp.unassociated[m0.dim] = free.tolist()
+            hyp.unassociated = free.tolist()
         return hyp
 
     def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
@@ -148,14 +151,14 @@ class _ScanAssociator:
         returns the indices of the detections left for tentative tracks."""
         raise NotImplementedError
 
-    def _nothing_seen(self, store: TrackStore, now: float | None) -> Hypotheses:
+    def _nothing_seen(self, store: TrackStore, now: float) -> Hypotheses:
         """An empty scan: the sensor saw none of the unlabelled tracks (of any layout:
         an empty scan says nothing of its dimension)."""
-        hyp = Hypotheses()
+        hyp = Hypotheses(0)
         miss = miss_score(self.sensors.pd)  # of the sensor, unknown here: of the default
         for arrays in store.layouts.values():
             rows = arrays.rows()
-            rows = rows[arrays.plot[rows] & (arrays.t[rows] <= (np.inf if now is None else now))]
+            rows = rows[arrays.plot[rows] & (arrays.t[rows] <= now)]
             if len(rows):
                 hyp.seen.append(Seen(arrays, rows, np.zeros(len(rows), dtype=bool),
                                      np.full(len(rows), miss)))
@@ -184,8 +187,7 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
     pairs = np.concatenate([single[score[single] > miss], *assign(g, multi, score, miss)])
     ti, dj = g.ti[pairs], g.dj[pairs]
     if len(pairs):
-        hyp.updates.setdefault(g.arrays.dim, []).extend(index[dj].tolist())
-        hyp.rows.setdefault(g.arrays.dim, []).append(g.rows[ti])
+        hyp.assign(index[dj], g.rows[ti])
     hit = np.zeros(len(g.rows), dtype=bool)
     hit[ti] = True
     gain = np.empty(len(g.rows))
@@ -204,7 +206,8 @@ def assign(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float) -> list
     `linear_sum_assignment`). Clusters are solved together, as one block-diagonal matrix,
     while they hold at most `PACK` tracks in all: a pair of two clusters costs UNLIKELY,
     never better than a miss, so each block's optimum is its cluster's, and up to PACK
-    tracks the clusters need not even be found. `assign_reference` solves them one by one."""
+    tracks the clusters need not even be found. tests/reference/association.py solves them
+    one by one."""
     from scipy.optimize import linear_sum_assignment  # SciPy only once scans come
 
     if not len(multi):
@@ -264,26 +267,6 @@ def _number(node: np.ndarray, cl: np.ndarray | None, n_nodes: int, n_clusters: i
     number = np.empty(n_nodes, dtype=int)
     number[order] = np.arange(len(order))
     return number[node], np.bincount(cluster[order], minlength=n_clusters)
-
-
-def assign_reference(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float
-                     ) -> list[np.ndarray]:
-    """`assign`, one cluster at a time with dictionaries (the textbook form)."""
-    from scipy.optimize import linear_sum_assignment
-
-    out = []
-    for k in split(g, multi):
-        tracks, ti = np.unique(g.ti[k], return_inverse=True)
-        dets, dj = np.unique(g.dj[k], return_inverse=True)
-        nt, nd = len(tracks), len(dets)
-        cost = np.full((nt, nd + nt), UNLIKELY)
-        cost[ti, dj] = -score[k]
-        cost[np.arange(nt), nd + np.arange(nt)] = -miss
-        r, c = linear_sum_assignment(cost)
-        lookup = {(a, b): pair for a, b, pair in zip(ti, dj, k, strict=True)}
-        out.append(np.array([lookup[a, b] for a, b in zip(r, c, strict=True)
-                             if (a, b) in lookup], dtype=int))
-    return out
 
 
 class GNNAssociator(_ScanAssociator):

@@ -1,0 +1,68 @@
+"""What an associator returns (`protocols.Associator`): one scan part's associations,
+as indices into its rows, and the tracks it could have seen."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .store import TrackArrays
+
+EMPTY = np.zeros(0, dtype=np.intp)
+
+
+@dataclass
+class WeightedUpdate:
+    """Tracks of one layout each updated by an equivalent measurement z (T, d) with
+    covariance r (T, d, d) standing for several weighted detections (`plot_association.pda`),
+    with the spread of those detections (T, n, n) added to the posterior covariance;
+    `mass`: each track's probability of having been detected."""
+
+    arrays: TrackArrays
+    rows: np.ndarray
+    z: np.ndarray
+    r: np.ndarray
+    mass: np.ndarray
+    spread: np.ndarray
+
+
+@dataclass
+class Seen:
+    """Tracks of one layout that a scan could have seen: which it `detected` (else
+    missed) and the log-likelihood ratio each gains (`life.update_life`, M of N)."""
+
+    arrays: TrackArrays
+    rows: np.ndarray
+    detected: np.ndarray  # (T,) bool
+    gain: np.ndarray  # (T,)
+
+
+@dataclass
+class Hypotheses:
+    """One scan part's associations (its measurements are of dimension `dim`), as
+    indices into its rows: the measurements that update a track and those tracks' rows
+    (in `store.layout(dim)`; an associator may add pairs in several stages), the tracks
+    updated by weighted detections (JPDA), the measurements that start tracks, the ones
+    rejected with their reasons, and the unlabelled tracks in view (M of N)."""
+
+    dim: int
+    index: list[np.ndarray] = field(default_factory=list)
+    rows: list[np.ndarray] = field(default_factory=list)
+    weighted: list[WeightedUpdate] = field(default_factory=list)
+    unassociated: list[int] = field(default_factory=list)
+    rejected: dict[int, str] = field(default_factory=dict)
+    seen: list[Seen] = field(default_factory=list)
+
+    def assign(self, index: np.ndarray, rows: np.ndarray) -> None:
+        """Measurements `index` update the tracks at `rows`, pair by pair."""
+        self.index.append(index)
+        self.rows.append(rows)
+
+    def pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every (measurement, row) pair assigned, as two arrays."""
+        if len(self.index) == 1:
+            return self.index[0], self.rows[0]
+        if not self.index:
+            return EMPTY, EMPTY
+        return np.concatenate(self.index), np.concatenate(self.rows)

@@ -1,0 +1,1 @@
+"""Plain textbook references the tests hold the service's fast paths against."""
