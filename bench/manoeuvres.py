@@ -24,6 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from clients import manoeuvre_score as ms  # noqa: E402
 from clients.manoeuvres import Manoeuvres  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
+from service.estimation.imm import ModeSet  # noqa: E402
+from service.tracking.store import TrackStore  # noqa: E402
 from service.tracking.tracker import Outcome, Tracker, TrackerConfig  # noqa: E402
 from service.wire import Measurement  # noqa: E402
 
@@ -43,6 +45,11 @@ def spec(name: str, period: float) -> FilterSpec:
 def ours(name: str, sc: Manoeuvres, labelled: bool) -> tuple[ms.Shown, ms.States, float]:
     """Our tracker over the scenario: what a lockstep service would show at each scan."""
     tr = Tracker(TrackerConfig(filter=spec(name, sc.period)))
+    if ":" in name:  # a variant of the default mode set: default:key=value,key=value
+        changes = {k: eval(v) for k, v in (kv.split("=") for kv in name.split(":")[1].split(";"))}
+        tr.updater = ModeSet(**changes).imm()
+        tr.store = TrackStore(tr.updater.order, tr.updater.fields)
+        tr.scan_associator.predict = tr.updater.gate_prediction
     shown, states, spent = {}, {}, 0.0
     names = [f.name for f in sc.flights]
     for s in sc:

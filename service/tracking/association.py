@@ -113,6 +113,7 @@ class _ScanAssociator:
     def __init__(self, q: float, sensors: SensorModels | None = None,
                  gate_probability: float = defaults.GATE_PROBABILITY) -> None:
         self.q, self.sensors = q, sensors or SensorModels()
+        self.predict = None  # the filter's gate prediction (`gating.gate`), if it has one
         self.gate_probability = gate_probability
 
     def scans(self, meas: Sequence[Measurement]) -> list[list[int]]:
@@ -129,7 +130,7 @@ class _ScanAssociator:
         hyp = Hypotheses(columns=MeasurementBatch.of(scan, m0.dim))
         z, r = convert(hyp.columns)
         gamma = gate_threshold(self.gate_probability, m0.dim)
-        every = gate(arrays, rows, z, r, m0.t, self.q, gamma)
+        every = gate(arrays, rows, z, r, m0.t, self.q, gamma, self.predict)
         ungated = len(scan) - np.count_nonzero(np.bincount(every.dj, minlength=len(scan)))
         lam = self.sensors.density(m0.sensor, z, ungated)
         pd = self.sensors.model(m0.sensor).pd

@@ -89,6 +89,7 @@ class Tracker:
         self.associator = LabelAssociator()
         scans = {"gnn": GNNAssociator, "jpda": JPDAAssociator}[c.associator]
         self.scan_associator = scans(q, c.sensors, c.gate_probability)
+        self.scan_associator.predict = getattr(self.updater, "gate_prediction", None)
         self.initiator = SinglePointInitiator(c.init_speed, c.init_accel)
         self.deleter = CompositeDeleter(
             UpdateTimeDeleter(c.delete_after),
