@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -141,8 +142,7 @@ def flights(seed: int, per_class: int = 2, classes: tuple[str, ...] = CLASSES,
     return out
 
 
-@dataclass(frozen=True)
-class Scan:
+class Scan(NamedTuple):
     """One scan: time, sensor, sensor position, detections (K, 3) [r, az, el] shuffled,
     the truth {name: (pos, vel)} and each detection's origin (aircraft index, -1 clutter)."""
 
