@@ -6,6 +6,11 @@ peer on the same scans.
     python bench/manoeuvres.py                          # default, ncv-blair, stonesoup; 1, 2, 4 s
     python bench/manoeuvres.py default --period 2 --runs 4
     python bench/manoeuvres.py default --labelled
+    python bench/manoeuvres.py before default   # the default before the manoeuvre modes
+
+`before` is the default IMM before the manoeuvre modes (quiet, nominal, CA), gated by
+the combined state and the nominal noise, deleted after 4 misses; `default:k=v;k=v` a
+variant of `imm.ModeSet` (e.g. `default:onset=600.0`).
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from clients import manoeuvre_score as ms  # noqa: E402
 from clients.manoeuvres import Manoeuvres  # noqa: E402
+from service import defaults  # noqa: E402
 from service.estimation.catalog import FilterSpec  # noqa: E402
 from service.estimation.imm import ModeSet  # noqa: E402
 from service.tracking.store import TrackStore  # noqa: E402
@@ -37,14 +43,19 @@ EPOCH = datetime.datetime(2026, 1, 1)
 def spec(name: str, period: float) -> FilterSpec:
     if name == "ncv-blair":
         return FilterSpec("cv", ms.blair_q(A_MAX, period, SIGMA))
-    if name.startswith("default"):
+    if name.startswith("default") or name == "before":
         return FilterSpec()
     raise ValueError(name)
 
 
 def ours(name: str, sc: Manoeuvres, labelled: bool) -> tuple[ms.Shown, ms.States, float]:
     """Our tracker over the scenario: what a lockstep service would show at each scan."""
-    tr = Tracker(TrackerConfig(filter=spec(name, sc.period)))
+    tr = Tracker(TrackerConfig(filter=spec(name, sc.period),
+                               delete_misses=4 if name == "before" else defaults.DELETE_MISSES))
+    if name == "before":  # the default before the manoeuvre modes, gated by the store's state
+        tr.updater = ModeSet(manoeuvre=(), initial=(0.1, 0.6, 0.3)).imm()
+        tr.store = TrackStore(tr.updater.order, tr.updater.fields)
+        tr.scan_associator.predict = None
     if ":" in name:  # a variant of the default mode set: default:key=value,key=value
         changes = {k: eval(v) for k, v in (kv.split("=") for kv in name.split(":")[1].split(";"))}
         tr.updater = ModeSet(**changes).imm()

@@ -4,7 +4,7 @@ manoeuvres` (through the service) and bench/manoeuvres.py (in-process and peers)
 A run's tracker output is, per scan instant t: the established (confirmed or coasting)
 tracks' positions at t, and the states (x, P: position and velocity first) of the
 tracks updated at t. At each scan the tracks are assigned one-to-one to the aircraft
-by distance (SciPy's `linear_sum_assignment`), a pair farther than `c` (2 km) not counted;
+by distance (SciPy's `linear_sum_assignment`), a pair farther than `c` (2.5 km) not counted;
 labelled feeds assign by id. Per aircraft, after its confirmation (its first scan with
 an assigned track): the track breaks (distinct track ids assigned, minus one), the
 fraction of scans at which a track is assigned (held), the position errors and the
@@ -25,7 +25,7 @@ SETTLE = 20.0  # s after a manoeuvre before the flight counts as a straight leg
 START = 30.0  # s: no straight-leg figures before (initiation)
 # m: a track farther than this from an aircraft is not on it (a 7 g aircraft leaves a
 # straight prediction by 2.2 km in 8 s: a missed scan at 4 s)
-C = 2000.0
+C = 2500.0
 Shown = dict[float, dict[str, np.ndarray]]  # t -> track id -> position (3,)
 States = dict[float, dict[str, tuple[np.ndarray, np.ndarray]]]  # t -> id -> (x, P)
 

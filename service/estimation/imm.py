@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -107,6 +107,7 @@ class IMM:
     initial: Sequence[float] | None = None
     unbiased_mixing: bool = True  # False: zero padding (the ablation of docs/accuracy.md)
     mode_conversion: bool = True  # False: one R, at the mixture's prediction (ablation)
+    gate_wide: float = defaults.IMM_GATE_WIDE  # association's prior of the widest mode
     order: int = 3
 
     @property
@@ -198,14 +199,21 @@ class IMM:
         return x, p, nis, ok
 
     def gate_prediction(self, arrays: Any, rows: np.ndarray, t: float
-                        ) -> tuple[np.ndarray, np.ndarray]:
-        """What the tracks `rows` are gated with at `t` (`tracking.gating.gate`): the
-        position mean (N, d) of the IMM's predicted mixture (mixing, then each mode's
-        own model and noise, weighted by the predicted mode probabilities) and the
-        position rows (N, d, n) of the second moment about that mean of its widest mode
-        (largest predicted position variance), so that a manoeuvre the track's modes
-        allow stays in the gate before its mode's probability has grown: gating with
-        the model of largest covariance (Blackman & Popoli 1999, sec. 4.5)."""
+                        ) -> tuple[np.ndarray, np.ndarray, Callable]:
+        """What the tracks `rows` are gated with at `t` (`tracking.gating.gate`).
+
+        The gate: the position mean (N, d) of the IMM's predicted mixture (mixing, then
+        each mode's own model and noise, weighted by the predicted mode probabilities
+        c) and the position rows (N, d, n) of the second moment about that mean of its
+        widest mode (largest predicted position variance), so that a manoeuvre one of
+        the modes allows stays in the gate before that mode's probability has grown:
+        gating with the model of largest covariance (Blackman & Popoli 1999, sec. 4.5).
+        The likelihood of a pair (the returned function, of the log-likelihoods under
+        the gate, the pairs' tracks, innovations and R): the two-component mixture
+        (1 - w) N(nu; S_mix) + w N(nu; S_wide), S_mix from the mixture's moments, with
+        w = max(c_wide, `gate_wide`): the association gives a manoeuvre it cannot see
+        yet the prior `gate_wide`, so that clutter far out in a wide gate (a track
+        coasting through missed scans) is not taken for the aircraft."""
         d = arrays.dim
         dt = t - arrays.t[rows]
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
@@ -217,12 +225,23 @@ class IMM:
             xs.append(xp)
             ps.append(pp)
         xs_, ps_ = np.stack(xs, 1), np.stack(ps, 1)  # (N, M, n), (N, M, n, n)
-        mean = einsum("nj,nja->na", c, xs_)
+        mean, cov = moments(xs_, ps_, c)
         wide = np.trace(ps_[:, :, :d, :d], axis1=2, axis2=3).argmax(1)
         k = np.arange(len(rows))
         dev = xs_[k, wide] - mean
         cross = ps_[k, wide, :d] + dev[:, :d, None] * dev[:, None, :]
-        return mean[:, :d], cross
+        w = np.maximum(c[k, wide], self.gate_wide)
+        narrow = cov[:, :d, :d]
+
+        def likelihood(loglik: np.ndarray, ti: np.ndarray, nu: np.ndarray, r: np.ndarray
+                       ) -> np.ndarray:
+            s = narrow[ti] + r
+            sign, logdet = np.linalg.slogdet(s)
+            d2 = einsum("ka,ka->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+            ll = np.where(sign > 0, -0.5 * (d2 + logdet + d * np.log(2 * np.pi)), -np.inf)
+            return np.logaddexp(np.log1p(-w[ti]) + ll, np.log(w[ti]) + loglik)
+
+        return mean[:, :d], cross, likelihood
 
     def warm(self) -> None:
         """Compile the update's kernel, or load it from its cache (`imm_jit.warm`)."""
