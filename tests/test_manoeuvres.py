@@ -120,3 +120,36 @@ def test_every_aircraft_held_with_one_track(capsys):
         for kind, row in sums.items():
             assert row["never"] == 0 and row["breaks"] == 0, (label, kind, row)
             assert row["held_min"] >= 0.98, (label, kind, row)
+
+
+@pytest.mark.parametrize("gate_wide, taken", [(None, False), (1.0, True)])
+def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
+    """A track that missed a 4 s scan has a gate of kilometres (its widest mode over
+    8 s); a false detection 6 km off is in it. Scored under the widest mode alone
+    (`gate_wide` 1) the track takes it; under the IMM's two-component likelihood (the
+    default) it is left to start a track of its own."""
+    import dataclasses
+
+    from service.tracking.association import SensorModels
+    from service.tracking.store import TrackStore
+    from service.tracking.tracker import TrackerConfig
+
+    tracker = Tracker(TrackerConfig(sensors=SensorModels(clutter_density=9e-14)))
+    if gate_wide is not None:
+        tracker.updater = dataclasses.replace(tracker.updater, gate_wide=gate_wide)
+        tracker.store = TrackStore(tracker.updater.order, tracker.updater.fields)
+        tracker.scan_associator.predict = tracker.updater.gate_prediction
+    ts, m = _first_turn_scan(tracker, 4.0)
+    arrays = tracker.store.layout(3)
+    row = int(arrays.rows()[arrays.confirmed[arrays.rows()]][0])
+    t = float(ts[-1] + 8.0)  # the scan at ts[-1] + 4 missed
+    tracker.step([], float(ts[-1] + 4.0), tracker.scan_associator)
+    x = arrays.x[row]
+    far = x[:3] + x[3:6] * 8.0 + np.array([0.0, 6000.0, 0.0])
+    clutter = Measurement("r", "", t, 3, False, tuple(far), (20.0,) * 3, (0.0, 0.0, 0.0), None)
+    z, r = gating.convert(MeasurementBatch.of([clutter], 3))
+    g = gating.gate(arrays, np.array([row]), z, r, t, 1.0, gating.gate_threshold(0.999, 3),
+                    tracker.updater.gate_prediction)
+    assert len(g.ti) == 1  # in the gate either way
+    tracker.step([Outcome(clutter)], t, tracker.scan_associator)
+    assert (arrays.t[row] == t) == taken

@@ -239,7 +239,8 @@ class IMM:
             sign, logdet = np.linalg.slogdet(s)
             d2 = einsum("ka,ka->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
             ll = np.where(sign > 0, -0.5 * (d2 + logdet + d * np.log(2 * np.pi)), -np.inf)
-            return np.logaddexp(np.log1p(-w[ti]) + ll, np.log(w[ti]) + loglik)
+            with np.errstate(divide="ignore"):  # w = 1: the widest mode alone
+                return np.logaddexp(np.log1p(-w[ti]) + ll, np.log(w[ti]) + loglik)
 
         return mean[:, :d], cross, likelihood
 
