@@ -48,9 +48,10 @@ def spec(name: str, period: float) -> FilterSpec:
     raise ValueError(name)
 
 
-def ours(name: str, sc: Manoeuvres, labelled: bool) -> tuple[ms.Shown, ms.States, float]:
+def ours(name: str, sc: Manoeuvres, labelled: bool, associator: str = "gnn"
+         ) -> tuple[ms.Shown, ms.States, float]:
     """Our tracker over the scenario: what a lockstep service would show at each scan."""
-    tr = Tracker(TrackerConfig(filter=spec(name, sc.period),
+    tr = Tracker(TrackerConfig(filter=spec(name, sc.period), associator=associator,
                                delete_misses=4 if name == "before" else defaults.DELETE_MISSES))
     if name == "before":  # the default before the manoeuvre modes, gated by the store's state
         tr.updater = ModeSet(manoeuvre=(), initial=(0.1, 0.6, 0.3)).imm()
@@ -165,6 +166,7 @@ def main() -> None:
     p.add_argument("--clutter", type=float, default=10.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--labelled", action="store_true")
+    p.add_argument("--associator", choices=("gnn", "jpda"), default="gnn", help="ours")
     args = p.parse_args()
     for period in args.period or [1.0, 2.0, 4.0]:
         for name in args.names:
@@ -175,7 +177,7 @@ def main() -> None:
                 if name == "stonesoup":
                     shown, states, s = stone_soup(sc)
                 else:
-                    shown, states, s = ours(name, sc, args.labelled)
+                    shown, states, s = ours(name, sc, args.labelled, args.associator)
                 spent += s
                 got += ms.score(sc, shown, states, args.labelled)
             form = "labelled" if args.labelled else f"Pd {args.pd:g}, {args.clutter:g} clutter"
