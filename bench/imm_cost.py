@@ -3,6 +3,7 @@ the service runs) against `IMM.update`'s own textbook code (its reference, NumPy
 row-major arrays), one pass of k rows at N tracks, in this process.
 
     python bench/imm_cost.py [--tracks 10000] [--sizes 1 64 312 1024 10000]
+    python bench/imm_cost.py --before     # also the three modes before the manoeuvre modes
 
 Tracks: a swarm of polar 3-D measurements, three updates each, then passes of k of them
 (best of 5 per size, thread CPU time). The first line gives how long the kernel took to
@@ -22,9 +23,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from service.estimation import imm_jit  # noqa: E402
+from service.estimation.imm import IMM, ModeSet  # noqa: E402
 from service.estimation.measurements import MeasurementBatch  # noqa: E402
 from service.estimation.ucm import CMKFConversion  # noqa: E402
 from service.tracking.batches import Labelled  # noqa: E402
+from service.tracking.display import DISPLAY_COLUMNS  # noqa: E402
+from service.tracking.life import LIFE_COLUMNS  # noqa: E402
+from service.tracking.store import TrackStore  # noqa: E402
 from service.tracking.tracker import Tracker  # noqa: E402
 from service.wire import Measurement  # noqa: E402
 
@@ -48,22 +53,43 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--tracks", type=int, default=10_000)
     p.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 312, 1024, 10_000])
+    p.add_argument("--before", action="store_true",
+                   help="also the default's three modes before the manoeuvre modes (quiet, "
+                        "nominal, CA), in the same run, and the ratio per row")
     args = p.parse_args()
     t0 = time.perf_counter()
     imm_jit.warm()
     print(f"# kernel compiled or loaded in {time.perf_counter() - t0:.2f} s; "
           f"{args.tracks} tracks, CPU per pass (best of 5)")
+    sets = {"default": ModeSet().imm()}
+    if args.before:
+        sets["three modes"] = ModeSet(manoeuvre=(), initial=(0.1, 0.6, 0.3)).imm()
+    per_row: dict[str, dict[int, float]] = {}
+    for label, imm in sets.items():
+        print(f"{label}: {len(imm.modes)} modes ({', '.join(m[0] for m in imm.modes)})")
+        per_row[label] = run(imm, args.tracks, args.sizes)
+    if args.before:
+        print("compiled us/row, default / three modes: " + ", ".join(
+            f"k={k} {per_row['default'][k] / per_row['three modes'][k]:.2f}"
+            for k in args.sizes))
+
+
+def run(imm: IMM, tracks: int, sizes: list[int]) -> dict[int, float]:
+    """The table of one mode set; returns the compiled CPU per row at each size."""
     rng = np.random.default_rng(0)
     tracker = Tracker()
+    tracker.updater = imm
+    tracker.store = TrackStore(imm.order, imm.fields, {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
     for t in (0.0, 1.0, 2.0):
-        tracker.step(Labelled.of(swarm(args.tracks, t, rng)))
-    imm, arrays = tracker.updater, tracker.store.layout(3)
+        tracker.step(Labelled.of(swarm(tracks, t, rng)))
+    arrays = tracker.store.layout(3)
     live = arrays.live()[0]
     print(f"{'k':>7} {'compiled ms':>12} {'us/row':>8} {'textbook ms':>12} {'us/row':>8} "
           f"{'ratio':>6}")
-    for k in args.sizes:
+    out = {}
+    for k in sizes:
         rows = live[:k]
-        batch = MeasurementBatch.of(swarm(args.tracks, 3.0, rng)[:k], 3)
+        batch = MeasurementBatch.of(swarm(tracks, 3.0, rng)[:k], 3)
         dt = batch.t - arrays.t[rows]
         conv = CMKFConversion(batch)
         fast = best(imm_jit.step, (imm, arrays, rows, dt, batch))  # the modes in place
@@ -71,7 +97,8 @@ def main() -> None:
         slow = best(imm.update, (copy.deepcopy(arrays), rows, dt, textbook), 3)
         print(f"{k:>7} {fast * 1e3:>12.3f} {fast / k * 1e6:>8.2f} {slow * 1e3:>12.3f} "
               f"{slow / k * 1e6:>8.2f} {slow / fast:>6.1f}")
-
+        out[k] = fast / k
+    return out
 
 if __name__ == "__main__":
     main()

@@ -15,11 +15,12 @@ import argparse
 import functools
 import json
 import os
+import sys
 from typing import Any
 
 import numpy as np
 
-from . import evaluate_defaults, evaluate_plots, metrics, scenarios
+from . import evaluate_defaults, evaluate_manoeuvres, evaluate_plots, metrics, scenarios
 from .collect import Collected, run_through_service
 from .intercept_report import summary_line
 from .progress import add_quiet_arg, bar
@@ -294,13 +295,19 @@ def plot_display(collected: dict[str, Collected], outdir: str,
 
 
 def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["manoeuvres"]:  # its own options (clients/evaluate_manoeuvres.py)
+        evaluate_manoeuvres.main(argv[1:])
+        return
     p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
     p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *evaluate_plots.SCENARIOS,
-                                        "defaults"],
+                                        "defaults", "manoeuvres"],
                    help="crossing, multisensor: unlabelled scans and GOSPA "
                         "(clients/evaluate_plots.py); defaults: A, B and C with the "
                         "service's defaults beside the best filter of each "
-                        "(clients/evaluate_defaults.py)")
+                        "(clients/evaluate_defaults.py); manoeuvres: track breaks, "
+                        "held and RMSE/NEES per class of manoeuvre (its own options: "
+                        "track-eval manoeuvres -h)")
     p.add_argument("--runs", type=int, default=None,
                    help="Monte Carlo runs (default 100; crossing, multisensor: 10)")
     p.add_argument("--seed", type=int, default=0)

@@ -1,7 +1,7 @@
 """`track-feed SCENARIO`: publish a reference scenario's labelled measurements, or the
 unlabelled scans of a data-association scenario.
 
-Measurements go to `<ns>/meas/<sensor>/<target>`, and the scans of `crossing`,
+Measurements go to `<ns>/meas/<sensor>/<target>`, and the scans of `crossing`, `manoeuvres`,
 `multisensor` and `swarm --plots` (clients/feed_plots.py) to `<ns>/plots/<sensor>`, with
 congestion control BLOCK (nothing is lost), as fast as possible or at the pace of
 simulation time (`--realtime`); the feed ends with a `<ns>/clock` message one scan after
@@ -41,10 +41,12 @@ Batch = tuple[float, list[tuple[zenoh.KeyExpr, bytes]], int]
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-feed", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scenario", choices=[*scenarios.SCENARIOS, "swarm", *feed_plots.SCENARIOS],
+    p.add_argument("scenario", choices=[*scenarios.SCENARIOS, "swarm", *feed_plots.SCENARIOS,
+                                        "manoeuvres"],
                    help="display (A, 30 Hz display), radar3d (B, CMKF vs EKF), "
                         "maneuver (C, manoeuvring target), swarm (many straight targets), "
-                        "crossing and multisensor (unlabelled scans)")
+                        "crossing and multisensor (unlabelled scans), manoeuvres "
+                        "(aircraft turning at 1 to 7 g, one 3-D radar; scans, or --labelled)")
     p.add_argument("--runs", type=int, default=1,
                    help="Monte Carlo copies, one target each (display, radar3d, maneuver)")
     p.add_argument("--targets", type=int, default=None,
@@ -73,6 +75,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 def scans(args: argparse.Namespace) -> Iterator[scenarios.Scan]:
+    if args.scenario == "manoeuvres":
+        return feed_plots.scenario(args).labelled()
     if args.scenario == "swarm":
         return scenarios.swarm(feed_plots.targets(args), args.seed, args.duration,
                                sectors=args.sectors)
@@ -164,7 +168,8 @@ def columnar(rows: list[dict], ids: list[str]) -> dict:
 
 
 def plots(args: argparse.Namespace, keys: Keys, sc: plotgen.Scenario) -> Iterator[Batch]:
-    """The unlabelled scans of `sc`: truth ({t, pos, vel} in 2-D), then one plots scan."""
+    """The unlabelled scans of `sc`: truth ({t, pos, vel}, 2-D or 3-D as the scenario's),
+    then one plots scan."""
     plot_keys, truth_keys = KeyCache(keys.plots), KeyCache(keys.truth)
     for scan in sc:
         scan = scan._replace(t=scan.t + args.t0)
@@ -184,7 +189,8 @@ def publish(session: zenoh.Session, args: argparse.Namespace) -> int:
         batches, period = plots(args, keys, sc), sc.dt
     else:
         batches = batched(args, keys) if args.batched else labelled(args, keys)
-        period = scenarios.PERIODS[args.scenario]
+        period = args.period if args.scenario == "manoeuvres" else \
+            scenarios.PERIODS[args.scenario]
     put, enc = session.put, zenoh.Encoding(MSGPACK_ENCODING)
     sent, t_last = 0, args.t0
     wall0 = time.monotonic()

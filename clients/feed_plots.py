@@ -6,6 +6,9 @@
 - `multisensor`: the same flyers seen by 2 or 3 polar 2-D radars at different positions
   and scan phases (`plotgen.multisensor`; `--sigma` is their range noise, `--saz`
   their azimuth noise).
+- `manoeuvres`: aircraft flying straight, standard-rate, 4 g, 7 g S-turns and climbing
+  turns, one 3-D radar (`clients.manoeuvres`); `--labelled` sends the same detections
+  of the aircraft as labelled measurements (no clutter) instead.
 - `swarm --plots`: the targets of the labelled `swarm` scenario (same seed, same
   positions, speeds and headings), in the horizontal plane, scanned whole once per
   turn by one Cartesian radar at the origin with Pd and clutter. A plots scan has one
@@ -16,10 +19,11 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 import numpy as np
 
-from . import plotgen, scenarios
+from . import manoeuvres, plotgen, scenarios
 
 SCENARIOS = ("crossing", "multisensor")  # plots only; swarm is labelled unless --plots
 TARGETS = {"crossing": 20, "multisensor": 20, "swarm": 100}  # default --targets
@@ -30,38 +34,54 @@ def add_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--plots", action="store_true",
                    help="swarm: publish the targets as unlabelled scans on <ns>/plots/<sensor>")
     g.add_argument("--pd", type=float, default=0.9, help="detection probability")
-    g.add_argument("--clutter", type=float, default=20.0,
-                   help="mean false detections per scan of one radar (Poisson, uniform)")
+    g.add_argument("--clutter", type=float, default=None,
+                   help="mean false detections per scan of one radar (Poisson, uniform; "
+                        "default 20, manoeuvres 10)")
     g.add_argument("--sigma", type=float, default=25.0,
                    help="m: Cartesian noise per axis (multisensor: range noise)")
     g.add_argument("--saz", type=float, default=0.002, help="multisensor: azimuth noise, rad")
     g.add_argument("--scans", type=int, default=100, help="scans per radar (not swarm)")
     g.add_argument("--radars", type=int, choices=(2, 3), default=3, help="multisensor")
+    g.add_argument("--period", type=float, default=1.0, help="manoeuvres: scan period, s")
+    g.add_argument("--per-class", type=int, default=2,
+                   help="manoeuvres: aircraft of each class")
+    g.add_argument("--labelled", action="store_true",
+                   help="manoeuvres: labelled measurements on <ns>/meas/ instead of scans")
     g.add_argument("--columnar", action="store_true",
                    help="send scans in the columnar form (bins) instead of a list of dets")
 
 
 def is_plots(args: argparse.Namespace) -> bool:
     """Whether the feed's scenario is sent as unlabelled scans."""
-    return args.scenario in SCENARIOS or (args.scenario == "swarm" and args.plots)
+    return (args.scenario in SCENARIOS or (args.scenario == "swarm" and args.plots)
+            or (args.scenario == "manoeuvres" and not args.labelled))
 
 
 def targets(args: argparse.Namespace) -> int:
     return TARGETS[args.scenario] if args.targets is None else args.targets
 
 
-def scenario(args: argparse.Namespace) -> plotgen.Scenario:
-    """The scenario the feed's options describe."""
+def clutter(args: argparse.Namespace) -> float:
+    return (10.0 if args.scenario == "manoeuvres" else 20.0) if args.clutter is None \
+        else args.clutter
+
+
+def scenario(args: argparse.Namespace) -> Any:
+    """The scenario the feed's options describe (a `plotgen.Scenario`, or for
+    `manoeuvres` a `manoeuvres.Manoeuvres`: the same scans, polar 3-D)."""
+    if args.scenario == "manoeuvres":
+        return manoeuvres.Manoeuvres(args.period, args.pd, clutter(args), args.per_class,
+                                     args.seed, sensor=args.sensor)
     n = targets(args)
     if args.scenario == "crossing":
-        return plotgen.crossing(targets=n, pd=args.pd, clutter=args.clutter, sigma=args.sigma,
+        return plotgen.crossing(targets=n, pd=args.pd, clutter=clutter(args), sigma=args.sigma,
                                 scans=args.scans, seed=args.seed, sensor=args.sensor)
     if args.scenario == "multisensor":
         return plotgen.multisensor(targets=n, radars=args.radars, pd=args.pd,
-                                   clutter=args.clutter, sr=args.sigma, saz=args.saz,
+                                   clutter=clutter(args), sr=args.sigma, saz=args.saz,
                                    scans=args.scans, seed=args.seed)
     if args.scenario == "swarm":
-        return swarm(n, args.seed, args.duration, args.pd, args.clutter, args.sigma,
+        return swarm(n, args.seed, args.duration, args.pd, clutter(args), args.sigma,
                      args.sensor)
     raise ValueError(f"{args.scenario} has no unlabelled form")
 

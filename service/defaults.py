@@ -22,12 +22,18 @@ FILTER = "imm"  # imm, cv, ca, ekf, vdf
 Q_CV = 1.0  # m/s^2: white acceleration std per axis (CV, and the IMM's nominal mode)
 Q_CA = 0.5  # m/s^3: white jerk std per axis (CA)
 # The default IMM (docs/accuracy.md, "The default filter"): a quiet CV mode, a nominal CV
-# mode (Q_CV, or --q) and a CA manoeuvre mode, chained quiet <-> nominal <-> CA
+# mode (Q_CV, or --q) and a CA mode, chained quiet <-> nominal <-> CA, and manoeuvre
+# modes entered from any of them (docs/accuracy.md, "Manoeuvres")
 IMM_QUIET_Q = 0.003  # m/s^2: the quiet mode's white acceleration std per axis
 IMM_CA_Q = 0.1  # m/s^3: the CA mode's white jerk std per axis
 IMM_SOJOURN = 600.0  # s: mean time in the quiet and in the nominal mode
 IMM_MANOEUVRE_SOJOURN = 10.0  # s: mean time in the CA (and any turn) mode
-IMM_INITIAL = (0.1, 0.6, 0.3)  # a new track's probabilities: quiet, nominal, manoeuvre
+IMM_INITIAL = (0.1, 0.6, 0.3, 0.0)  # a new track: quiet, nominal, CA, manoeuvre modes
+# the manoeuvre modes: (kind, white noise std per axis: m/s^2 for cv, m/s^3 for ca)
+IMM_MANOEUVRE = (("cv", 10.0), ("cv", 70.0))
+IMM_ONSET = 30000.0  # s: 1 / the rate of entering the manoeuvre modes (docs/accuracy.md)
+IMM_TURN_SOJOURN = 5.0  # s: mean time in a manoeuvre mode
+IMM_GATE_WIDE = 0.02  # the least prior association gives the IMM's widest mode
 IMM_CT_Q = 3.0  # optional turn modes' noise as a multiple of the nominal mode's
 IMM_TURN_DEG = 0.0  # deg/s: > 0 adds coordinated-turn modes at +- this (0: none)
 VDF_DETECT = 35.0  # VDF manoeuvre detection threshold (fading NIS sum)
@@ -48,7 +54,7 @@ JPDA_MAX_EVENTS = 5000  # joint events enumerated per cluster; more: cheap JPDA
 MAX_SPEED = 340.0  # m/s: a new track's velocity prior has std MAX_SPEED / 3 per axis
 CONFIRM_M, CONFIRM_N = 3, 5  # confirmed once detected in 3 of its last 5 scans ...
 CONFIRM_SCORE = 4.6  # ... with a track score (log-likelihood ratio) of at least ln 100
-DELETE_MISSES = 4  # a confirmed track is deleted after this many consecutive misses
+DELETE_MISSES = 6  # a confirmed track is deleted after this many consecutive misses
 DELETE_SIGMA = 2000.0  # m: ... or when its position sigma exceeds this
 REORDER = 0.5  # s of simulation time a scan waits for older scans of other sensors
 

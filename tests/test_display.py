@@ -174,7 +174,8 @@ def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
     differs from it exactly by (mu_CA - c_CA) a_CA dt^2 / 2 in position and
     (mu_CA - c_CA) a_CA dt in velocity (docs/performance.md, "Frame cost"): the CV modes
     hold no acceleration, and mixing keeps the mean. |c_CA - mu_CA| <= 1 - exp(-dt / 10 s)
-    with the default sojourns."""
+    with the default sojourns (the CA mode's, 10 s, beside its onset of the manoeuvre
+    modes)."""
     from service.estimation import models
 
     tracker = Tracker()
@@ -200,5 +201,6 @@ def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
         gap = (arrays.mode_prob[rows, ca] - c[:, ca])[:, None] * arrays.mode_x[rows, ca, 6:9]
         np.testing.assert_allclose(pos - mean[:, :3], gap * dts[:, None] ** 2 / 2, atol=1e-6)
         np.testing.assert_allclose(vel - mean[:, 3:6], gap * dts[:, None], atol=1e-8)
-        assert (np.abs(c[:, ca] - arrays.mode_prob[rows, ca]) <= 1 - np.exp(-dts / 10)).all()
+        assert (np.abs(c[:, ca] - arrays.mode_prob[rows, ca])
+                <= 1 - np.exp(-dts / imm.sojourn[ca])).all()
         assert np.abs(gap).max() > 0  # the test sees a manoeuvre mode at work

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,21 +20,29 @@ Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct"), q, omega 
 @dataclass(frozen=True)
 class ModeSet:
     """The service's IMM design: a quiet CV mode (white acceleration `quiet_q`, m/s^2),
-    a nominal CV mode (`q`) and a CA manoeuvre mode (white jerk `ca_q`, m/s^3), plus, with
-    `turn_deg` > 0, coordinated turns at +- `turn_deg` deg/s with `ct_q` x q. The chain
-    quiet <-> nominal <-> manoeuvre modes is the only way between them (`leave`): the
-    quiet and nominal modes last `sojourn` s on average, the manoeuvre modes
-    `manoeuvre_sojourn` s; a new track starts with the probabilities `initial` (quiet,
-    nominal, manoeuvre modes together). docs/accuracy.md gives the reasons."""
+    a nominal CV mode (`q`), a CA mode (white jerk `ca_q`, m/s^3) and manoeuvre modes
+    `manoeuvre` (kind "cv" or "ca" and its white noise, m/s^2 or m/s^3), plus, with `turn_deg` > 0,
+    coordinated turns at +- `turn_deg` deg/s with `ct_q` x q. Quiet <-> nominal <-> CA
+    (and turns) are chained as before: the quiet and nominal modes are left for each
+    other and the CA mode in `sojourn` s on average, the CA (and turn) modes in
+    `manoeuvre_sojourn` s. Besides, every one of those modes enters the manoeuvre modes
+    at the rate 1 / `onset` (shared evenly), and a manoeuvre mode is left in
+    `turn_sojourn` s, half for the nominal mode, the rest evenly for the CA and the other
+    manoeuvre modes. A new track starts with the probabilities `initial` (quiet, nominal,
+    CA and turns together, manoeuvre modes together). docs/accuracy.md gives the
+    reasons."""
 
     q: float = defaults.Q_CV
     quiet_q: float = defaults.IMM_QUIET_Q
     ca_q: float = defaults.IMM_CA_Q
     sojourn: float = defaults.IMM_SOJOURN
     manoeuvre_sojourn: float = defaults.IMM_MANOEUVRE_SOJOURN
-    initial: tuple[float, float, float] = defaults.IMM_INITIAL
+    initial: tuple[float, ...] = defaults.IMM_INITIAL
     ct_q: float = defaults.IMM_CT_Q
     turn_deg: float = defaults.IMM_TURN_DEG
+    manoeuvre: tuple[tuple[str, float], ...] = defaults.IMM_MANOEUVRE
+    onset: float = defaults.IMM_ONSET
+    turn_sojourn: float = defaults.IMM_TURN_SOJOURN
 
     def imm(self) -> IMM:
         modes: list[Mode] = [("quiet", "cv", self.quiet_q, 0.0), ("cv", "cv", self.q, 0.0),
@@ -42,14 +50,25 @@ class ModeSet:
         if self.turn_deg > 0:
             w = float(np.radians(self.turn_deg))
             modes += [("ct+", "ct", self.ct_q * self.q, w), ("ct-", "ct", self.ct_q * self.q, -w)]
-        m = len(modes)
-        leave = np.zeros((m, m))
-        leave[0, 1] = leave[1, 0] = 1.0
-        leave[1, 2:] = leave[2:, 1] = 1.0
-        quiet, nominal, manoeuvre = self.initial
-        initial = (quiet, nominal, *[manoeuvre / (m - 2)] * (m - 2))
-        sojourn = (self.sojourn, self.sojourn, *[self.manoeuvre_sojourn] * (m - 2))
-        return IMM(tuple(modes), sojourn, tuple(map(tuple, leave.tolist())), initial)
+        b = len(modes)  # the chained modes; the manoeuvre modes follow
+        modes += [(f"{kind}{q:g}", kind, q, 0.0) for kind, q in self.manoeuvre]
+        m, k = len(modes), len(self.manoeuvre)
+        rate = np.zeros((m, m))  # rate[i, j]: per second from mode i to mode j
+        rate[0, 1] = 1.0 / self.sojourn
+        rate[1, [0, *range(2, b)]] = 1.0 / self.sojourn / (b - 1)
+        rate[2:b, 1] = 1.0 / self.manoeuvre_sojourn
+        if k:
+            rate[:b, b:] = 1.0 / self.onset / k
+            for i in range(b, m):
+                rest = [2, *[j for j in range(b, m) if j != i]]
+                rate[i, 1] = 0.5 / self.turn_sojourn
+                rate[i, rest] += 0.5 / self.turn_sojourn / len(rest)
+        total = rate.sum(1)
+        quiet, nominal, manoeuvre, *turns = (*self.initial, 0.0)[:4]
+        initial = (quiet, nominal, *[manoeuvre / (b - 2)] * (b - 2), *[turns[0] / k] * k) \
+            if k else (quiet, nominal, *[(manoeuvre + turns[0]) / (b - 2)] * (b - 2))
+        return IMM(tuple(modes), tuple((1.0 / total).tolist()),
+                   tuple(map(tuple, (rate / total[:, None]).tolist())), initial)
 
 
 def standard_modes(q: float = defaults.Q_CV, ct_q: float = 3.0, turn_deg: float = 1.8
@@ -90,6 +109,7 @@ class IMM:
     initial: Sequence[float] | None = None
     unbiased_mixing: bool = True  # False: zero padding (the ablation of docs/accuracy.md)
     mode_conversion: bool = True  # False: one R, at the mixture's prediction (ablation)
+    gate_wide: float = defaults.IMM_GATE_WIDE  # association's prior of the widest mode
     order: int = 3
 
     @property
@@ -179,6 +199,52 @@ class IMM:
         rbar = einsum("nj,jnab->nab", c, np.stack(rs))
         _, _, nis, _ = kalman.update(xbar, pbar, z, rbar)
         return x, p, nis, ok
+
+    def gate_prediction(self, arrays: Any, rows: np.ndarray, t: float
+                        ) -> tuple[np.ndarray, np.ndarray, Callable]:
+        """What the tracks `rows` are gated with at `t` (`tracking.gating.gate`).
+
+        The gate: the position mean (N, d) of the IMM's predicted mixture (mixing, then
+        each mode's own model and noise, weighted by the predicted mode probabilities
+        c) and the position rows (N, d, n) of the second moment about that mean of its
+        widest mode (largest predicted position variance), so that a manoeuvre one of
+        the modes allows stays in the gate before that mode's probability has grown:
+        gating with the model of largest covariance (Blackman & Popoli 1999, sec. 4.5).
+        The likelihood of a pair (the returned function, of the log-likelihoods under
+        the gate, the pairs' tracks, innovations and R): the two-component mixture
+        (1 - w) N(nu; S_mix) + w N(nu; S_wide), S_mix from the mixture's moments, with
+        w = max(c_wide, `gate_wide`): the association gives a manoeuvre it cannot see
+        yet the prior `gate_wide`, so that clutter far out in a wide gate (a track
+        coasting through missed scans) is not taken for the aircraft."""
+        d = arrays.dim
+        dt = t - arrays.t[rows]
+        mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
+        c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), d)
+        xs, ps = [], []
+        for j, (_, kind, q, omega) in enumerate(self.modes):
+            f, qm = models.motion(kind, dt, self.order, d, q, omega)
+            xp, pp = predict(x0[:, j], p0[:, j], f, qm)
+            xs.append(xp)
+            ps.append(pp)
+        xs_, ps_ = np.stack(xs, 1), np.stack(ps, 1)  # (N, M, n), (N, M, n, n)
+        mean, cov = moments(xs_, ps_, c)
+        wide = np.trace(ps_[:, :, :d, :d], axis1=2, axis2=3).argmax(1)
+        k = np.arange(len(rows))
+        dev = xs_[k, wide] - mean
+        cross = ps_[k, wide, :d] + dev[:, :d, None] * dev[:, None, :]
+        w = np.maximum(c[k, wide], self.gate_wide)
+        narrow = cov[:, :d, :d]
+
+        def likelihood(loglik: np.ndarray, ti: np.ndarray, nu: np.ndarray, r: np.ndarray
+                       ) -> np.ndarray:
+            s = narrow[ti] + r
+            sign, logdet = np.linalg.slogdet(s)
+            d2 = einsum("ka,ka->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+            ll = np.where(sign > 0, -0.5 * (d2 + logdet + d * np.log(2 * np.pi)), -np.inf)
+            with np.errstate(divide="ignore"):  # w = 1: the widest mode alone
+                return np.logaddexp(np.log1p(-w[ti]) + ll, np.log(w[ti]) + loglik)
+
+        return mean[:, :d], cross, likelihood
 
     def warm(self) -> None:
         """Compile the update's kernel, or load it from its cache (`imm_jit.warm`)."""

@@ -15,6 +15,7 @@ first needs it: a service fed only labelled measurements never loads it (about 4
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 
 import numpy as np
 
@@ -104,15 +105,25 @@ def convert(batch: MeasurementBatch) -> tuple[np.ndarray, np.ndarray]:
 
 
 def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t: float,
-         q: float, gamma: float) -> Gating:
+         q: float, gamma: float, predict: Callable | None = None) -> Gating:
     """Predict the tracks `rows` to `t` and find their pairs with the converted detections
-    z, R (`convert`) within the gate `gamma`."""
+    z, R (`convert`) within the gate `gamma`. `predict(arrays, rows, t)`: the filter's
+    own prediction to gate with (an IMM's: `IMM.gate_prediction`): position mean (T, d),
+    position rows of the covariance (T, d, n), and a function that turns the pairs'
+    log-likelihoods under that covariance into the filter's own (or None); None: the
+    store's state by the motion model of its order with white noise q."""
     d, o, n = arrays.dim, arrays.order, arrays.n
     # the prediction batch axis last (long inner loops), into new arrays: the Gating
     # keeps them, as row-major views
     index, k = scratch.span(rows), len(rows)
     mean_s, cross_s = np.empty((d, k)), np.empty((d, n, k))
-    if k:
+    mixture = None  # the filter's second component for the likelihood, if it has one
+    if k and predict is not None:
+        got = predict(arrays, rows, t)
+        mean_s, cross_s = np.ascontiguousarray(got[0].T), np.ascontiguousarray(
+            got[1].transpose(1, 2, 0))
+        mixture = got[2]
+    elif k:
         xs, ps = scratch.to_soa(arrays.x[index], "gate.x"), scratch.to_soa(arrays.p[index],
                                                                          "gate.p")
         models.predict_position_soa(xs, ps, t - arrays.t[index], o, d, q, mean_s, cross_s)
@@ -139,6 +150,8 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     keep = (d2 <= gamma) & (det > 0)
     ti, dj, d2, nu, det = ti[keep], dj[keep], d2[keep], nu[keep], det[keep]
     loglik = -0.5 * (d2 + np.log(det) + d * LOG_2PI)
+    if mixture is not None:  # the likelihood of the filter's two-component mixture
+        loglik = mixture(loglik, ti, nu, r[dj])
     return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu)
 
 

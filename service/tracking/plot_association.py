@@ -112,6 +112,7 @@ class _ScanAssociator:
     def __init__(self, q: float, sensors: SensorModels | None = None,
                  gate_probability: float = defaults.GATE_PROBABILITY) -> None:
         self.q, self.sensors = q, sensors or SensorModels()
+        self.predict = None  # the filter's gate prediction (`gating.gate`), if it has one
         self.gate_probability = gate_probability
 
     def split(self, scan: Unlabelled) -> list[tuple[list[int], Detections]]:
@@ -132,7 +133,7 @@ class _ScanAssociator:
         hyp = Hypotheses(dim)
         z, r = convert(batch)
         gamma = gate_threshold(self.gate_probability, dim)
-        every = gate(arrays, rows, z, r, t, self.q, gamma)
+        every = gate(arrays, rows, z, r, t, self.q, gamma, self.predict)
         ungated = n - np.count_nonzero(np.bincount(every.dj, minlength=n))
         lam = self.sensors.density(part.sensor, z, ungated)
         pd = self.sensors.model(part.sensor).pd

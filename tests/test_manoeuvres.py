@@ -1,0 +1,159 @@
+"""The `manoeuvres` scenario and what the default filter makes of it: the classes fly
+the accelerations they are named for, Blair's NCV rule scales as it must, the IMM's
+gate holds a 7 g turn's first scan that the single-model gate loses, and (slow) a
+reduced `track-eval manoeuvres` through the service holds every aircraft with one
+track at 1, 2 and 4 s scan periods."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from clients import evaluate as track_eval
+from clients import manoeuvre_score as ms
+from clients.manoeuvres import CLASSES, G, Manoeuvres
+from service.estimation.measurements import MeasurementBatch
+from service.tracking import gating
+from service.tracking.batches import Unlabelled
+from service.tracking.display import DISPLAY_COLUMNS
+from service.tracking.life import LIFE_COLUMNS
+from service.tracking.tracker import Tracker
+from service.wire import Measurement
+
+
+def test_each_class_flies_its_manoeuvre():
+    sc = Manoeuvres(period=1.0, per_class=2, seed=3)
+    assert [f.kind for f in sc.flights] == [k for k in CLASSES for _ in range(2)]
+    ts = np.arange(0.0, 200.0, 0.25)
+    expect = {"straight": 0.0, "standard-rate": 200 * math.radians(3), "4g": 4 * G,
+              "7g-s": 7 * G, "climbing": 200 * math.radians(6)}
+    for f in sc.flights:
+        states = [f.state(t) for t in ts]
+        acc = np.array([np.linalg.norm(s[2][:2]) for s in states])
+        speed = np.array([np.linalg.norm(s[1][:2]) for s in states])
+        assert acc.max() == pytest.approx(expect[f.kind], rel=1e-9), f.name
+        assert np.ptp(speed) < 1e-6 * speed[0]  # coordinated turns: constant speed
+        assert not acc[ts < 60].any() and not any(f.manoeuvring(t) for t in ts[ts < 60])
+        # the position is the integral of the velocity (the closed form is right)
+        pos = np.array([s[0] for s in states])
+        vel = np.array([s[1] for s in states])
+        mid = 0.5 * (vel[1:] + vel[:-1]) * 0.25
+        np.testing.assert_allclose(np.diff(pos, axis=0), mid, atol=0.25**3 * acc.max())
+    climb = next(f for f in sc.flights if f.kind == "climbing")
+    assert max(climb.state(t)[1][2] for t in ts) == pytest.approx(30.0)
+    assert climb.state(199.0)[1][2] == pytest.approx(0.0, abs=1e-9)
+    s_turn = next(f for f in sc.flights if f.kind == "7g-s")
+    signs = {np.sign(s_turn.state(t)[1][0] * s_turn.state(t)[2][1]
+                     - s_turn.state(t)[1][1] * s_turn.state(t)[2][0]) for t in ts}
+    assert signs == {-1.0, 0.0, 1.0}  # turns both ways
+
+
+def test_scans_detect_with_pd_and_add_clutter():
+    sc = Manoeuvres(period=2.0, pd=0.8, clutter=5.0, per_class=4, seed=1)
+    scans = list(sc)
+    assert [s.t for s in scans] == list(np.arange(0.0, 201.0, 2.0))
+    real = np.concatenate([s.origin for s in scans])
+    assert abs((real >= 0).sum() / (20 * len(scans)) - 0.8) < 0.04
+    assert abs((real < 0).sum() / len(scans) - 5.0) < 0.7
+    labelled = list(sc.labelled())
+    assert sum(len(m) for _, m, _ in labelled) == (real >= 0).sum()
+
+
+def test_blair_rule_scales_with_the_acceleration_and_the_noise():
+    """q (m/s^2) is a function of the tracking index a T^2 / sigma times sigma / T^2:
+    scaling the acceleration and the noise together scales q."""
+    q = ms.blair_q(7 * G, 2.0, 54.0)
+    assert ms.blair_q(14 * G, 2.0, 108.0) == pytest.approx(2 * q, rel=1e-3)
+    assert ms.blair_q(7 * G, 4.0, 54.0) < q  # longer scans, lower noise per second
+
+
+def _first_turn_scan(tracker: Tracker, period: float) -> tuple[np.ndarray, Measurement]:
+    """Straight flight at 250 m/s for 40 s, then the detection of a 7 g turn's first scan."""
+    r0 = np.array([20_000.0, 30_000.0, 5_000.0])
+    v = np.array([250.0, 0.0, 0.0])
+    rng = np.random.default_rng(0)
+
+    def meas(t: float, p: np.ndarray) -> Measurement:
+        return Measurement("r", "", t, 3, False, tuple(p + rng.normal(0, 20.0, 3)),
+                           (20.0,) * 3, (0.0, 0.0, 0.0), None)
+
+    ts = np.arange(0.0, 40.0 + 1e-9, period)
+    for t in ts:
+        tracker.step(Unlabelled.of("r", float(t), [meas(float(t), r0 + v * t)]))
+    t = float(ts[-1] + period)
+    turned = r0 + v * t + np.array([0.0, 0.5 * 7 * G * period**2, 0.0])
+    return ts, meas(t, turned)
+
+
+def test_the_imm_gate_holds_the_first_scan_of_a_7g_turn():
+    """Gated with the IMM's widest mode, a detection 550 m off the straight prediction
+    (7 g for 4 s) is in the gate; gated with the combined state and the nominal noise,
+    as before, it is not."""
+    tracker = Tracker()
+    ts, m = _first_turn_scan(tracker, 4.0)
+    arrays = tracker.store.layout(3)
+    rows = arrays.rows()[arrays.confirmed[arrays.rows()]]
+    assert len(rows) == 1
+    z, r = gating.convert(MeasurementBatch.of([m], 3))
+    gamma = gating.gate_threshold(0.999, 3)
+    imm = tracker.updater
+    assert len(gating.gate(arrays, rows, z, r, m.t, 1.0, gamma, imm.gate_prediction).ti) == 1
+    assert len(gating.gate(arrays, rows, z, r, m.t, 1.0, gamma).ti) == 0
+    # the gate's mean is the mixture's: the straight prediction, not the wide mode's own
+    mean, cross, _ = imm.gate_prediction(arrays, rows, m.t)
+    np.testing.assert_allclose(mean[0], arrays.x[rows[0], :3] + arrays.x[rows[0], 3:6] * 4.0,
+                               atol=1.0)
+    assert cross.shape == (1, 3, 9)
+
+
+@pytest.mark.slow
+def test_every_aircraft_held_with_one_track(capsys):
+    """A reduced `track-eval manoeuvres` (one run, one aircraft a class) through the
+    service without options: no track break, every aircraft held at >= 98 % of its scans
+    from confirmation on, at 1, 2 and 4 s."""
+    track_eval.main(["manoeuvres", "--runs", "1", "--per-class", "1", "--config", "default",
+                     "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"default 1 s", "default 2 s", "default 4 s"}
+    for label, sums in out.items():
+        assert set(sums) == set(CLASSES)
+        for kind, row in sums.items():
+            assert row["never"] == 0 and row["breaks"] == 0, (label, kind, row)
+            assert row["held_min"] >= 0.98, (label, kind, row)
+
+
+@pytest.mark.parametrize("gate_wide, taken", [(None, False), (1.0, True)])
+def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
+    """A track that missed a 4 s scan has a gate of kilometres (its widest mode over
+    8 s); a false detection 6 km off is in it. Scored under the widest mode alone
+    (`gate_wide` 1) the track takes it; under the IMM's two-component likelihood (the
+    default) it is left to start a track of its own."""
+    import dataclasses
+
+    from service.tracking.plot_association import SensorModels
+    from service.tracking.store import TrackStore
+    from service.tracking.tracker import TrackerConfig
+
+    tracker = Tracker(TrackerConfig(sensors=SensorModels(clutter_density=9e-14)))
+    if gate_wide is not None:
+        tracker.updater = dataclasses.replace(tracker.updater, gate_wide=gate_wide)
+        tracker.store = TrackStore(tracker.updater.order, tracker.updater.fields,
+                                   {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
+        tracker.scan_associator.predict = tracker.updater.gate_prediction
+    ts, m = _first_turn_scan(tracker, 4.0)
+    arrays = tracker.store.layout(3)
+    row = int(arrays.rows()[arrays.confirmed[arrays.rows()]][0])
+    t = float(ts[-1] + 8.0)  # the scan at ts[-1] + 4 missed
+    tracker.step(Unlabelled.of("r", float(ts[-1] + 4.0), []))
+    x = arrays.x[row]
+    far = x[:3] + x[3:6] * 8.0 + np.array([0.0, 6000.0, 0.0])
+    clutter = Measurement("r", "", t, 3, False, tuple(far), (20.0,) * 3, (0.0, 0.0, 0.0), None)
+    z, r = gating.convert(MeasurementBatch.of([clutter], 3))
+    g = gating.gate(arrays, np.array([row]), z, r, t, 1.0, gating.gate_threshold(0.999, 3),
+                    tracker.updater.gate_prediction)
+    assert len(g.ti) == 1  # in the gate either way
+    tracker.step(Unlabelled.of("r", t, [clutter]))
+    assert (arrays.t[row] == t) == taken
