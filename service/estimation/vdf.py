@@ -18,19 +18,27 @@ class VDF:
     """Variable-dimension filter (Bar-Shalom & Birmiwal, IEEE TAES 18(5), 1982; Bar-Shalom,
     Li & Kirubarajan 2001, sec. 11.4), as scenario C specifies it.
 
-    CV with zero process noise while quiet; the fading-memory sum rho = alpha rho + NIS
+    CV with (nearly) zero process noise while quiet; the fading-memory sum rho = alpha rho + NIS
     above `detect` declares a manoeuvre, and the track is re-estimated with the CA model
     over the detection window (the last `window` updates, restarted from the CV estimate
     before them with a wide acceleration prior). In CA, the acceleration's process noise
     std is `ca_noise` x |acceleration estimate|; the fading sum of a' P_aa^-1 a below
     `settle` returns the track to CV. Tracks start in CA; the detector is armed when they
     first return to CV.
+
+    The paper's CV noise is zero; `cv_noise` keeps a trace of it (m/s^1.5, continuous
+    white acceleration): with none, a zero measurement variance drives the covariance to
+    zero and the filter stops reading its measurements, and with any the closed loop has
+    a steady state inside the unit circle (docs/accuracy.md, "Exact positions"). The CA
+    noise is the paper's per step: an acceleration increment of std `ca_noise` x |a|
+    over each step, i.e. a white jerk of density (ca_noise |a|)^2 / |dt|.
     """
 
     alpha: float = 0.8
     detect: float = defaults.VDF_DETECT
     settle: float = defaults.VDF_SETTLE
     ca_noise: float = 0.05
+    cv_noise: float = 1e-3
     accel_prior: float = 1.0  # m/s^2, std of the acceleration at a CA restart
     window: int = 5
     order: int = 3
@@ -62,11 +70,11 @@ class VDF:
         d = arrays.dim
         x, p = arrays.x[rows].copy(), arrays.p[rows].copy()
         ca = arrays.ca[rows].astype(bool)
-        f_cv, q_cv = models.motion("cv", dt, 3, d, 0.0)
+        f_cv, q_cv = models.motion("cv", dt, 3, d, self.cv_noise)
         xp, pp = predict(x, p, f_cv, q_cv)
         if ca.any():
             acc = np.linalg.norm(x[ca, 2 * d:], axis=1)
-            qa = self.ca_noise * acc / np.maximum(np.abs(dt[ca]), 1e-9)
+            qa = self.ca_noise * acc / np.sqrt(np.maximum(np.abs(dt[ca]), 1e-9))
             f, qm = models.motion("ca", dt[ca], 3, d, qa)
             xp[ca], pp[ca] = predict(x[ca], p[ca], f, qm)
         z, r = convert(xp, pp)
