@@ -117,7 +117,9 @@ def track_columns(tracker: Tracker, ids: Sequence[str], sensor: str | Sequence[s
                 if lo:
                     pause(out)  # type: ignore[misc]
                 part = upd[lo:lo + cut]
-                good, ok, _ = tracker.update_rows(arrays, rows[lo:lo + cut], sub.take(part))
+                good, ok, _ = tracker.update_rows(arrays, rows[lo:lo + cut], sub.take(part),
+                                                  sub_sensor if isinstance(sub_sensor, str)
+                                                  else [sub_sensor[i] for i in part])
                 for j in np.flatnonzero(~ok).tolist():
                     bad[int(part[j])] = NON_FINITE
                 keep(arrays, good)

@@ -29,6 +29,7 @@ from .deleter import CompositeDeleter, UpdateTimeDeleter
 from .display import DisplayConfig, DisplayState, Snapshot
 from .initiator import SinglePointInitiator
 from .life import MofNDeleter, update_life
+from .noise_check import NoiseCheck
 from .store import States, TrackArrays, TrackStore
 
 if TYPE_CHECKING:
@@ -96,6 +97,7 @@ class Tracker:
         self.display = DisplayState(c.display, q)
         self.store = TrackStore(self.updater.order, self.updater.fields)
         self.numbers: dict[str, int] = {}  # per sensor: the last track number given
+        self.noise = NoiseCheck()  # each sensor's stated noise against its measurements
 
     def __len__(self) -> int:
         return len(self.store)
@@ -157,7 +159,8 @@ class Tracker:
         arrays = store.layout(dim)
         rows = tracks if isinstance(tracks, np.ndarray) else \
             np.array([store.where[k][1] for k in tracks], dtype=int)
-        good, ok, nis, xn, pn = self._update_rows(arrays, rows, batch)
+        good, ok, nis, xn, pn = self._update_rows(arrays, rows, batch,
+                                                  [o.meas.sensor for o in scan])
         if len(good) == len(rows):  # every row updated (the usual case)
             block = self.states(arrays, good, xn, pn)
             for out, v in zip(scan, nis.tolist(), strict=True):
@@ -175,19 +178,29 @@ class Tracker:
         if warm is not None:
             warm()
 
-    def update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Predict and update `rows` of `arrays` with `batch` (row i with measurement i):
-        the rows updated (those whose result is finite), the mask of them and every NIS."""
-        return self._update_rows(arrays, rows, batch)[:3]
+    def update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch,
+                    sensors: str | list[str] = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predict and update `rows` of `arrays` with `batch` (row i with measurement i,
+        of `sensors`: one for all, or one each): the rows updated (those whose result is
+        finite), the mask of them and every NIS."""
+        return self._update_rows(arrays, rows, batch, sensors)[:3]
 
-    def _update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
-                     ) -> tuple[np.ndarray, ...]:
+    def _update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch,
+                     sensors: str | list[str] = "") -> tuple[np.ndarray, ...]:
         """`update_rows`, and the new states and covariances of the rows updated."""
+        # the sensors whose stated noise is far too small: their measured noise, and once
+        # in their tracks' covariances (`noise_check.NoiseCheck.adjust`)
+        stated, (batch, grow, dp) = batch, self.noise.adjust(
+            sensors, batch, rows, batch.t - arrays.t[rows], self.updater.order)
+        if len(grow):
+            arrays.p[rows[grow]] += dp
+            self.updater.inflate(arrays, rows[grow], dp)
         t = batch.t
         conversion = EKFConversion(batch) if self.conversion == "ekf" else \
             CMKFConversion(batch)  # the filter core converts a CMKF batch in its kernel
         xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows], conversion)
+        self.noise.observe(sensors, [arrays.ids[r] for r in rows.tolist()], rows, stated, nis,
+                           ok)
         every = np.count_nonzero(ok) == len(ok)
         good = rows if every else rows[ok]
         if not every:

@@ -1,0 +1,242 @@
+"""Each sensor's stated noise checked against what its measurements show (pure: columns
+in, reports out, no Zenoh).
+
+A feed that states its positions exact (`sigma` 0) or gives no sigma (the service's
+default, 1 m) may jitter by tens of metres: recorded tracks, simulations that quantise or
+correct their dead reckoning. Two statistics per sensor over a window of its latest
+Cartesian measurements (docs/accuracy.md, "Exact positions"; docs/protocol.md, §4.3):
+
+- the normalised innovation squared (NIS) of the updates, per axis: about 1 when the
+  stated noise is right (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4.2);
+- the jitter the positions themselves show, model-free: each track's new position
+  against the quadratic through its previous three (for equal intervals the third
+  difference, of variance 20 sigma^2 for white noise of sigma per axis; any intervals:
+  (1 + sum of the squared Lagrange weights) sigma^2), robust to manoeuvres and jumps
+  by taking the median (median of chi-square(1) = 0.455).
+
+A sensor whose measured jitter exceeds `ratio` x its stated sigma + `floor` while its NIS
+per axis exceeds `nis_high` is reported (`due`, at most once per `every` s of wall
+time, and in `status`) and, until it states better, its Cartesian measurements are
+used with the measured sigma (`adjust`): the track stays stable and smooths the jitter.
+A sensor whose stated sigma exceeds `ratio` x the measured one + `floor` with a NIS per
+axis below `nis_low` is reported too (too pessimistic), its measurements used as
+stated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import defaults
+from ..estimation.measurements import MeasurementBatch
+
+CHI2_1_MEDIAN = 0.454936  # median of the chi-square distribution with one degree of freedom
+
+
+@dataclass(frozen=True)
+class NoiseReport:
+    """One sensor whose stated noise is far from what its measurements show."""
+
+    sensor: str
+    stated: float  # m: stated sigma per axis (median over the window)
+    measured: float  # m: the jitter its positions show, per axis
+    nis: float  # mean NIS per axis over the window (1 when the stated noise is right)
+    count: int  # position residuals in the window (one per axis and measurement)
+
+    @property
+    def too_small(self) -> bool:
+        return self.measured > self.stated
+
+    def reason(self) -> str:
+        used = " (used meanwhile)" if self.too_small else ""
+        return (f"stated sigma {self.stated:.3g} m, but its positions jitter by about "
+                f"{self.measured:.3g} m per axis{used}: mean NIS per axis {self.nis:.3g} "
+                f"over {self.count} residuals (1 if the stated sigma were right)")
+
+    def body(self) -> dict[str, float | int | str]:
+        return {"stated": self.stated, "measured": self.measured, "nis": self.nis,
+                "count": self.count, "direction": "too small" if self.too_small else "too large"}
+
+
+@dataclass
+class _Sensor:
+    """A sensor's window: residuals (sigma^2 estimates per axis), NIS per axis, stated."""
+
+    window: int
+    res: deque = field(init=False)
+    nis: deque = field(init=False)
+    stated: deque = field(init=False)
+    report: NoiseReport | None = None
+    next_put: float = -math.inf  # wall time before which no new report goes out
+
+    def __post_init__(self) -> None:
+        self.res, self.nis, self.stated = (deque(maxlen=self.window) for _ in range(3))
+
+
+class NoiseCheck:
+    """Per-sensor NIS and measured jitter over a window of measurements (`observe`); the
+    sensors far off (`status`, `due`) and the noise used for them (`adjust`)."""
+
+    def __init__(self, window: int = defaults.NOISE_WINDOW,
+                 min_count: int = defaults.NOISE_MIN_COUNT, ratio: float = defaults.NOISE_RATIO,
+                 floor: float = defaults.NOISE_FLOOR, nis_high: float = defaults.NOISE_NIS_HIGH,
+                 nis_low: float = defaults.NOISE_NIS_LOW, every: float = defaults.NOISE_EVERY
+                 ) -> None:
+        self.window, self.min_count, self.ratio, self.floor = window, min_count, ratio, floor
+        self.nis_high, self.nis_low, self.every = nis_high, nis_low, every
+        self.sensors: dict[str, _Sensor] = {}
+        # per layout (dimension): the last three Cartesian positions of each store row,
+        # with the track id they belong to (a row is reused after a deletion)
+        # and whether its covariance took the measured noise in (`adjust`)
+        self.hist: dict[int, tuple[np.ndarray, ...]] = {}
+
+    # ------------------------------------------------------------ the filter's side
+    def adjust(self, sensors: str | list[str], batch: MeasurementBatch, rows: np.ndarray,
+               dt: np.ndarray, order: int) -> tuple[MeasurementBatch, np.ndarray, np.ndarray]:
+        """`batch` with the measured sigma in place of a smaller stated one for the
+        Cartesian rows of the sensors reported too small (the batch itself otherwise);
+        and, for the store rows `rows` (of a state of `order`, dt since their last update)
+        that get it for the first time, which of them (index) and the covariance (k, n, n)
+        to add to theirs: what the stated noise hid from them, position sigma^2, velocity
+        2 sigma^2 / dt^2[, acceleration 6 sigma^2 / dt^4] per axis (the errors of
+        derivatives taken from positions sigma apart)."""
+        none = (batch, np.zeros(0, int), np.zeros((0, 0, 0)))
+        flagged = {s: r.measured for s, r in self._reports().items() if r.too_small}
+        if not flagged:
+            return none
+        if isinstance(sensors, str):
+            if sensors not in flagged:
+                return none
+            floor = np.full(len(batch), flagged[sensors])
+        else:
+            floor = np.array([flagged.get(s, 0.0) for s in sensors])
+        floor[batch.polar] = 0.0
+        sig = np.maximum(batch.sigmas, floor[:, None])
+        out = dataclasses.replace(batch, sigmas=np.asfortranarray(sig), point=None,
+                                  point_of=None)
+        d = batch.dim
+        fixed = self.hist.get(d)
+        if fixed is None:
+            return out, np.zeros(0, int), np.zeros((0, 0, 0))
+        known = rows < len(fixed[4])
+        grow = np.flatnonzero(known & (floor > 0))
+        grow = grow[~fixed[4][rows[grow]]]
+        fixed[4][rows[grow]] = True
+        var = floor[grow] ** 2
+        h = np.maximum(np.abs(dt[grow]), 1e-3)
+        diag = [var, 2 * var / h ** 2, 6 * var / h ** 4][:order]
+        dp = np.zeros((len(grow), order * d, order * d))
+        for a, v in enumerate(diag):
+            for k in range(d):
+                dp[:, a * d + k, a * d + k] = v
+        return out, grow, dp
+
+    def observe(self, sensors: str | list[str], ids: list[str], rows: np.ndarray,
+                batch: MeasurementBatch, nis: np.ndarray, ok: np.ndarray) -> None:
+        """Take in the updates of store rows `rows` (track ids `ids`) of one layout with
+        the measurements `batch` (as stated) and their NIS (`ok`: the rows updated)."""
+        n, d = len(batch), batch.dim
+        if not n:
+            return
+        cart = ~batch.polar & ok
+        res = self._residuals(d, rows, ids, batch, cart)
+        one = isinstance(sensors, str)
+        names = [sensors] if one else sorted(set(sensors))
+        for name in names:
+            mask = cart if one else cart & (np.array(sensors, dtype=object) == name)
+            if not mask.any():
+                continue
+            s = self.sensors.get(name)
+            if s is None:
+                s = self.sensors[name] = _Sensor(self.window)
+            s.nis.extend((nis[mask] / d).tolist())
+            s.stated.extend(batch.sigmas[mask].mean(1).tolist())
+            r = res[mask]
+            s.res.extend(r[np.isfinite(r)].ravel().tolist())
+            s.report = self._judge(name, s)
+
+    def _residuals(self, d: int, rows: np.ndarray, ids: list[str], batch: MeasurementBatch,
+                   cart: np.ndarray) -> np.ndarray:
+        """Per row and axis: the position against the quadratic through the row's previous
+        three, squared, over (1 + the squared Lagrange weights) (NaN without three); the
+        history moved on by the rows' new positions."""
+        cap = int(rows.max()) + 1 if len(rows) else 0
+        t_h, z_h, n_h, id_h, fx_h = self.hist.get(d, (
+            np.zeros((0, 3)), np.zeros((0, 3, d)), np.zeros(0, int), np.zeros(0, object),
+            np.zeros(0, bool)))
+        if cap > len(n_h):  # grow (doubling)
+            size = max(cap, 2 * len(n_h), 64)
+            t_h = np.concatenate([t_h, np.zeros((size - len(n_h), 3))])
+            z_h = np.concatenate([z_h, np.zeros((size - len(n_h), 3, d))])
+            id_h = np.concatenate([id_h, np.full(size - len(n_h), None, object)])
+            fx_h = np.concatenate([fx_h, np.zeros(size - len(n_h), bool)])
+            n_h = np.concatenate([n_h, np.zeros(size - len(n_h), int)])
+            self.hist[d] = t_h, z_h, n_h, id_h, fx_h
+        r, z, t = rows[cart], batch.values[cart], batch.t[cart]
+        name = np.array(ids, dtype=object)[cart]
+        same = id_h[r] == name
+        n_h[r] = np.where(same, n_h[r], 0)
+        fx_h[r] &= same
+        out = np.full((len(batch), d), np.nan)
+        full = n_h[r] >= 3
+        if full.any():
+            tt, zz = t_h[r[full]], z_h[r[full]]
+            t0 = t[full]
+            w = np.ones((int(full.sum()), 3))  # Lagrange weights at t0 of the three points
+            for i in range(3):
+                for j in range(3):
+                    if i != j:
+                        den = tt[:, i] - tt[:, j]
+                        w[:, i] *= np.where(den != 0, (t0 - tt[:, j]) / np.where(
+                            den != 0, den, 1.0), np.nan)
+            pred = np.einsum("ni,nid->nd", w, zz)
+            gain = 1.0 + (w ** 2).sum(1)
+            sq = (z[full] - pred) ** 2 / gain[:, None]
+            idx = np.flatnonzero(cart)[full]
+            out[idx] = sq
+        # shift: the oldest out, the new position in
+        t_h[r, :2], z_h[r, :2] = t_h[r, 1:], z_h[r, 1:]
+        t_h[r, 2], z_h[r, 2] = t, z
+        n_h[r] += 1
+        id_h[r] = name
+        return out
+
+    def _judge(self, name: str, s: _Sensor) -> NoiseReport | None:
+        """The sensor's report if its stated noise is far off, None otherwise."""
+        if len(s.res) < self.min_count:
+            return None
+        measured = math.sqrt(float(np.median(np.fromiter(s.res, float))) / CHI2_1_MEDIAN)
+        stated = float(np.median(np.fromiter(s.stated, float)))
+        nis = float(np.mean(np.fromiter(s.nis, float)))
+        report = NoiseReport(name, stated, measured, nis, len(s.res))
+        was = s.report is not None and s.report.too_small
+        # once reported too small, the measurements are used with the measured sigma and
+        # the NIS falls back toward 1: the measured jitter alone keeps the report
+        if measured > self.ratio * stated + self.floor and (was or nis > self.nis_high):
+            return report
+        if stated > self.ratio * measured + self.floor and nis < self.nis_low:
+            return report
+        return None
+
+    # ------------------------------------------------------------ the adapter's side
+    def _reports(self) -> dict[str, NoiseReport]:
+        return {k: s.report for k, s in self.sensors.items() if s.report is not None}
+
+    def status(self) -> dict[str, dict]:
+        """The sensors whose stated noise is far off (the `status` field `sensor_noise`)."""
+        return {k: r.body() for k, r in sorted(self._reports().items())}
+
+    def due(self, wall: float) -> list[NoiseReport]:
+        """The reports to publish now (wall-clock time `wall`): each sensor far off, at
+        most once per `every` s."""
+        out = []
+        for s in self.sensors.values():
+            if s.report is not None and wall >= s.next_put:
+                s.next_put = wall + self.every
+                out.append(s.report)
+        return out
