@@ -370,6 +370,7 @@ class Inputs:
         self.out.deleted(deleted)
         self.count.scans_applied += 1
         self.out.states(outcomes, key)
+        self.out.noise(self.tracker.noise)
 
     def _flush(self, pending: list[Rows]) -> None:
         """Apply the measurements waiting, in order, in one pass over their columns
@@ -390,6 +391,7 @@ class Inputs:
                 self._frame_between()
             self.out.batch(rows.sensors, rows.ids, outcome)
         pending.clear()
+        self.out.noise(self.tracker.noise)  # stated noise far off
 
     def _between_parts(self, outcome: BatchOutcome) -> None:
         """Realtime, between parts of an update: the states of the tracks updated so far

@@ -361,6 +361,7 @@ class TrackService(Inputs):
             "states_withheld": c.states_withheld,
             "scans_applied": c.scans_applied, "scans_held": len(self.reorder),
             "rejected_by_reason": dict(c.by_reason),
+            "sensor_noise": self.tracker.noise.status(),
             "display_puts": c.display_puts, "tracks_puts": c.tracks_puts,
             "queue": self.inbox.qsize(),
         }
