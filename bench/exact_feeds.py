@@ -32,14 +32,14 @@ from service.wire import Measurement  # noqa: E402
 ADJUST = noise_check.NoiseCheck.adjust
 
 
-def no_use(self, sensors, batch, rows, dt, order):  # noqa: ANN001, ANN202
+def no_use(self, sensors, batch, *args):  # noqa: ANN001, ANN002, ANN202
     """The noise check reports, the filter uses the stated noise."""
     return batch, np.zeros(0, int), np.zeros((0, 0, 0))
 
 
-def no_inflation(self, sensors, batch, rows, dt, order):  # noqa: ANN001, ANN202
+def no_inflation(self, sensors, batch, *args):  # noqa: ANN001, ANN002, ANN202
     """The measured noise used, the tracks' covariances left as they are."""
-    out = ADJUST(self, sensors, batch, rows, dt, order)
+    out = ADJUST(self, sensors, batch, *args)
     return out[0], np.zeros(0, int), np.zeros((0, 0, 0))
 
 

@@ -43,9 +43,11 @@ def test_jitter_stated_exact_is_reported_and_used():
     # used meanwhile: the measured noise in the update
     batch = MeasurementBatch.of([Measurement("sim", "a", 40.0, 3, False, (0.0, 0.0, 0.0),
                                              (0.0,) * 3, (0.0, 0.0, 0.0), None)], 3)
-    used = tr.noise.adjust("sim", batch, np.array([0]), np.array([1.0]), 3)[0]
+    ids = tr.store.layout(3).ids
+    used, grow, dp = tr.noise.adjust("sim", batch, np.array([0]), np.array([1.0]), 3, ids)
     np.testing.assert_allclose(used.sigmas, rep["measured"])
-    assert tr.noise.adjust("exact", batch, np.array([1]), np.array([1.0]), 3)[0] is batch
+    assert len(grow) == 0  # the track took the measured noise in once already
+    assert tr.noise.adjust("exact", batch, np.array([1]), np.array([1.0]), 3, ids)[0] is batch
 
 
 def test_pessimistic_sensor_is_reported_but_not_used():
@@ -57,7 +59,8 @@ def test_pessimistic_sensor_is_reported_but_not_used():
     assert rep["direction"] == "too large" and rep["measured"] < 3.0 and rep["nis"] < 0.3
     batch = MeasurementBatch.of([Measurement("coarse", "a", 40.0, 3, False, (0.0,) * 3,
                                              (100.0,) * 3, (0.0, 0.0, 0.0), None)], 3)
-    assert tr.noise.adjust("coarse", batch, np.array([0]), np.array([1.0]), 2)[0] is batch
+    ids = tr.store.layout(3).ids
+    assert tr.noise.adjust("coarse", batch, np.array([0]), np.array([1.0]), 2, ids)[0] is batch
 
 
 def test_reports_are_rate_limited():

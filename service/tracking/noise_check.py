@@ -36,6 +36,9 @@ from .. import defaults
 from ..estimation.measurements import MeasurementBatch
 
 CHI2_1_MEDIAN = 0.454936  # median of the chi-square distribution with one degree of freedom
+# the store rows sampled for the statistics (a window of 300 needs few): all below
+# FULL_ROWS, and one in STRIDE above, so that 100,000 tracks cost about 2,600 rows a pass
+FULL_ROWS, STRIDE = 1024, 64
 
 
 @dataclass(frozen=True)
@@ -92,19 +95,23 @@ class NoiseCheck:
         self.sensors: dict[str, _Sensor] = {}
         # per layout (dimension): the last three Cartesian positions of each store row,
         # with the track id they belong to (a row is reused after a deletion)
-        # and whether its covariance took the measured noise in (`adjust`)
         self.hist: dict[int, tuple[np.ndarray, ...]] = {}
+        # per layout: the rows whose covariance took the measured noise in, and for which
+        # track (`adjust`)
+        self.inflated: dict[int, np.ndarray] = {}
 
     # ------------------------------------------------------------ the filter's side
     def adjust(self, sensors: str | list[str], batch: MeasurementBatch, rows: np.ndarray,
-               dt: np.ndarray, order: int) -> tuple[MeasurementBatch, np.ndarray, np.ndarray]:
+               dt: np.ndarray, order: int, ids: list[str | None]
+               ) -> tuple[MeasurementBatch, np.ndarray, np.ndarray]:
         """`batch` with the measured sigma in place of a smaller stated one for the
         Cartesian rows of the sensors reported too small (the batch itself otherwise);
-        and, for the store rows `rows` (of a state of `order`, dt since their last update)
-        that get it for the first time, which of them (index) and the covariance (k, n, n)
-        to add to theirs: what the stated noise hid from them, position sigma^2, velocity
-        2 sigma^2 / dt^2[, acceleration 6 sigma^2 / dt^4] per axis (the errors of
-        derivatives taken from positions sigma apart)."""
+        and, for the store rows `rows` (of a state of `order`, dt since their last update;
+        `ids`: the store's track id of every row) that get it for the first time, which
+        of them (index) and the covariance (k, n, n) to add to theirs: what the stated
+        noise hid from them, position sigma^2, velocity 2 sigma^2 / dt^2[, acceleration
+        6 sigma^2 / dt^4] per axis (the errors of derivatives taken from positions sigma
+        apart)."""
         none = (batch, np.zeros(0, int), np.zeros((0, 0, 0)))
         flagged = {s: r.measured for s, r in self._reports().items() if r.too_small}
         if not flagged:
@@ -120,13 +127,14 @@ class NoiseCheck:
         out = dataclasses.replace(batch, sigmas=np.asfortranarray(sig), point=None,
                                   point_of=None)
         d = batch.dim
-        fixed = self.hist.get(d)
-        if fixed is None:
-            return out, np.zeros(0, int), np.zeros((0, 0, 0))
-        known = rows < len(fixed[4])
-        grow = np.flatnonzero(known & (floor > 0))
-        grow = grow[~fixed[4][rows[grow]]]
-        fixed[4][rows[grow]] = True
+        cand = np.flatnonzero(floor > 0)
+        done = self.inflated.get(d, np.zeros(0, object))  # row -> the track id inflated
+        if len(ids) > len(done):
+            done = self.inflated[d] = np.concatenate(
+                [done, np.full(len(ids) - len(done), None, object)])
+        now = np.array(ids, dtype=object)[rows[cand]]
+        grow = cand[done[rows[cand]] != now]
+        done[rows[grow]] = now[done[rows[cand]] != now]
         var = floor[grow] ** 2
         h = np.maximum(np.abs(dt[grow]), 1e-3)
         diag = [var, 2 * var / h ** 2, 6 * var / h ** 4][:order]
@@ -136,74 +144,71 @@ class NoiseCheck:
                 dp[:, a * d + k, a * d + k] = v
         return out, grow, dp
 
-    def observe(self, sensors: str | list[str], ids: list[str], rows: np.ndarray,
+    def observe(self, sensors: str | list[str], ids: list[str | None], rows: np.ndarray,
                 batch: MeasurementBatch, nis: np.ndarray, ok: np.ndarray) -> None:
-        """Take in the updates of store rows `rows` (track ids `ids`) of one layout with
-        the measurements `batch` (as stated) and their NIS (`ok`: the rows updated)."""
-        n, d = len(batch), batch.dim
-        if not n:
+        """Take in the updates of store rows `rows` of one layout (`ids`: the store's
+        track id of every row) with the measurements `batch` (as stated) and their NIS
+        (`ok`: the rows updated); the rows sampled (`FULL_ROWS`, `STRIDE`) only."""
+        d, w = batch.dim, self.window
+        pick = np.flatnonzero(~batch.polar & ok & ((rows < FULL_ROWS) | (rows % STRIDE == 0)))
+        if not len(pick):
             return
-        cart = ~batch.polar & ok
-        res = self._residuals(d, rows, ids, batch, cart)
-        one = isinstance(sensors, str)
-        names = [sensors] if one else sorted(set(sensors))
-        for name in names:
-            mask = cart if one else cart & (np.array(sensors, dtype=object) == name)
-            if not mask.any():
-                continue
+        sub = rows[pick]
+        res = self._residuals(d, sub, [ids[r] for r in sub.tolist()], batch.t[pick],
+                              batch.values[pick])
+        nis_d, stated = nis[pick] / d, batch.sigmas[pick].mean(1)
+        if isinstance(sensors, str):
+            groups = [(sensors, slice(None))]
+        else:
+            names = np.array(sensors, dtype=object)[pick]
+            groups = [(k, names == k) for k in sorted(set(names.tolist()))]
+        for name, m in groups:
             s = self.sensors.get(name)
             if s is None:
-                s = self.sensors[name] = _Sensor(self.window)
-            s.nis.extend((nis[mask] / d).tolist())
-            s.stated.extend(batch.sigmas[mask].mean(1).tolist())
-            r = res[mask]
-            s.res.extend(r[np.isfinite(r)].ravel().tolist())
+                s = self.sensors[name] = _Sensor(w)
+            s.nis.extend(nis_d[m][-w:].tolist())
+            s.stated.extend(stated[m][-w:].tolist())
+            r = res[m].ravel()
+            s.res.extend(r[np.isfinite(r)][-w:].tolist())
             s.report = self._judge(name, s)
 
-    def _residuals(self, d: int, rows: np.ndarray, ids: list[str], batch: MeasurementBatch,
-                   cart: np.ndarray) -> np.ndarray:
-        """Per row and axis: the position against the quadratic through the row's previous
-        three, squared, over (1 + the squared Lagrange weights) (NaN without three); the
-        history moved on by the rows' new positions."""
-        cap = int(rows.max()) + 1 if len(rows) else 0
-        t_h, z_h, n_h, id_h, fx_h = self.hist.get(d, (
-            np.zeros((0, 3)), np.zeros((0, 3, d)), np.zeros(0, int), np.zeros(0, object),
-            np.zeros(0, bool)))
+    def _residuals(self, d: int, rows: np.ndarray, ids: list[str | None], t: np.ndarray,
+                   z: np.ndarray) -> np.ndarray:
+        """Per row and axis: the position z (k, d) at t against the quadratic through the
+        row's previous three, squared, over (1 + the squared Lagrange weights) (NaN
+        without three); the history moved on by the rows' new positions."""
+        cap = int(rows.max()) + 1
+        t_h, z_h, n_h, id_h = self.hist.get(d, (np.zeros((0, 3)), np.zeros((0, 3, d)),
+                                               np.zeros(0, int), np.zeros(0, object)))
         if cap > len(n_h):  # grow (doubling)
-            size = max(cap, 2 * len(n_h), 64)
-            t_h = np.concatenate([t_h, np.zeros((size - len(n_h), 3))])
-            z_h = np.concatenate([z_h, np.zeros((size - len(n_h), 3, d))])
-            id_h = np.concatenate([id_h, np.full(size - len(n_h), None, object)])
-            fx_h = np.concatenate([fx_h, np.zeros(size - len(n_h), bool)])
-            n_h = np.concatenate([n_h, np.zeros(size - len(n_h), int)])
-            self.hist[d] = t_h, z_h, n_h, id_h, fx_h
-        r, z, t = rows[cart], batch.values[cart], batch.t[cart]
-        name = np.array(ids, dtype=object)[cart]
-        same = id_h[r] == name
-        n_h[r] = np.where(same, n_h[r], 0)
-        fx_h[r] &= same
-        out = np.full((len(batch), d), np.nan)
-        full = n_h[r] >= 3
+            size, old = max(cap, 2 * len(n_h), 64), len(n_h)
+            t_h = np.concatenate([t_h, np.zeros((size - old, 3))])
+            z_h = np.concatenate([z_h, np.zeros((size - old, 3, d))])
+            id_h = np.concatenate([id_h, np.full(size - old, None, object)])
+            n_h = np.concatenate([n_h, np.zeros(size - old, int)])
+            self.hist[d] = t_h, z_h, n_h, id_h
+        name = np.array(ids, dtype=object)
+        same = id_h[rows] == name
+        n_h[rows] = np.where(same, n_h[rows], 0)
+        out = np.full((len(rows), d), np.nan)
+        full = n_h[rows] >= 3
         if full.any():
-            tt, zz = t_h[r[full]], z_h[r[full]]
-            t0 = t[full]
-            w = np.ones((int(full.sum()), 3))  # Lagrange weights at t0 of the three points
+            tt, zz, t0 = t_h[rows[full]], z_h[rows[full]], t[full]
+            lag = np.ones((len(t0), 3))  # Lagrange weights at t0 of the three points
             for i in range(3):
                 for j in range(3):
                     if i != j:
                         den = tt[:, i] - tt[:, j]
-                        w[:, i] *= np.where(den != 0, (t0 - tt[:, j]) / np.where(
-                            den != 0, den, 1.0), np.nan)
-            pred = np.einsum("ni,nid->nd", w, zz)
-            gain = 1.0 + (w ** 2).sum(1)
-            sq = (z[full] - pred) ** 2 / gain[:, None]
-            idx = np.flatnonzero(cart)[full]
-            out[idx] = sq
+                        lag[:, i] *= np.where(den != 0, (t0 - tt[:, j])
+                                              / np.where(den != 0, den, 1.0), np.nan)
+            pred = np.einsum("ni,nid->nd", lag, zz)
+            gain = 1.0 + (lag ** 2).sum(1)
+            out[full] = (z[full] - pred) ** 2 / gain[:, None]
         # shift: the oldest out, the new position in
-        t_h[r, :2], z_h[r, :2] = t_h[r, 1:], z_h[r, 1:]
-        t_h[r, 2], z_h[r, 2] = t, z
-        n_h[r] += 1
-        id_h[r] = name
+        t_h[rows, :2], z_h[rows, :2] = t_h[rows, 1:], z_h[rows, 1:]
+        t_h[rows, 2], z_h[rows, 2] = t, z
+        n_h[rows] += 1
+        id_h[rows] = name
         return out
 
     def _judge(self, name: str, s: _Sensor) -> NoiseReport | None:

@@ -191,7 +191,7 @@ class Tracker:
         # the sensors whose stated noise is far too small: their measured noise, and once
         # in their tracks' covariances (`noise_check.NoiseCheck.adjust`)
         stated, (batch, grow, dp) = batch, self.noise.adjust(
-            sensors, batch, rows, batch.t - arrays.t[rows], self.updater.order)
+            sensors, batch, rows, batch.t - arrays.t[rows], self.updater.order, arrays.ids)
         if len(grow):
             arrays.p[rows[grow]] += dp
             self.updater.inflate(arrays, rows[grow], dp)
@@ -199,8 +199,7 @@ class Tracker:
         conversion = EKFConversion(batch) if self.conversion == "ekf" else \
             CMKFConversion(batch)  # the filter core converts a CMKF batch in its kernel
         xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows], conversion)
-        self.noise.observe(sensors, [arrays.ids[r] for r in rows.tolist()], rows, stated, nis,
-                           ok)
+        self.noise.observe(sensors, arrays.ids, rows, stated, nis, ok)
         every = np.count_nonzero(ok) == len(ok)
         good = rows if every else rows[ok]
         if not every:
