@@ -17,7 +17,7 @@ recorded scans.
   the confirmed and coasting tracks (not tentative), filtered states predicted to the scan.
 - Stone Soup GNN: `MultiTargetTracker`, `GNNWith2DAssignment(DistanceHypothesiser(
   Mahalanobis, missed_distance = the 99.9 % chi-square gate, as ours))`, `KalmanPredictor`
-  (two `ConstantVelocity` with the same continuous noise q = 1 m/s^1.5 as ours, as
+  (two `ConstantVelocity` with the same continuous noise, q = 1 m/s^2, as ours, as
   in bench_filter.py), `KalmanUpdater(LinearGaussian(mapping (0, 2), 25^2 I))`,
   `MultiMeasurementInitiator` (min_points 3, its tentative tracks deleted after 2 scans
   without an update, prior velocity std 113 m/s as ours) and `UpdateTimeStepsDeleter(4)`

@@ -4,7 +4,7 @@
 
 One target-step is one prediction over T = 1 s and one converted-measurement update of
 one target: 3-D nearly-constant-velocity state [x y z vx vy vz], continuous white
-acceleration noise of density q^2, q = 1 m/s^1.5 per axis, polar radar measurements (range,
+acceleration noise of density q^2 T, q = 1 m/s^2 per axis, polar radar measurements (range,
 azimuth, elevation; sr = 20 m, saz = sel = 0.2 deg, the `swarm` scenario's sensor)
 converted the way the track table does it (unbiased conversion, covariance averaged
 over the predicted position: `convert.cmkf_soa`).
@@ -24,7 +24,7 @@ over the predicted position: `convert.cmkf_soa`).
   `ConstantVelocity` models and `KalmanUpdater` (Joseph form, symmetrised, as ours) with
   one `LinearGaussian` measurement model per detection carrying our converted R. Stone
   Soup's `ConstantVelocity` is the continuous white-noise model (Q = q [[T^3/3, T^2/2],
-  [T^2/2, T]]), ours too.
+  [T^2/2, T]]), ours too, with the density q^2 |T| (`peer_models`).
 
 The peers get the converted measurements precomputed (their timings exclude the
 conversion); the table reports their ratio both to our whole step and to our
@@ -214,7 +214,7 @@ def _timed_apply(table: Tracker, scan: list[Measurement]) -> float:
 # ---------------------------------------------------------------- FilterPy
 def bench_filterpy(o: dict, m: int, reps: int) -> tuple[float, np.ndarray, np.ndarray]:
     f = models.transition(np.array([T]), ORDER, DIM)[0]
-    q = Q_continuous_white_noise(2, dt=T, spectral_density=Q**2, block_size=3,
+    q = Q_continuous_white_noise(2, dt=T, spectral_density=Q**2 * T, block_size=3,
                                  order_by_dim=False)
     assert np.allclose(q, models.process_noise(np.array([T]), ORDER, DIM, Q)[0], atol=1e-15)
     h = np.hstack([np.eye(DIM), np.zeros((DIM, DIM))])

@@ -19,8 +19,8 @@ LISTENERS_REFRESH = 0.1  # s: how often a realtime service re-reads who subscrib
 
 # ---------------------------------------------------------------- filters
 FILTER = "imm"  # imm, cv, ca, ekf, vdf
-Q_CV = 1.0  # m/s^1.5: sqrt of the white acceleration's density per axis (CV, IMM nominal)
-Q_CA = 0.5  # m/s^2.5: sqrt of the white jerk's density per axis (CA)
+Q_CV = 1.0  # m/s^2: white acceleration per axis, q (estimation.models) (CV, IMM nominal)
+Q_CA = 0.5  # m/s^3: white jerk per axis, q (estimation.models) (CA)
 # The default IMM (docs/accuracy.md, "The default filter"): a quiet CV mode, a nominal CV
 # mode (Q_CV, or --q) and a CA manoeuvre mode, chained quiet <-> nominal <-> CA
 IMM_QUIET_Q = 0.003  # m/s^2: the quiet mode's white acceleration std per axis

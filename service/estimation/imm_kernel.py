@@ -166,17 +166,19 @@ def _mix(mx, mp, w, dest, kinds, j, s, d, x0, p0, dv):  # pragma: no cover - com
 @njit(**JIT)
 def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
     """x (n, B), P (n, n, B), their first s = order d components, over each row's dt in
-    place: F = kron(Phi, I_d), Phi[a, a + k] = dt^k / k!, Q = q^2 kron(C, I_d) with the
-    continuous white-noise terms C[a, e] = |dt|^k / ((o-1-a)! (o-1-e)! k),
-    k = 2 o - 1 - a - e (as `models.noise_terms`)."""
+    place: F = kron(Phi, I_d), Phi[a, a + k] = dt^k / k!, Q = q^2 kron(C, I_d) with
+    C[a, e] = |dt|^(k + 1) / ((o-1-a)! (o-1-e)! k), k = 2 o - 1 - a - e (the continuous
+    white noise of density q^2 |dt|, as `models.noise_terms`)."""
     b = x.shape[1]
-    pw, g, g2 = wv[0], wv[1], wv[2]  # dt^k / k!; |dt|^k for k = 0 .. 2 and 3 .. 5
+    pw, g, g2 = wv[0], wv[1], wv[2]  # dt^k / k!; |dt|^k for k = 1 .. 3 and 4 .. 6
     for q in range(b):
         t = h[q]
         pw[0, q], pw[1, q], pw[2, q] = 1.0, t, 0.5 * t * t
         at = abs(t)
-        g[0, q], g[1, q], g[2, q] = 1.0, at, at * at
-        g2[0, q], g2[1, q], g2[2, q] = at * at * at, at * at * at * at, at * at * at * at * at
+        a2 = at * at
+        a3 = a2 * at
+        g[0, q], g[1, q], g[2, q] = at, a2, a3
+        g2[0, q], g2[1, q], g2[2, q] = a3 * at, a3 * a2, a3 * a3
     for a in range(order):  # x <- F x (block a reads blocks c >= a, not yet changed)
         for k in range(d):
             for c in range(a + 1, order):
@@ -204,7 +206,7 @@ def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
                 den = float(_FACT[order - 1 - a] * _FACT[order - 1 - e] * n1)
                 qq = qn * qn / den
                 for q in range(b):
-                    gk = g[n1, q] if n1 < 3 else g2[n1 - 3, q]
+                    gk = g[n1, q] if n1 < 3 else g2[n1 - 3, q]  # |dt|^(n1 + 1)
                     p[r, col, q] += qq * gk
             for q in range(b):
                 p[col, r, q] = p[r, col, q]

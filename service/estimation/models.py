@@ -3,12 +3,15 @@
 State layout (docs/protocol.md): position, velocity[, acceleration], each block `dim` long,
 so x = kron(derivative order, axis). A model of `order` 2 is nearly-constant velocity
 (CV), order 3 nearly-constant acceleration (CA). Process noise is the continuous-time
-white noise of the next derivative, of power spectral density `q`^2 (Bar-Shalom, Li &
-Kirubarajan 2001, sec. 6.2.2-6.2.3): for CV the acceleration (m^2/s^3), for CA the jerk
-(m^2/s^5), integrated exactly over each step. Not the piecewise-constant noise of the
-same book's sec. 6.3: with exact measurements its steady state has the gains alpha = 1,
-beta = 2 and a closed-loop eigenvalue at -1, an undamped oscillation that any jitter in
-the positions excites; the continuous model's are beta = 3 - sqrt(3) and 0.27
+white noise of the next derivative (Bar-Shalom, Li & Kirubarajan 2001, sec. 6.2.2-6.2.3:
+for CV the acceleration, for CA the jerk) integrated exactly over each step dt, of
+spectral density q^2 |dt|: the changes of velocity (CV) or acceleration (CA) over a step
+are of the order of sqrt(density x dt) (same book, sec. 6.2.2), here q |dt|, as with the
+piecewise-constant noise of std `q` of sec. 6.3.2-6.3.3 that the service used before, so
+`q` keeps its unit (m/s^2 for CV, m/s^3 for CA) and its numbers. Not that model itself:
+with exact measurements its steady state has the gains alpha = 1, beta = 2 and a
+closed-loop eigenvalue at -1, an undamped oscillation that any jitter in the positions
+excites; the continuous model's are beta = 3 - sqrt(3) and 0.27, whatever the density
 (docs/accuracy.md, "Exact positions").
 """
 
@@ -33,19 +36,19 @@ def axis_transition(dt: np.ndarray, order: int) -> np.ndarray:
 
 
 def noise_terms(dt: np.ndarray, order: int) -> np.ndarray:
-    """The continuous white-noise process noise per unit spectral density, (order,
-    order, N): entry (a, b) = |dt|^k / ((o-1-a)! (o-1-b)! k), k = 2 o - 1 - a - b, o =
-    order (Bar-Shalom, Li & Kirubarajan 2001, sec. 6.2.2: [[T^3/3, T^2/2], [T^2/2, T]]
-    for CV; sec. 6.2.3 for CA). The kernels' and the display's noise all come from here
-    (or repeat its operations: `imm_kernel._predict`)."""
+    """The process noise per unit q^2, (order, order, N): the continuous white noise of
+    density |dt| over the step dt, entry (a, b) = |dt| x |dt|^k / ((o-1-a)! (o-1-b)! k),
+    k = 2 o - 1 - a - b, o = order (Bar-Shalom, Li & Kirubarajan 2001, sec. 6.2.2:
+    [[T^3/3, T^2/2], [T^2/2, T]] per unit density for CV; sec. 6.2.3 for CA). The
+    kernels' and the display's noise all come from here (or repeat it:
+    `imm_kernel._predict`, `display.predicted_at`, `frame._draw`)."""
     gain = np.abs(np.asarray(dt, dtype=float))
     out = np.empty((order, order) + gain.shape)
     for a in range(order):
         for b in range(a, order):
             k = 2 * order - 1 - a - b
             den = math.factorial(order - 1 - a) * math.factorial(order - 1 - b) * k
-            term = gain if k == 1 else np.power(gain, k)
-            out[a, b] = term / den
+            out[a, b] = np.power(gain, k + 1) / den
             out[b, a] = out[a, b]
     return out
 

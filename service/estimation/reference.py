@@ -22,7 +22,8 @@ def motion_matrices(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """F and Q (N, n, n) of the `models` kinematic state, n = order * dim: per axis
     Phi[i, j] = T^(j-i) / (j-i)! and the continuous white noise of derivative `order`, of
-    spectral density q^2, integrated over the step: Q_axis = q^2 int_0^|T| phi(s) phi(s)' ds
+    spectral density q^2 |T|, integrated over the step:
+    Q_axis = q^2 |T| int_0^|T| phi(s) phi(s)' ds
     with phi(s) = [s^(order-1) / (order-1)!, ..., s, 1] (for order 2 the CWNA model of
     Bar-Shalom, Li & Kirubarajan 2001, sec. 6.2.2; for order 3 the white-jerk model of
     sec. 6.2.3), then F = kron(Phi, I_dim), Q = kron(Q_axis, I_dim). Reference of
@@ -34,7 +35,7 @@ def motion_matrices(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray
         phi = np.array([[t ** (j - i) / math.factorial(j - i) if j >= i else 0.0
                          for j in range(order)] for i in range(order)])
         # the integral term by term: s^(o-1-i) s^(o-1-j) integrates to |T|^k / k
-        q_axis = np.array([[abs(t) ** (2 * order - 1 - i - j)
+        q_axis = abs(t) * np.array([[abs(t) ** (2 * order - 1 - i - j)
                             / (math.factorial(order - 1 - i) * math.factorial(order - 1 - j)
                                * (2 * order - 1 - i - j)) for j in range(order)]
                            for i in range(order)])

@@ -26,12 +26,11 @@ class VDF:
     `settle` returns the track to CV. Tracks start in CA; the detector is armed when they
     first return to CV.
 
-    The paper's CV noise is zero; `cv_noise` keeps a trace of it (m/s^1.5, continuous
-    white acceleration): with none, a zero measurement variance drives the covariance to
-    zero and the filter stops reading its measurements, and with any the closed loop has
-    a steady state inside the unit circle (docs/accuracy.md, "Exact positions"). The CA
-    noise is the paper's per step: an acceleration increment of std `ca_noise` x |a|
-    over each step, i.e. a white jerk of density (ca_noise |a|)^2 / |dt|.
+    The paper's CV noise is zero; `cv_noise` (m/s^2, `models`) keeps a trace of it:
+    with none, a zero measurement variance drives the covariance to zero and the filter
+    stops reading its measurements, and with any the closed loop has a steady state
+    inside the unit circle (docs/accuracy.md, "Exact positions"). The CA noise is the
+    paper's per step: an acceleration increment of std `ca_noise` x |a| over each step.
     """
 
     alpha: float = 0.8
@@ -74,7 +73,7 @@ class VDF:
         xp, pp = predict(x, p, f_cv, q_cv)
         if ca.any():
             acc = np.linalg.norm(x[ca, 2 * d:], axis=1)
-            qa = self.ca_noise * acc / np.sqrt(np.maximum(np.abs(dt[ca]), 1e-9))
+            qa = self.ca_noise * acc / np.maximum(np.abs(dt[ca]), 1e-9)
             f, qm = models.motion("ca", dt[ca], 3, d, qa)
             xp[ca], pp[ca] = predict(x[ca], p[ca], f, qm)
         z, r = convert(xp, pp)

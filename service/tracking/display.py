@@ -52,7 +52,7 @@ def predicted_at(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t: fl
     on columns of N numbers (no (N, o, o) temporaries, no loops over 3 numbers):
     pos = x0 + dt (v + dt a / 2), vel = v + dt a, and c0' A c0 with c0 = (1, dt, dt^2 / 2)
     as A00 + dt (2 A01 + dt (A11 + A02 + dt (A12 + dt A22 / 4))) (A = axis_cov,
-    symmetric), plus dim q^2 c00, c00 = |dt|^(2 order - 1) / ((order - 1)!^2 (2 order - 1))
+    symmetric), plus dim q^2 c00, c00 = |dt|^(2 order) / ((order - 1)!^2 (2 order - 1))
     (`models.noise_terms`). Equal to `predicted` up to
     rounding (tests/test_display.py)."""
     n = len(x)
@@ -99,7 +99,7 @@ def _predicted_rows(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t:
     var += 2.0 * a[:, 1]
     var *= dt
     var += a[:, 0]
-    c00 = np.abs(dt) ** (2 * o - 1)
+    c00 = np.abs(dt) ** (2 * o)
     c00 *= d * q * q / (math.factorial(o - 1) ** 2 * (2 * o - 1))
     var += c00
     out[:] = var
