@@ -44,10 +44,11 @@ def test_jitter_stated_exact_is_reported_and_used():
     batch = MeasurementBatch.of([Measurement("sim", "a", 40.0, 3, False, (0.0, 0.0, 0.0),
                                              (0.0,) * 3, (0.0, 0.0, 0.0), None)], 3)
     ids = tr.store.layout(3).ids
-    used, grow, dp = tr.noise.adjust("sim", batch, np.array([0]), np.array([1.0]), 3, ids)
+    row, dt, n = np.array([0]), np.array([1.0]), np.array([40])
+    used, grow, dp = tr.noise.adjust("sim", batch, row, dt, 3, ids, n)
     np.testing.assert_allclose(used.sigmas, rep["measured"])
     assert len(grow) == 0  # the track took the measured noise in once already
-    assert tr.noise.adjust("exact", batch, np.array([1]), np.array([1.0]), 3, ids)[0] is batch
+    assert tr.noise.adjust("exact", batch, row + 1, dt, 3, ids, n)[0] is batch
 
 
 def test_pessimistic_sensor_is_reported_but_not_used():
@@ -60,7 +61,8 @@ def test_pessimistic_sensor_is_reported_but_not_used():
     batch = MeasurementBatch.of([Measurement("coarse", "a", 40.0, 3, False, (0.0,) * 3,
                                              (100.0,) * 3, (0.0, 0.0, 0.0), None)], 3)
     ids = tr.store.layout(3).ids
-    assert tr.noise.adjust("coarse", batch, np.array([0]), np.array([1.0]), 2, ids)[0] is batch
+    row, dt, n = np.array([0]), np.array([1.0]), np.array([40])
+    assert tr.noise.adjust("coarse", batch, row, dt, 2, ids, n)[0] is batch
 
 
 def test_reports_are_rate_limited():

@@ -26,6 +26,7 @@ stated.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -33,12 +34,36 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import defaults
+from ..estimation import models
 from ..estimation.measurements import MeasurementBatch
 
 CHI2_1_MEDIAN = 0.454936  # median of the chi-square distribution with one degree of freedom
 # the store rows sampled for the statistics (a window of 300 needs few): all below
 # FULL_ROWS, and one in STRIDE above, so that 100,000 tracks cost about 2,600 rows a pass
 FULL_ROWS, STRIDE = 1024, 64
+
+
+@functools.lru_cache(maxsize=256)
+def hidden_error(order: int, dt: float, updates: int) -> np.ndarray:
+    """Per axis and unit measurement variance, the error covariance (order, order) of a
+    track of `order` started from one position and updated `updates` times, at the
+    interval dt, taking its positions as exact (the gains at zero measurement variance,
+    from the initiator's prior; whatever the process noise's density) while they have
+    unit variance: e <- A e A' + K K', A = (I - K H) F (Bar-Shalom, Li & Kirubarajan
+    2001, sec. 5.2). What such a track has in error beyond its covariance."""
+    one = np.array([dt])
+    f = models.transition(one, order, 1)[0]
+    q = models.process_noise(one, order, 1, 1.0)[0]
+    prior = [0.0, defaults.INIT_SPEED ** 2, defaults.INIT_ACCEL ** 2][:order]
+    p = np.diag(prior)  # the filter's belief: the first position exact
+    e = np.diag([1.0, *prior[1:]])  # the error: the first position's noise
+    for _ in range(updates - 1):
+        pp = f @ p @ f.T + q
+        k = pp[:, :1] / (pp[0, 0] + 1e-300)
+        p = pp - k @ pp[:1]
+        a = f - k @ f[:1]  # (I - K H) F
+        e = a @ e @ a.T + k @ k.T
+    return e
 
 
 @dataclass(frozen=True)
@@ -102,16 +127,15 @@ class NoiseCheck:
 
     # ------------------------------------------------------------ the filter's side
     def adjust(self, sensors: str | list[str], batch: MeasurementBatch, rows: np.ndarray,
-               dt: np.ndarray, order: int, ids: list[str | None]
+               dt: np.ndarray, order: int, ids: list[str | None], updates: np.ndarray
                ) -> tuple[MeasurementBatch, np.ndarray, np.ndarray]:
         """`batch` with the measured sigma in place of a smaller stated one for the
         Cartesian rows of the sensors reported too small (the batch itself otherwise);
         and, for the store rows `rows` (of a state of `order`, dt since their last update;
         `ids`: the store's track id of every row) that get it for the first time, which
         of them (index) and the covariance (k, n, n) to add to theirs: what the stated
-        noise hid from them, position sigma^2, velocity 2 sigma^2 / dt^2[, acceleration
-        6 sigma^2 / dt^4] per axis (the errors of derivatives taken from positions sigma
-        apart)."""
+        noise hid from them, sigma^2 x `hidden_error` per axis (`updates`: each row's
+        updates so far)."""
         none = (batch, np.zeros(0, int), np.zeros((0, 0, 0)))
         flagged = {s: r.measured for s, r in self._reports().items() if r.too_small}
         if not flagged:
@@ -135,13 +159,12 @@ class NoiseCheck:
         now = np.array(ids, dtype=object)[rows[cand]]
         grow = cand[done[rows[cand]] != now]
         done[rows[grow]] = now[done[rows[cand]] != now]
-        var = floor[grow] ** 2
-        h = np.maximum(np.abs(dt[grow]), 1e-3)
-        diag = [var, 2 * var / h ** 2, 6 * var / h ** 4][:order]
-        dp = np.zeros((len(grow), order * d, order * d))
-        for a, v in enumerate(diag):
-            for k in range(d):
-                dp[:, a * d + k, a * d + k] = v
+        n = order * d
+        dp = np.zeros((len(grow), n, n))
+        for i, (v, h, u) in enumerate(zip((floor[grow] ** 2).tolist(), dt[grow].tolist(),
+                                          updates[grow].tolist(), strict=True)):
+            dp[i] = v * np.kron(hidden_error(order, round(max(abs(h), 1e-3), 6),
+                                             int(min(max(u, 1), 60))), np.eye(d))
         return out, grow, dp
 
     def observe(self, sensors: str | list[str], ids: list[str | None], rows: np.ndarray,

@@ -191,7 +191,8 @@ class Tracker:
         # the sensors whose stated noise is far too small: their measured noise, and once
         # in their tracks' covariances (`noise_check.NoiseCheck.adjust`)
         stated, (batch, grow, dp) = batch, self.noise.adjust(
-            sensors, batch, rows, batch.t - arrays.t[rows], self.updater.order, arrays.ids)
+            sensors, batch, rows, batch.t - arrays.t[rows], self.updater.order, arrays.ids,
+            arrays.updates[rows])
         if len(grow):
             arrays.p[rows[grow]] += dp
             self.updater.inflate(arrays, rows[grow], dp)
