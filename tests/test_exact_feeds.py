@@ -31,17 +31,18 @@ def errors(pred: np.ndarray, pos: np.ndarray, ts: np.ndarray, t0: float, t1: flo
     return np.linalg.norm(pred[:, sel] - pos[:, sel], axis=-1).ravel()
 
 
-@pytest.mark.parametrize(("sigma", "rms_ratio"), [(0.0, 1.0), (None, 0.85)])
+@pytest.mark.parametrize(("sigma", "rms_ratio"), [(0.0, 0.9), (None, 0.85)])
 def test_jittered_positions_stated_exact_stay_stable(feed, sigma, rms_ratio):
     ts, pos, lin = feed
     got = held.run_service(ts, pos, sigma, [])
     e, e_lin = errors(got, pos, ts, 10.0, 121.0), errors(lin, pos, ts, 10.0, 121.0)
     assert np.isfinite(e).all() and len(e) == 20 * 55  # every held-out instant drawn
     rms, rms_lin = np.sqrt(np.mean(e ** 2)), np.sqrt(np.mean(e_lin ** 2))
-    # measured (docs/accuracy.md, "Exact positions"): sigma 0 0.95 x linear's RMS, 0.97 x
-    # its 95th percentile; sigma absent 0.81 and 0.81; the piecewise model 5.8 x and 0.97 x
+    # measured (`track-eval heldout --runs 1 --aircraft 20 --duration 120`): sigma 0
+    # 0.825 x linear's RMS, 0.802 x its 95th percentile; sigma absent 0.780 and 0.777; the
+    # piecewise model 5.8 x and 0.97 x
     assert rms <= rms_ratio * rms_lin
-    assert np.percentile(e, 95) <= 1.05 * np.percentile(e_lin, 95)
+    assert np.percentile(e, 95) <= np.percentile(e_lin, 95)
     # stable: the last 40 s no worse against linear extrapolation than the whole
     late, late_lin = errors(got, pos, ts, 80.0, 121.0), errors(lin, pos, ts, 80.0, 121.0)
     assert np.sqrt(np.mean(late ** 2)) <= 1.1 * rms_ratio * np.sqrt(np.mean(late_lin ** 2))
