@@ -58,6 +58,7 @@ def test_pessimistic_sensor_is_reported_but_not_used():
     feed(tr, "coarse", "a", truth + 1.0 * rng.standard_normal(truth.shape), 100.0)
     rep = tr.noise.status()["coarse"]
     assert rep["direction"] == "too large" and rep["measured"] < 3.0 and rep["nis"] < 0.3
+    assert tr.noise.due(0.0) == []  # in status only
     batch = MeasurementBatch.of([Measurement("coarse", "a", 40.0, 3, False, (0.0,) * 3,
                                              (100.0,) * 3, (0.0, 0.0, 0.0), None)], 3)
     ids = tr.store.layout(3).ids

@@ -19,8 +19,8 @@ per axis exceeds `nis_high` is reported (`due`, at most once per `every` s of wa
 time, and in `status`) and, until it states better, its Cartesian measurements are
 used with the measured sigma (`adjust`): the track stays stable and smooths the jitter.
 A sensor whose stated sigma exceeds `ratio` x the measured one + `floor` with a NIS per
-axis below `nis_low` is reported too (too pessimistic), its measurements used as
-stated.
+axis below `nis_low` is reported in `status` only (too pessimistic: its tracks are merely
+slower than they could be), its measurements used as stated.
 """
 
 from __future__ import annotations
@@ -260,11 +260,12 @@ class NoiseCheck:
         return {k: r.body() for k, r in sorted(self._reports().items())}
 
     def due(self, wall: float) -> list[NoiseReport]:
-        """The reports to publish now (wall-clock time `wall`): each sensor far off, at
-        most once per `every` s."""
+        """The reports to publish now (wall-clock time `wall`): each sensor whose stated
+        noise is far too small (the claim that harms its tracks; one far too large is in
+        `status` only), at most once per `every` s."""
         out = []
         for s in self.sensors.values():
-            if s.report is not None and wall >= s.next_put:
+            if s.report is not None and s.report.too_small and wall >= s.next_put:
                 s.next_put = wall + self.every
                 out.append(s.report)
         return out
