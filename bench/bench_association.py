@@ -17,7 +17,7 @@ recorded scans.
   the confirmed and coasting tracks (not tentative), filtered states predicted to the scan.
 - Stone Soup GNN: `MultiTargetTracker`, `GNNWith2DAssignment(DistanceHypothesiser(
   Mahalanobis, missed_distance = the 99.9 % chi-square gate, as ours))`, `KalmanPredictor`
-  (two `ConstantVelocity` with the same piecewise-constant noise q = 1 m/s^2 as ours, as
+  (two `ConstantVelocity` with the same continuous noise, q = 1 m/s^2, as ours, as
   in bench_filter.py), `KalmanUpdater(LinearGaussian(mapping (0, 2), 25^2 I))`,
   `MultiMeasurementInitiator` (min_points 3, its tentative tracks deleted after 2 scans
   without an update, prior velocity std 113 m/s as ours) and `UpdateTimeStepsDeleter(4)`
@@ -69,7 +69,7 @@ from service.wire import Measurement  # noqa: E402
 
 try:
     import stonesoup
-    from peer_models import PiecewiseConstantVelocity
+    from peer_models import OurConstantVelocity
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
     from stonesoup.dataassociator.probability import JPDA, JPDAwithLBP
     from stonesoup.deleter.time import UpdateTimeStepsDeleter
@@ -156,7 +156,7 @@ def truth(s: plotgen.Scan) -> dict[str, np.ndarray]:
 # ---------------------------------------------------------------- Stone Soup
 def stone_soup(kind: str, sc: plotgen.Scenario, scans: list[plotgen.Scan]) -> Run:
     """One Stone Soup tracker ("gnn", "lbp" or "jpda") over the scans."""
-    transition = CombinedLinearGaussianTransitionModel([PiecewiseConstantVelocity(Q**2)] * 2)
+    transition = CombinedLinearGaussianTransitionModel([OurConstantVelocity(Q**2)] * 2)
     predictor = KalmanPredictor(transition)
     model = LinearGaussian(ndim_state=4, mapping=(0, 2), noise_covar=np.eye(2) * sc.sigma**2)
     updater = KalmanUpdater(model)

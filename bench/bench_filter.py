@@ -3,8 +3,8 @@
     python bench/bench_filter.py [--sizes 100 1000 10000 100000] [--reps R] [--subset M]
 
 One target-step is one prediction over T = 1 s and one converted-measurement update of
-one target: 3-D nearly-constant-velocity state [x y z vx vy vz], piecewise-constant
-white acceleration noise q = 1 m/s^2 per axis, polar radar measurements (range,
+one target: 3-D nearly-constant-velocity state [x y z vx vy vz], continuous white
+acceleration noise of density q^2 T, q = 1 m/s^2 per axis, polar radar measurements (range,
 azimuth, elevation; sr = 20 m, saz = sel = 0.2 deg, the `swarm` scenario's sensor)
 converted the way the track table does it (unbiased conversion, covariance averaged
 over the predicted position: `convert.cmkf_soa`).
@@ -18,14 +18,13 @@ over the predicted position: `convert.cmkf_soa`).
   decoding, the bookkeeping and the per-track `tracks/` message dicts) on the following
   scans.
 - FilterPy: one `filterpy.kalman.KalmanFilter` per target, F and Q (Q from FilterPy's own
-  `Q_discrete_white_noise`) equal to ours, fed our converted z and R; a loop of
+  `Q_continuous_white_noise`) equal to ours, fed our converted z and R; a loop of
   `predict(); update(z, R)`.
 - Stone Soup: `KalmanPredictor` with a `CombinedLinearGaussianTransitionModel` of three
   `ConstantVelocity` models and `KalmanUpdater` (Joseph form, symmetrised, as ours) with
   one `LinearGaussian` measurement model per detection carrying our converted R. Stone
   Soup's `ConstantVelocity` is the continuous white-noise model (Q = q [[T^3/3, T^2/2],
-  [T^2/2, T]]); to run the same model as ours it is subclassed with the discrete
-  piecewise-constant Q = q^2 [[T^4/4, T^3/2], [T^3/2, T^2]] (same cost per call).
+  [T^2/2, T]]), ours too, with the density q^2 |T| (`peer_models`).
 
 The peers get the converted measurements precomputed (their timings exclude the
 conversion); the table reports their ratio both to our whole step and to our
@@ -62,13 +61,13 @@ from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
 from service.wire import Measurement  # noqa: E402
 
 try:
-    from filterpy.common import Q_discrete_white_noise
+    from filterpy.common import Q_continuous_white_noise
     from filterpy.kalman import KalmanFilter
 except ImportError:  # optional peer (pip install '.[bench]')
     KalmanFilter = None
 
 try:
-    from peer_models import PiecewiseConstantVelocity
+    from peer_models import OurConstantVelocity
     from stonesoup.models.measurement.linear import LinearGaussian
     from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel
     from stonesoup.predictor.kalman import KalmanPredictor
@@ -216,7 +215,8 @@ def _timed_apply(table: Tracker, scan: list[Measurement]) -> float:
 # ---------------------------------------------------------------- FilterPy
 def bench_filterpy(o: dict, m: int, reps: int) -> tuple[float, np.ndarray, np.ndarray]:
     f = models.transition(np.array([T]), ORDER, DIM)[0]
-    q = Q_discrete_white_noise(2, dt=T, var=Q**2, block_size=3, order_by_dim=False)
+    q = Q_continuous_white_noise(2, dt=T, spectral_density=Q**2 * T, block_size=3,
+                                 order_by_dim=False)
     assert np.allclose(q, models.process_noise(np.array([T]), ORDER, DIM, Q)[0], atol=1e-15)
     h = np.hstack([np.eye(DIM), np.zeros((DIM, DIM))])
     filters = []
@@ -244,7 +244,7 @@ def bench_filterpy(o: dict, m: int, reps: int) -> tuple[float, np.ndarray, np.nd
 # ---------------------------------------------------------------- Stone Soup
 def bench_stonesoup(o: dict, m: int, reps: int) -> tuple[float, np.ndarray, np.ndarray]:
     transition = CombinedLinearGaussianTransitionModel(
-        [PiecewiseConstantVelocity(Q**2) for _ in range(DIM)])
+        [OurConstantVelocity(Q**2) for _ in range(DIM)])
     predictor = KalmanPredictor(transition)
     updater = KalmanUpdater(measurement_model=None, use_joseph_cov=True,
                             force_symmetric_covariance=True)

@@ -20,7 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from . import evaluate_defaults, evaluate_manoeuvres, evaluate_plots, metrics, scenarios
+from . import (
+    evaluate_defaults,
+    evaluate_heldout,
+    evaluate_manoeuvres,
+    evaluate_plots,
+    metrics,
+    scenarios,
+)
 from .collect import Collected, run_through_service
 from .intercept_report import summary_line
 from .progress import add_quiet_arg, bar
@@ -301,11 +308,13 @@ def main(argv: list[str] | None = None) -> None:
         return
     p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
     p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *evaluate_plots.SCENARIOS,
-                                        "defaults", "manoeuvres"],
+                                        "defaults", "heldout", "manoeuvres"],
                    help="crossing, multisensor: unlabelled scans and GOSPA "
                         "(clients/evaluate_plots.py); defaults: A, B and C with the "
                         "service's defaults beside the best filter of each "
-                        "(clients/evaluate_defaults.py); manoeuvres: track breaks, "
+                        "(clients/evaluate_defaults.py); heldout: every other position of a "
+                        "1 Hz feed sent, the frame scored at the others "
+                        "(clients/evaluate_heldout.py); manoeuvres: track breaks, "
                         "held and RMSE/NEES per class of manoeuvre (its own options: "
                         "track-eval manoeuvres -h)")
     p.add_argument("--runs", type=int, default=None,
@@ -331,12 +340,16 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--json", action="store_true", help="print the reports as JSON")
     p.add_argument("--plot", metavar="DIR", help="write PNG figures here")
     evaluate_plots.add_args(p)
+    evaluate_heldout.add_args(p)
     add_quiet_arg(p)
     args = p.parse_args(argv)
     if args.scenario in evaluate_plots.SCENARIOS:
         return evaluate_plots.run(args)
     if args.scenario == "defaults":
         return evaluate_defaults.run(args)
+    if args.scenario == "heldout":
+        evaluate_heldout.run(args)
+        return None
     args.runs = 100 if args.runs is None else args.runs
     filters = args.filter or (["ca"] if args.scenario == "display" else ["cv"])
     reports, collected = {}, {}

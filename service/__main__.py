@@ -98,9 +98,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--vdf-settle", type=float, default=defaults.VDF_SETTLE,
                    help="VDF return threshold")
     p.add_argument("--q", type=float, default=None,
-                   help=f"process noise std per axis: m/s^2 for cv and the imm's nominal "
-                        f"mode (default {defaults.Q_CV}), m/s^3 for ca (default "
-                        f"{defaults.Q_CA})")
+                   help=f"process noise per axis (a continuous white noise of density "
+                        f"q^2 |dt| over a step dt): m/s^2 for cv and the imm's nominal mode "
+                        f"(default {defaults.Q_CV}), m/s^3 for ca (default {defaults.Q_CA})")
     p.add_argument("--init-speed", type=float, default=defaults.INIT_SPEED,
                    help="prior velocity std at initiation, m/s")
     p.add_argument("--init-accel", type=float, default=defaults.INIT_ACCEL,

@@ -19,8 +19,8 @@ LISTENERS_REFRESH = 0.1  # s: how often a realtime service re-reads who subscrib
 
 # ---------------------------------------------------------------- filters
 FILTER = "imm"  # imm, cv, ca, ekf, vdf
-Q_CV = 1.0  # m/s^2: white acceleration std per axis (CV, and the IMM's nominal mode)
-Q_CA = 0.5  # m/s^3: white jerk std per axis (CA)
+Q_CV = 1.0  # m/s^2: white acceleration per axis, q (estimation.models) (CV, IMM nominal)
+Q_CA = 0.5  # m/s^3: white jerk per axis, q (estimation.models) (CA)
 # The default IMM (docs/accuracy.md, "The default filter"): a quiet CV mode, a nominal CV
 # mode (Q_CV, or --q) and a CA mode, chained quiet <-> nominal <-> CA, and manoeuvre
 # modes entered from any of them (docs/accuracy.md, "Manoeuvres")
@@ -65,6 +65,19 @@ SAZ = math.radians(0.5)  # rad: azimuth
 SEL = math.radians(0.5)  # rad: elevation
 SIGMA = 1.0  # m: each Cartesian axis
 NOISE = (SR, SAZ, SEL, SIGMA)
+
+# ---------------------------------------------------------------- stated noise checked
+# (tracking.noise_check, docs/protocol.md §4.3): a sensor whose positions jitter by more
+# than RATIO x its stated sigma + FLOOR with a mean NIS per axis above NIS_HIGH is
+# reported (and its measurements used with the sigma measured); one stating more than
+# RATIO x the measured + FLOOR with a NIS below NIS_LOW is reported too
+NOISE_WINDOW = 300  # position residuals (one per axis) and NIS values kept per sensor
+NOISE_MIN_COUNT = 30  # residuals before a sensor is judged
+NOISE_RATIO = 3.0
+NOISE_FLOOR = 1.0  # m
+NOISE_NIS_HIGH = 3.0
+NOISE_NIS_LOW = 0.3
+NOISE_EVERY = 10.0  # s of wall time: at most one errors/<sensor> report per sensor
 
 # ---------------------------------------------------------------- time faults
 # (docs/protocol.md §6.1) the input limits themselves are protocol constants

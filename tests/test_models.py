@@ -1,18 +1,20 @@
 """Unit tests of service.models against hand-computed CV / CA matrices.
 
-Bar-Shalom, Li & Kirubarajan (2001) sec. 6.3.2-6.3.3, per axis:
-  CV (order 2): F = [[1, dt], [0, 1]],  Gamma = [dt^2/2, dt]
-  CA (order 3): F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],  Gamma = [dt^3/6, dt^2/2, dt]
-  Q = q^2 Gamma Gamma'.
+Bar-Shalom, Li & Kirubarajan (2001) sec. 6.2.2-6.2.3 (continuous white noise, here of
+spectral density q^2 |dt| over a step dt), per axis:
+  CV (order 2): F = [[1, dt], [0, 1]],  Q = q^2 |dt| [[dt^3/3, dt^2/2], [dt^2/2, dt]]
+  CA (order 3): F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],
+                Q = q^2 |dt| [[dt^5/20, dt^4/8, dt^3/6], [dt^4/8, dt^3/3, dt^2/2],
+                              [dt^3/6, dt^2/2, dt]].
 The full matrices use the state layout of PROTOCOL.md (all positions, then all
 velocities, then all accelerations), i.e. kron(per-axis matrix, I_dim).
 
 All numbers below are worked out by hand for dt = 2 and q = 3 (q^2 = 9):
-  CV: F_axis = [[1, 2], [0, 1]]; Gamma = [2, 2]; Gamma Gamma' = [[4, 4], [4, 4]];
-      Q_axis = 9 * 4 = 36 in every entry.
-  CA: F_axis = [[1, 2, 2], [0, 1, 2], [0, 0, 1]]; Gamma = [8/6, 2, 2] = [4/3, 2, 2];
-      Gamma Gamma' = [[16/9, 8/3, 8/3], [8/3, 4, 4], [8/3, 4, 4]];
-      Q_axis = 9 * that = [[16, 24, 24], [24, 36, 36], [24, 36, 36]].
+  CV: F_axis = [[1, 2], [0, 1]]; Q_axis / 9 = 2 [[8/3, 2], [2, 2]];
+      Q_axis = [[48, 36], [36, 36]].
+  CA: F_axis = [[1, 2, 2], [0, 1, 2], [0, 0, 1]];
+      Q_axis / 9 = 2 [[32/20, 16/8, 8/6], [16/8, 8/3, 4/2], [8/6, 4/2, 2]];
+      Q_axis = [[28.8, 36, 24], [36, 48, 36], [24, 36, 36]].
 """
 
 from __future__ import annotations
@@ -32,12 +34,7 @@ F_CV2 = np.array([
     [0, 0, 1, 0],
     [0, 0, 0, 1],
 ], dtype=float)
-Q_CV2 = np.array([
-    [36, 0, 36, 0],
-    [0, 36, 0, 36],
-    [36, 0, 36, 0],
-    [0, 36, 0, 36],
-], dtype=float)
+Q_CV2 = np.kron(np.array([[48.0, 36.0], [36.0, 36.0]]), np.eye(2))
 
 # --- CV, 3-D: state [x, y, z, vx, vy, vz]
 F_CV3 = np.array([
@@ -48,14 +45,7 @@ F_CV3 = np.array([
     [0, 0, 0, 0, 1, 0],
     [0, 0, 0, 0, 0, 1],
 ], dtype=float)
-Q_CV3 = np.array([
-    [36, 0, 0, 36, 0, 0],
-    [0, 36, 0, 0, 36, 0],
-    [0, 0, 36, 0, 0, 36],
-    [36, 0, 0, 36, 0, 0],
-    [0, 36, 0, 0, 36, 0],
-    [0, 0, 36, 0, 0, 36],
-], dtype=float)
+Q_CV3 = np.kron(np.array([[48.0, 36.0], [36.0, 36.0]]), np.eye(3))
 
 # --- CA, 2-D: state [x, y, vx, vy, ax, ay]
 F_CA2 = np.array([
@@ -66,14 +56,7 @@ F_CA2 = np.array([
     [0, 0, 0, 0, 1, 0],
     [0, 0, 0, 0, 0, 1],
 ], dtype=float)
-Q_CA2 = np.array([
-    [16, 0, 24, 0, 24, 0],
-    [0, 16, 0, 24, 0, 24],
-    [24, 0, 36, 0, 36, 0],
-    [0, 24, 0, 36, 0, 36],
-    [24, 0, 36, 0, 36, 0],
-    [0, 24, 0, 36, 0, 36],
-], dtype=float)
+Q_CA2 = np.kron(np.array([[28.8, 36.0, 24.0], [36.0, 48.0, 36.0], [24.0, 36.0, 36.0]]), np.eye(2))
 
 # --- CA, 3-D: state [x, y, z, vx, vy, vz, ax, ay, az]
 F_CA3 = np.array([
@@ -87,17 +70,7 @@ F_CA3 = np.array([
     [0, 0, 0, 0, 0, 0, 0, 1, 0],
     [0, 0, 0, 0, 0, 0, 0, 0, 1],
 ], dtype=float)
-Q_CA3 = np.array([
-    [16, 0, 0, 24, 0, 0, 24, 0, 0],
-    [0, 16, 0, 0, 24, 0, 0, 24, 0],
-    [0, 0, 16, 0, 0, 24, 0, 0, 24],
-    [24, 0, 0, 36, 0, 0, 36, 0, 0],
-    [0, 24, 0, 0, 36, 0, 0, 36, 0],
-    [0, 0, 24, 0, 0, 36, 0, 0, 36],
-    [24, 0, 0, 36, 0, 0, 36, 0, 0],
-    [0, 24, 0, 0, 36, 0, 0, 36, 0],
-    [0, 0, 24, 0, 0, 36, 0, 0, 36],
-], dtype=float)
+Q_CA3 = np.kron(np.array([[28.8, 36.0, 24.0], [36.0, 48.0, 36.0], [24.0, 36.0, 36.0]]), np.eye(3))
 
 CASES = [
     pytest.param(2, 2, F_CV2, Q_CV2, id="cv-2d"),
@@ -121,16 +94,17 @@ def test_process_noise_matches_hand_computed(order, dim, f_ref, q_ref):
     np.testing.assert_allclose(q[0], q_ref, rtol=1e-12, atol=1e-12)
 
 
-def test_noise_gain_per_axis():
-    # dt = 2: CV Gamma = [2^2/2, 2] = [2, 2]; CA Gamma = [2^3/6, 2^2/2, 2] = [4/3, 2, 2]
-    np.testing.assert_allclose(models.axis_noise_gain(DT, 2)[0], [2.0, 2.0], rtol=1e-15)
-    np.testing.assert_allclose(models.axis_noise_gain(DT, 3)[0], [4 / 3, 2.0, 2.0], rtol=1e-15)
+def test_noise_terms_per_axis():
+    # dt = 2, density |dt| = 2: CV 2 [[8/3, 2], [2, 2]]; CA's first row 2 [32/20, 16/8, 8/6]
+    np.testing.assert_allclose(models.noise_terms(DT, 2)[..., 0], [[16 / 3, 4], [4, 4]],
+                               rtol=1e-15)
+    np.testing.assert_allclose(models.noise_terms(DT, 3)[0, :, 0], [3.2, 4.0, 8 / 3],
+                               rtol=1e-15)
 
 
 def test_batch_rows_use_their_own_dt():
-    # q = 1. Row 0: dt = 1 -> F_axis [[1, 1], [0, 1]], Gamma [1/2, 1],
-    #   Q_axis [[1/4, 1/2], [1/2, 1]]
-    # Row 1: dt = 2 -> F_axis [[1, 2], [0, 1]], Gamma [2, 2], Q_axis [[4, 4], [4, 4]]
+    # q = 1. Row 0: dt = 1 -> F_axis [[1, 1], [0, 1]], Q_axis [[1/3, 1/2], [1/2, 1]]
+    # Row 1: dt = 2 -> F_axis [[1, 2], [0, 1]], Q_axis 2 [[8/3, 2], [2, 2]]
     # Row 2: dt = 0 -> identity F, zero Q
     dt = np.array([1.0, 2.0, 0.0])
     f = models.transition(dt, 2, 1)
@@ -138,48 +112,50 @@ def test_batch_rows_use_their_own_dt():
     np.testing.assert_allclose(f[0], [[1, 1], [0, 1]])
     np.testing.assert_allclose(f[1], [[1, 2], [0, 1]])
     np.testing.assert_allclose(f[2], np.eye(2))
-    np.testing.assert_allclose(q[0], [[0.25, 0.5], [0.5, 1.0]])
-    np.testing.assert_allclose(q[1], [[4, 4], [4, 4]])
+    np.testing.assert_allclose(q[0], [[1 / 3, 0.5], [0.5, 1.0]])
+    np.testing.assert_allclose(q[1], [[16 / 3, 4], [4, 4]])
     np.testing.assert_allclose(q[2], np.zeros((2, 2)))
 
 
 def test_process_noise_per_row_q():
-    # q may be given per row: q = [1, 3] at dt = 2 gives Q_axis = q^2 [[4, 4], [4, 4]]
+    # q may be given per row: q = [1, 3] at dt = 2 gives Q_axis = q^2 [[16/3, 4], [4, 4]]
     q = models.process_noise(np.array([2.0, 2.0]), 2, 1, np.array([1.0, 3.0]))
-    np.testing.assert_allclose(q[0], [[4, 4], [4, 4]])
-    np.testing.assert_allclose(q[1], [[36, 36], [36, 36]])
+    np.testing.assert_allclose(q[0], [[16 / 3, 4], [4, 4]])
+    np.testing.assert_allclose(q[1], [[48, 36], [36, 36]])
 
 
 def test_predict_forward_cv_2d():
     # x = [10, 20, 1, 2], P = I, dt = 2, q = 1.
     # F x = [10 + 2*1, 20 + 2*2, 1, 2] = [12, 24, 1, 2].
     # F F' for one axis [[1, 2], [0, 1]] [[1, 0], [2, 1]] = [[5, 2], [2, 1]];
-    # + Q_axis [[4, 4], [4, 4]] = [[9, 6], [6, 5]].
+    # + Q_axis [[16/3, 4], [4, 4]] = [[31/3, 6], [6, 5]].
     x = np.array([[10.0, 20.0, 1.0, 2.0]])
     p = np.eye(4)[None]
     xp, pp = models.predict(x, p, np.array([2.0]), 2, 2, 1.0)
     np.testing.assert_allclose(xp[0], [12, 24, 1, 2])
-    np.testing.assert_allclose(pp[0], [[9, 0, 6, 0], [0, 9, 0, 6], [6, 0, 5, 0], [0, 6, 0, 5]])
+    a, b = 31 / 3, 6
+    np.testing.assert_allclose(pp[0], [[a, 0, b, 0], [0, a, 0, b], [b, 0, 5, 0], [0, b, 0, 5]])
 
 
 def test_predict_negative_dt_uses_abs_dt_for_noise():
     # Same as above but dt = -2 (extrapolation backwards):
     # F x = [10 - 2, 20 - 4, 1, 2] = [8, 16, 1, 2].
     # F F' per axis = [[1, -2], [0, 1]] [[1, 0], [-2, 1]] = [[5, -2], [-2, 1]].
-    # Noise with |dt| = 2: Q_axis = [[4, 4], [4, 4]] -> P = [[9, 2], [2, 5]].
-    # (A signed Gamma = [2, -2] would give Q_axis = [[4, -4], [-4, 4]] -> [[9, -6], [-6, 5]].)
+    # Noise with |dt| = 2: Q_axis = [[16/3, 4], [4, 4]] -> P = [[31/3, 2], [2, 5]].
+    # (A signed dt would give Q_axis = [[16/3, -4], [-4, 4]] -> [[31/3, -6], [-6, 5]].)
     x = np.array([[10.0, 20.0, 1.0, 2.0]])
     p = np.eye(4)[None]
     xp, pp = models.predict(x, p, np.array([-2.0]), 2, 2, 1.0)
     np.testing.assert_allclose(xp[0], [8, 16, 1, 2])
-    np.testing.assert_allclose(pp[0], [[9, 0, 2, 0], [0, 9, 0, 2], [2, 0, 5, 0], [0, 2, 0, 5]])
+    np.testing.assert_allclose(pp[0], [[31 / 3, 0, 2, 0], [0, 31 / 3, 0, 2], [2, 0, 5, 0],
+                                       [0, 2, 0, 5]], atol=1e-12)
     np.testing.assert_allclose(models.process_noise(np.array([-2.0]), 2, 2, 1.0),
                                models.process_noise(np.array([2.0]), 2, 2, 1.0))
 
 
 def test_process_noise_negative_dt_ca():
-    # CA at dt = -2 must equal CA at dt = +2 (Q_CA3 with q = 3); a signed Gamma
-    # [-4/3, 2, -2] would flip the sign of the position-velocity and velocity-accel terms.
+    # CA at dt = -2 must equal CA at dt = +2 (Q_CA3 with q = 3); a signed dt would flip
+    # the sign of the odd powers of dt.
     q = models.process_noise(np.array([-2.0]), 3, 3, Q_STD)
     np.testing.assert_allclose(q[0], Q_CA3, rtol=1e-12, atol=1e-12)
     assert np.all(np.linalg.eigvalsh(q[0]) > -1e-9)

@@ -113,10 +113,10 @@ def test_motion_matrices_match_models(order):
     f, qm = reference.motion_matrices(dt, order, 3, q)
     assert_close(models.transition(dt, order, 3), f, "F", dt=dt)
     assert_close(models.process_noise(dt, order, 3, q), qm, "Q", dt=dt)
-    if order == 2:  # DWNA by hand: Gamma = [T^2/2, T] for one axis
+    if order == 2:  # CWNA of density q^2 |T| by hand for one axis
         t = 2.5
-        np.testing.assert_allclose(qm[3][::3, ::3],
-                                   q[3] ** 2 * np.array([[t**4 / 4, t**3 / 2], [t**3 / 2, t**2]]))
+        np.testing.assert_allclose(qm[3][::3, ::3], q[3] ** 2 * t * np.array(
+            [[t**3 / 3, t**2 / 2], [t**2 / 2, t]]))
 
 
 @pytest.mark.parametrize("dim", DIMS)

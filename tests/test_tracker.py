@@ -71,20 +71,20 @@ def test_two_exact_points_give_exact_velocity_q0():
 
 
 def test_two_exact_points_with_process_noise_up_to_prior():
-    # q = 1, s = 1000, dt = 2, one axis: P_pp = dt^2 s^2 + q^2 dt^4/4 = 4e6 + 4,
-    # P_vp = dt s^2 + q^2 dt^3/2 = 2e6 + 4, P_vv = s^2 + q^2 dt^2 = 1e6 + 4.
-    # K_v = (2e6 + 4) / (4e6 + 4) (the 1e-9 floor is below rtol), so
-    # v = K_v * dz: for dz = 20 -> 20 (2e6 + 4) / (4e6 + 4) = 10.00000999999...
-    # Posterior P_vv = P_vv - P_vp^2 / P_pp = 1e6 + 4 - (2e6 + 4)^2 / (4e6 + 4).
+    # q = 1, s = 1000, dt = 2, one axis (continuous white acceleration, density q^2 dt):
+    # P_pp = dt^2 s^2 + q^2 dt^4/3 = 4e6 + 16/3, P_vp = dt s^2 + q^2 dt^3/2 = 2e6 + 4,
+    # P_vv = s^2 + q^2 dt^2 = 1e6 + 4. K_v = (2e6 + 4) / (4e6 + 16/3) (the 1e-9 floor is
+    # below rtol), so v = K_v * dz.
+    # Posterior P_vv = P_vv - P_vp^2 / P_pp = 1e6 + 4 - (2e6 + 4)^2 / (4e6 + 16/3).
     table = make(order=2, q=1.0)
     track(table, [cart("a", 0.0, (0.0, 0.0))])
     track(table, [cart("a", 2.0, (20.0, -10.0))])
     st = table.state("a")
-    k_v = (2e6 + 4) / (4e6 + 4)
+    k_v = (2e6 + 4) / (4e6 + 16 / 3)
     np.testing.assert_allclose(st["vel"][:2], [20 * k_v, -10 * k_v], rtol=1e-12)
     assert st["vel"][2] == 0.0 and st["pos"][2] == 0.0  # 2-D track: z = 0 on the wire
     p = np.array(st["P"]).reshape(4, 4)
-    pvv = 1e6 + 4 - (2e6 + 4) ** 2 / (4e6 + 4)
+    pvv = 1e6 + 4 - (2e6 + 4) ** 2 / (4e6 + 16 / 3)
     np.testing.assert_allclose([p[2, 2], p[3, 3]], [pvv, pvv], rtol=1e-6)
     np.testing.assert_allclose(p[:2, :2], np.zeros((2, 2)), atol=1e-6)
 

@@ -21,6 +21,7 @@ import zenoh
 from .. import defaults
 from ..tracking.batches import StepOutcome as BatchOutcome
 from ..tracking.display import Snapshot
+from ..tracking.noise_check import NoiseCheck
 from ..tracking.store import States
 from ..wire import CHUNK, MSGPACK_ENCODING, Keys, pack, reason_code
 from .encode import pack_displays, pack_frame, pack_states, pack_tracks
@@ -145,6 +146,18 @@ class Publisher:
     def replaced(self) -> int:
         """Frames replaced by a newer one before they went out (`FrameSender`)."""
         return 0 if self.sender is None else self.sender.replaced
+
+    def noise(self, check: NoiseCheck) -> None:
+        """Each sensor whose stated noise is far off, on `errors/<sensor>` (code `noise`,
+        docs/protocol.md §4.3; at most once per `defaults.NOISE_EVERY` s of wall time per
+        sensor; the input was used, so nothing is counted as rejected)."""
+        for r in check.due(time.time()):
+            log.warning("sensor %s: %s", r.sensor[:200], r.reason())
+            self.session.put(self.keys.errors(r.sensor if CHUNK.fullmatch(r.sensor) else
+                                              "unknown"),
+                             pack({"key": self.keys.meas(r.sensor, "*"), "reason": r.reason(),
+                                   "code": "noise", "t_wall": time.time(), **r.body()}),
+                             congestion_control=zenoh.CongestionControl.BLOCK, encoding=MSGPACK)
 
     def look(self) -> None:
         """Bring the listeners of `display/` and `tracks/` up to date (once per step)."""

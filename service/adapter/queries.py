@@ -46,6 +46,7 @@ class Queries:
             "states_withheld": c.states_withheld,
             "scans_applied": c.scans_applied, "scans_held": len(self.admit),
             "rejected_by_reason": dict(c.by_reason),
+            "sensor_noise": self.tracking.noise.status(),
             "display_puts": c.display_puts, "tracks_puts": c.tracks_puts,
             "queue": self.ingest.waiting(),
         }

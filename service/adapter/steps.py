@@ -10,6 +10,7 @@ from ..tracking.batches import Instant, Unlabelled, Want
 from ..tracking.batches import Labelled as Rows
 from ..tracking.batches import StepOutcome as BatchOutcome
 from ..tracking.display import Snapshot
+from ..tracking.noise_check import NoiseCheck
 from ..tracking.tracker import Tracker
 from ..wire import PlotScan
 
@@ -35,6 +36,11 @@ class Tracking:
     def instant(self, t: float) -> list[str]:
         """A display instant: no input (coast and delete); the tracks deleted."""
         return self.tracker.step(Instant(t)).deleted
+
+    @property
+    def noise(self) -> NoiseCheck:
+        """Each sensor's stated noise against its measurements (reports, status)."""
+        return self.tracker.noise
 
     def delete(self, t: float) -> list[str]:
         return self.tracker.delete(t)

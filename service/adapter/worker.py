@@ -357,6 +357,7 @@ class TrackService:
             self.frames.between()
             self.out.batch(rows.sensors, rows.ids, outcome)
         pending.clear()
+        self.out.noise(self.tracking.noise)  # a sensor whose stated noise is far off
 
     def _between_parts(self, outcome: BatchOutcome) -> None:
         """Between parts of an update: the states of the tracks updated so far go out,
@@ -372,6 +373,7 @@ class TrackService:
             self.out.deleted(outcome.deleted)
             self.count.scans_applied += 1
             self.out.scan(key, scan.sensor, outcome)
+            self.out.noise(self.tracking.noise)
 
     # ------------------------------------------------------------ schedule
     def _frames_before(self, t: float) -> None:

@@ -36,9 +36,9 @@ class FilterSpec:
     """`name`: imm (quiet CV, nominal CV and CA on converted measurements: `imm.ModeSet`;
     `q` sets the nominal mode's noise, `imm_turn` > 0 adds two coordinated turns), cv and
     ca (single-model CMKFs), ekf (CV with the linearised polar update: the baseline of
-    scenario B) or vdf (the variable-dimension filter of scenario C). `q`: the white noise
-    std per axis (m/s^2 for cv, ekf and the imm's unit, m/s^3 for ca); None: the
-    filter's default."""
+    scenario B) or vdf (the variable-dimension filter of scenario C). `q`: the white noise per
+    axis (`models`: a continuous white noise of density q^2 |dt| over a step dt; m/s^2
+    for cv, ekf and the imm's unit, m/s^3 for ca); None: the filter's default."""
 
     name: str = defaults.FILTER
     q: float | None = None

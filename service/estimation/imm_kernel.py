@@ -34,6 +34,7 @@ SWEEPS = 30  # Jacobi sweeps at most (a 3 x 3 converges to rounding in about 4)
 # the constants of a measurement's noise that `noise` reads, rows of `point`'s `const`
 SM, CM, SR2, SAZ2, SINH_A, SINH_E, E_AZ, E_EL, G0, G1, C0, C1, C2 = range(13)
 CONSTS = 13
+_FACT = np.array([1, 1, 2, 6])  # k! for the process noise's denominators
 
 
 
@@ -165,18 +166,19 @@ def _mix(mx, mp, w, dest, kinds, j, s, d, x0, p0, dv):  # pragma: no cover - com
 @njit(**JIT)
 def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
     """x (n, B), P (n, n, B), their first s = order d components, over each row's dt in
-    place: F = kron(Phi, I_d), Phi[a, a + k] = dt^k / k!, Q = q^2 kron(g g', I_d),
-    g_a = |dt|^(order - a) / (order - a)! (as `models.predict_soa`)."""
+    place: F = kron(Phi, I_d), Phi[a, a + k] = dt^k / k!, Q = q^2 kron(C, I_d) with
+    C[a, e] = |dt|^(k + 1) / ((o-1-a)! (o-1-e)! k), k = 2 o - 1 - a - e (the continuous
+    white noise of density q^2 |dt|, as `models.noise_terms`)."""
     b = x.shape[1]
-    pw, g = wv[0], wv[1]  # dt^k / k! and g; tmp: F P
+    pw, g, g2 = wv[0], wv[1], wv[2]  # dt^k / k!; |dt|^k for k = 1 .. 3 and 4 .. 6
     for q in range(b):
         t = h[q]
         pw[0, q], pw[1, q], pw[2, q] = 1.0, t, 0.5 * t * t
         at = abs(t)
-        g[order - 1, q] = at
-        g[order - 2, q] = 0.5 * at * at
-        if order == 3:
-            g[0, q] = at * at * at / 6.0
+        a2 = at * at
+        a3 = a2 * at
+        g[0, q], g[1, q], g[2, q] = at, a2, a3
+        g2[0, q], g2[1, q], g2[2, q] = a3 * at, a3 * a2, a3 * a3
     for a in range(order):  # x <- F x (block a reads blocks c >= a, not yet changed)
         for k in range(d):
             for c in range(a + 1, order):
@@ -200,8 +202,12 @@ def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
                 for q in range(b):
                     p[r, col, q] += pw[f - e, q] * tmp[r, f * d + el, q]
             if k == el:
+                n1 = 2 * order - 1 - a - e
+                den = float(_FACT[order - 1 - a] * _FACT[order - 1 - e] * n1)
+                qq = qn * qn / den
                 for q in range(b):
-                    p[r, col, q] += qn * qn * g[a, q] * g[e, q]
+                    gk = g[n1, q] if n1 < 3 else g2[n1 - 3, q]  # |dt|^(n1 + 1)
+                    p[r, col, q] += qq * gk
             for q in range(b):
                 p[col, r, q] = p[r, col, q]
 

@@ -2,10 +2,17 @@
 
 State layout (docs/protocol.md): position, velocity[, acceleration], each block `dim` long,
 so x = kron(derivative order, axis). A model of `order` 2 is nearly-constant velocity
-(CV), order 3 nearly-constant acceleration (CA). Process noise is the discrete
-piecewise-constant white noise of the next derivative (Bar-Shalom, Li & Kirubarajan
-2001, sec. 6.3.2-6.3.3): for CV the acceleration, for CA the jerk, of standard
-deviation `q` held constant over each step.
+(CV), order 3 nearly-constant acceleration (CA). Process noise is the continuous-time
+white noise of the next derivative (Bar-Shalom, Li & Kirubarajan 2001, sec. 6.2.2-6.2.3:
+for CV the acceleration, for CA the jerk) integrated exactly over each step dt, of
+spectral density q^2 |dt|: the changes of velocity (CV) or acceleration (CA) over a step
+are of the order of sqrt(density x dt) (same book, sec. 6.2.2), here q |dt|, as with the
+piecewise-constant noise of std `q` of sec. 6.3.2-6.3.3 that the service used before, so
+`q` keeps its unit (m/s^2 for CV, m/s^3 for CA) and its numbers. Not that model itself:
+with exact measurements its steady state has the gains alpha = 1, beta = 2 and a
+closed-loop eigenvalue at -1, an undamped oscillation that any jitter in the positions
+excites; the continuous model's are beta = 3 - sqrt(3) and 0.27, whatever the density
+(docs/accuracy.md, "Exact positions").
 """
 
 from __future__ import annotations
@@ -28,16 +35,28 @@ def axis_transition(dt: np.ndarray, order: int) -> np.ndarray:
     return phi
 
 
-def axis_noise_gain(dt: np.ndarray, order: int) -> np.ndarray:
-    """Gain Gamma (N, order) of a piecewise-constant derivative of order `order`."""
-    dt = np.asarray(dt, dtype=float)
-    return np.stack([dt ** (order - i) / math.factorial(order - i) for i in range(order)], -1)
+def noise_terms(dt: np.ndarray, order: int) -> np.ndarray:
+    """The process noise per unit q^2, (order, order, N): the continuous white noise of
+    density |dt| over the step dt, entry (a, b) = |dt| x |dt|^k / ((o-1-a)! (o-1-b)! k),
+    k = 2 o - 1 - a - b, o = order (Bar-Shalom, Li & Kirubarajan 2001, sec. 6.2.2:
+    [[T^3/3, T^2/2], [T^2/2, T]] per unit density for CV; sec. 6.2.3 for CA). The
+    kernels' and the display's noise all come from here (or repeat it:
+    `imm_kernel._predict`, `display.predicted_at`, `frame._draw`)."""
+    gain = np.abs(np.asarray(dt, dtype=float))
+    out = np.empty((order, order) + gain.shape)
+    for a in range(order):
+        for b in range(a, order):
+            k = 2 * order - 1 - a - b
+            den = math.factorial(order - 1 - a) * math.factorial(order - 1 - b) * k
+            out[a, b] = np.power(gain, k + 1) / den
+            out[b, a] = out[a, b]
+    return out
 
 
 def axis_noise(dt: np.ndarray, order: int, q: float | np.ndarray) -> np.ndarray:
-    """Per-axis process noise (N, order, order) = q^2 Gamma Gamma' with Gamma at |dt|."""
-    g = axis_noise_gain(np.abs(dt), order)
-    return g[:, :, None] * g[:, None, :] * np.reshape(np.asarray(q, dtype=float) ** 2, (-1, 1, 1))
+    """Per-axis process noise (N, order, order) = q^2 `noise_terms` at |dt|."""
+    c = np.moveaxis(noise_terms(np.atleast_1d(np.asarray(dt, dtype=float)), order), -1, 0)
+    return c * np.reshape(np.asarray(q, dtype=float) ** 2, (-1, 1, 1))
 
 
 def expand(block: np.ndarray, dim: int) -> np.ndarray:
@@ -55,7 +74,7 @@ def transition(dt: np.ndarray, order: int, dim: int) -> np.ndarray:
 
 
 def process_noise(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray) -> np.ndarray:
-    """Full process noise Q (N, n, n) = q^2 kron(Gamma Gamma', I)."""
+    """Full process noise Q (N, n, n) = kron(`axis_noise`, I)."""
     return expand(axis_noise(dt, order, q), dim)
 
 
@@ -119,9 +138,7 @@ def predict_position_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: in
     for c in range(2, order):
         mean += coef[c] * x[blk[c]]
         a += coef[c] * p[blk[c]]
-    gain = np.abs(dt)
-    g = [gain ** (order - k) / math.factorial(order - k) for k in range(order - 1)] + [gain]
-    noise = np.square(q) * g[0]
+    noise = noise_terms(dt, order)[0] * np.square(q)  # Q[0, b] / ... per unit: row 0
     flat = rows.reshape(dim * n, n_rows)
     for b in range(order):
         acc = rows[:, blk[b]]
@@ -132,7 +149,7 @@ def predict_position_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: in
         for e in range(b + 2, order):
             acc += coef[e - b] * a[:, blk[e]]
         # + Q[0, b] on the diagonal of block b: entries (i, b dim + i), a strided view
-        flat[b * dim:b * dim + (dim - 1) * (n + 1) + 1:n + 1] += noise * g[b]
+        flat[b * dim:b * dim + (dim - 1) * (n + 1) + 1:n + 1] += noise[b]
 
 
 def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
@@ -171,15 +188,8 @@ def predict_soa(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
                     else:
                         term = np.multiply(p[blk[c], blk[e]], coef, out=tmp)
                     acc += term
-    # + Q: q^2 g_a g_b, g_a = |dt|^(order - a) / (order - a)! (axis_noise; the last one,
-    # |dt|^1 / 1!, is |dt| itself)
-    g = np.empty((order, n_rows))
-    gain = np.abs(dt, out=g[order - 1])
-    for a in range(order - 1):
-        k = order - a  # |dt|^k (a square as np.square: what ** 2 runs) / k!
-        np.square(gain, out=g[a]) if k == 2 else np.power(gain, k, out=g[a])
-        g[a] /= math.factorial(k)
-    qm = g[:, None] * g[None, :]  # (order, order, N): g_a g_b, then q^2 g_a g_b
+    # + Q: q^2 times the continuous white-noise terms (order, order, N) (`noise_terms`)
+    qm = noise_terms(dt, order)
     qm *= np.square(q)
     for k in range(dim):  # the entries (a dim + k, b dim + k) of every block
         p[k::dim, k::dim] += qm
@@ -218,14 +228,8 @@ def predict_blocks(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim
         else:
             term = np.multiply(p[c, e], coef, out=tmp)
         p[a, b] += term
-    # + Q: q^2 g_a g_b on the diagonal of every block (a, b), g_a = |dt|^(order-a) / (order-a)!
-    g = np.empty((order, n_rows))
-    gain = np.abs(dt, out=g[order - 1])
-    for a in range(order - 1):
-        k = order - a
-        np.square(gain, out=g[a]) if k == 2 else np.power(gain, k, out=g[a])
-        g[a] /= math.factorial(k)
-    qm = g[:, None] * g[None, :]
+    # + Q: q^2 `noise_terms` on the diagonal of every block (a, b)
+    qm = noise_terms(dt, order)
     qm *= np.square(q)
     p.reshape(order * order, dim * dim, n_rows)[:, ::dim + 1] += \
         qm.reshape(order * order, 1, n_rows)  # the diagonals of all blocks at once

@@ -17,19 +17,26 @@ class VDF:
     """Variable-dimension filter (Bar-Shalom & Birmiwal, IEEE TAES 18(5), 1982; Bar-Shalom,
     Li & Kirubarajan 2001, sec. 11.4), as scenario C specifies it.
 
-    CV with zero process noise while quiet; the fading-memory sum rho = alpha rho + NIS
+    CV with (nearly) zero process noise while quiet; the fading-memory sum rho = alpha rho + NIS
     above `detect` declares a manoeuvre, and the track is re-estimated with the CA model
     over the detection window (the last `window` updates, restarted from the CV estimate
     before them with a wide acceleration prior). In CA, the acceleration's process noise
     std is `ca_noise` x |acceleration estimate|; the fading sum of a' P_aa^-1 a below
     `settle` returns the track to CV. Tracks start in CA; the detector is armed when they
     first return to CV.
+
+    The paper's CV noise is zero; `cv_noise` (m/s^2, `models`) keeps a trace of it:
+    with none, a zero measurement variance drives the covariance to zero and the filter
+    stops reading its measurements, and with any the closed loop has a steady state
+    inside the unit circle (docs/accuracy.md, "Exact positions"). The CA noise is the
+    paper's per step: an acceleration increment of std `ca_noise` x |a| over each step.
     """
 
     alpha: float = 0.8
     detect: float = defaults.VDF_DETECT
     settle: float = defaults.VDF_SETTLE
     ca_noise: float = 0.05
+    cv_noise: float = 1e-3
     accel_prior: float = 1.0  # m/s^2, std of the acceleration at a CA restart
     window: int = 5
     order: int = 3
@@ -61,7 +68,7 @@ class VDF:
         d = arrays.dim
         x, p = arrays.x[rows].copy(), arrays.p[rows].copy()
         ca = arrays.ca[rows].astype(bool)
-        f_cv, q_cv = models.motion("cv", dt, 3, d, 0.0)
+        f_cv, q_cv = models.motion("cv", dt, 3, d, self.cv_noise)
         xp, pp = predict(x, p, f_cv, q_cv)
         if ca.any():
             acc = np.linalg.norm(x[ca, 2 * d:], axis=1)

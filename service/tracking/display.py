@@ -35,8 +35,8 @@ def predicted(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t: np.nd
     phi = models.axis_transition(dt, o)  # (N, o, o)
     xs = phi @ x.reshape(-1, o, d)  # matmul: BLAS-backed, quicker than einsum here
     c0 = phi[:, 0, :]
-    g0 = models.axis_noise_gain(np.abs(dt), o)[:, 0]
-    var = d * (q * g0) ** 2  # c0' axis_cov c0 term by term: small-axis reductions are slow
+    var = d * q * q * models.noise_terms(dt, o)[0, 0]  # + c0' axis_cov c0 term by term:
+    # small-axis reductions are slow
     for a in range(o):
         for b in range(o):
             var = var + c0[:, a] * c0[:, b] * axis_cov[:, a, b]
@@ -51,7 +51,8 @@ def predicted_at(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t: fl
     on columns of N numbers (no (N, o, o) temporaries, no loops over 3 numbers):
     pos = x0 + dt (v + dt a / 2), vel = v + dt a, and c0' A c0 with c0 = (1, dt, dt^2 / 2)
     as A00 + dt (2 A01 + dt (A11 + A02 + dt (A12 + dt A22 / 4))) (A = axis_cov,
-    symmetric), plus dim (q g0)^2, g0 = |dt|^order / order!. Equal to `predicted` up to
+    symmetric), plus dim q^2 c00, c00 = |dt|^(2 order) / ((order - 1)!^2 (2 order - 1))
+    (`models.noise_terms`). Equal to `predicted` up to
     rounding (tests/test_display.py)."""
     n = len(x)
     pos, vel, var = np.zeros((n, width)), np.zeros((n, width)), np.empty(n)
@@ -97,9 +98,9 @@ def _predicted_rows(x: np.ndarray, t_state: np.ndarray, axis_cov: np.ndarray, t:
     var += 2.0 * a[:, 1]
     var *= dt
     var += a[:, 0]
-    g0 = np.abs(dt) ** o / math.factorial(o)
-    g0 *= q
-    var += d * np.square(g0)
+    c00 = np.abs(dt) ** (2 * o)
+    c00 *= d * q * q / (math.factorial(o - 1) ** 2 * (2 * o - 1))
+    var += c00
     out[:] = var
 
 

@@ -13,7 +13,7 @@ display: the safety net). A frame then reads contiguous columns a chunk at a tim
 instead of every row's 9 + 9 numbers strided.
 `DisplayState.snapshot` uses it; `display.predicted_at` and `status.status_codes` are the
 plain forms it equals (tests/test_frame.py): the positions, velocities, ages and status
-codes to the bit, the sigmas to 1e-12 relative (the noise term's |dt|^3 is a product
+codes to the bit, the sigmas to 1e-12 relative (the noise term's |dt|^6 is a product
 here, not the 25 ns `pow` per row that `predicted_at` calls).
 """
 
@@ -136,7 +136,8 @@ class FrameColumns:
                vel: np.ndarray, sigma: np.ndarray, age: np.ndarray, codes: np.ndarray
                ) -> None:
         """The store rows `rows` drawn at t into the outputs (`_draw`, compiled)."""
-        noise = self.dim * q * q / 36.0 if self.order == 3 else q  # as `predicted_at`
+        # dim q^2 / ((o - 1)!^2 (2 o - 1)), times |dt|^(2 o): as `predicted_at`
+        noise = self.dim * q * q / (20.0 if self.order == 3 else 3.0)
         _draw(self.x, self.t, self.a, self.base, self.limit, rows, t, noise, self.dim,
               self.order, pos, vel, sigma, age, codes)
 
@@ -159,14 +160,14 @@ def _draw(x, tt, a, base, limit, rows, t, noise, d, o, pos, vel, sigma, age,
             w = ((((a[5, r] * dt + a[4, r]) * dt + a[3, r] + a[2, r]) * dt + a[1, r]) * dt
                  + a[0, r])
             g = dt * dt
-            w += g * g * g * noise  # dim (q |dt|^3 / 3!)^2
+            w += g * g * g * noise  # dim q^2 |dt|^6 / 20
         else:
             for k in range(d):
                 pos[i, k] = x[d + k, r] * dt + x[k, r]
                 vel[i, k] = x[d + k, r]
             w = (a[2, r] * dt + a[1, r]) * dt + a[0, r]  # A00 + dt (2 A01 + dt A11)
-            g = dt * dt / 2 * noise
-            w += g * g * d  # dim (q dt^2 / 2)^2
+            g = dt * dt
+            w += g * g * noise  # dim q^2 |dt|^4 / 3
         if w < 0.0:
             w = 0.0
         sigma[i] = math.sqrt(w)

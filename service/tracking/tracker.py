@@ -29,6 +29,7 @@ from .hypotheses import Hypotheses, WeightedUpdate
 from .initiator import SinglePointInitiator
 from .label_association import LabelAssociator
 from .life import LIFE_COLUMNS, MofNDeleter, update_life
+from .noise_check import NoiseCheck
 from .plot_association import GNNAssociator, JPDAAssociator, SensorModels
 from .protocols import Associator, Deleter, Initiator, Updater
 from .store import States, TrackArrays, TrackStore
@@ -110,6 +111,7 @@ class Tracker:
         self.store = TrackStore(self.updater.order, self.updater.fields,
                                 {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
         self.numbers = TrackNumbers()
+        self.noise = NoiseCheck()  # each sensor's stated noise against its measurements
 
     def __len__(self) -> int:
         return len(self.store)
@@ -130,7 +132,8 @@ class Tracker:
             return out
         for index, part, hyp in self._associated(scan):
             bad = hyp.rejected
-            self._update(hyp, part.batch, bad, out, want, pause)
+            sensors = part.sensors if isinstance(part, Labelled) else part.sensor
+            self._update(hyp, part.batch, sensors, bad, out, want, pause)
             for weighted in hyp.weighted:
                 good, x, p = self._update_weighted(weighted, part.t)
                 out.keep(self._block(weighted.arrays, good, x, p), weighted.arrays.ids, good,
@@ -156,8 +159,8 @@ class Tracker:
             for index, det in self.scan_associator.split(scan):
                 yield index, det, self.scan_associator.associate(self.store, det)
 
-    def _update(self, hyp: Hypotheses, batch: MeasurementBatch | None, bad: dict[int, str],
-                out: StepOutcome, want: Want | None,
+    def _update(self, hyp: Hypotheses, batch: MeasurementBatch | None,
+                sensors: str | list[str], bad: dict[int, str], out: StepOutcome, want: Want | None,
                 pause: Callable[[StepOutcome], None] | None) -> None:
         """Predict and update the tracks associated, in store order, in parts of `PART`
         rows when paused between them; a non-finite result rejects its measurement."""
@@ -172,23 +175,35 @@ class Tracker:
             if lo:
                 pause(out)  # type: ignore[misc]
             part = upd[lo:lo + cut]
-            good, ok, _, x, p = self._update_rows(arrays, rows[lo:lo + cut], batch.take(part))
+            good, ok, _, x, p = self._update_rows(
+                arrays, rows[lo:lo + cut], batch.take(part),
+                sensors if isinstance(sensors, str) else [sensors[i] for i in part])
             for j in np.flatnonzero(~ok).tolist():
                 bad[int(part[j])] = NON_FINITE
             out.keep(self._block(arrays, good, x, p), arrays.ids, good, want)
 
-    def update(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Predict and update `rows` of `arrays` with `batch` (row i with measurement i):
-        the rows updated (those whose result is finite), the mask of them and every NIS."""
-        return self._update_rows(arrays, rows, batch)[:3]
+    def update(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch,
+               sensors: str | list[str] = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predict and update `rows` of `arrays` with `batch` (row i with measurement i,
+        of `sensors`: one for all, or one each): the rows updated (those whose result is
+        finite), the mask of them and every NIS."""
+        return self._update_rows(arrays, rows, batch, sensors)[:3]
 
-    def _update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
-                     ) -> tuple[np.ndarray, ...]:
+    def _update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch,
+                     sensors: str | list[str] = "") -> tuple[np.ndarray, ...]:
         """`update`, and the new states and covariances of the rows updated."""
+        # the sensors whose stated noise is far too small: their measured noise, and once
+        # in their tracks' covariances (`noise_check.NoiseCheck.adjust`)
+        stated, (batch, grow, dp) = batch, self.noise.adjust(
+            sensors, batch, rows, batch.t - arrays.t[rows], self.updater.order, arrays.ids,
+            arrays.updates[rows])
+        if len(grow):
+            arrays.p[rows[grow]] += dp
+            self.updater.inflate(arrays, rows[grow], dp)
         t = batch.t
         xn, pn, nis, ok = self.updater.update(arrays, rows, t - arrays.t[rows],
                                               self.conversion(batch))
+        self.noise.observe(sensors, arrays.ids, rows, stated, nis, ok)
         every = np.count_nonzero(ok) == len(ok)
         good = rows if every else rows[ok]
         if not every:

@@ -21,22 +21,26 @@ from service.estimation.ucm import ROUNDING
 def motion_matrices(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """F and Q (N, n, n) of the `models` kinematic state, n = order * dim: per axis
-    Phi[i, j] = T^(j-i) / (j-i)! and the piecewise-constant white noise of derivative
-    `order` with gain Gamma = [T^order / order!, ..., T] at |T|, Q_axis = q^2 Gamma Gamma'
-    (for order 2 the DWNA model of Bar-Shalom, Li & Kirubarajan 2001, sec. 6.3.2; for
-    order 3 the same construction one derivative up, a piecewise-constant jerk), then
-    F = kron(Phi, I_dim), Q = kron(Q_axis, I_dim). Reference of `models.transition` and
-    `models.process_noise`."""
+    Phi[i, j] = T^(j-i) / (j-i)! and the continuous white noise of derivative `order`, of
+    spectral density q^2 |T|, integrated over the step:
+    Q_axis = q^2 |T| int_0^|T| phi(s) phi(s)' ds
+    with phi(s) = [s^(order-1) / (order-1)!, ..., s, 1] (for order 2 the CWNA model of
+    Bar-Shalom, Li & Kirubarajan 2001, sec. 6.2.2; for order 3 the white-jerk model of
+    sec. 6.2.3), then F = kron(Phi, I_dim), Q = kron(Q_axis, I_dim). Reference of
+    `models.transition` and `models.process_noise`."""
     dt = np.asarray(dt, dtype=float)
     qs = np.broadcast_to(np.asarray(q, dtype=float), dt.shape)
     f, qm = [], []
     for t, qi in zip(dt, qs, strict=True):
         phi = np.array([[t ** (j - i) / math.factorial(j - i) if j >= i else 0.0
                          for j in range(order)] for i in range(order)])
-        gamma = np.array([abs(t) ** (order - i) / math.factorial(order - i)
-                          for i in range(order)])
+        # the integral term by term: s^(o-1-i) s^(o-1-j) integrates to |T|^k / k
+        q_axis = abs(t) * np.array([[abs(t) ** (2 * order - 1 - i - j)
+                            / (math.factorial(order - 1 - i) * math.factorial(order - 1 - j)
+                               * (2 * order - 1 - i - j)) for j in range(order)]
+                           for i in range(order)])
         f.append(np.kron(phi, np.eye(dim)))
-        qm.append(np.kron(qi**2 * np.outer(gamma, gamma), np.eye(dim)))
+        qm.append(np.kron(qi**2 * q_axis, np.eye(dim)))
     return np.array(f), np.array(qm)
 
 

@@ -1,0 +1,100 @@
+"""Positions stated exact (docs/accuracy.md, "Exact positions"): variants in-process (the
+service's tracker without Zenoh; `track-eval heldout` measures the service itself).
+
+    python bench/exact_feeds.py heldout   # the held-out measure: the noise check's parts
+    python bench/exact_feeds.py a         # scenario A: the default IMM's CA noise and sojourn
+
+`heldout`: 50 aircraft (`clients.evaluate_heldout.generate`, seed 0, 120 s), every other
+position sent with sigma 0 or 1 m, the frame 1 s later against the position held out,
+RMS as a multiple of linear extrapolation's; with the noise check as in the service,
+without using the measured noise, and without the one-time covariance inflation.
+`a`: scenario A's frame RMS (as `bench/imm_design.py`) for the default IMM and for
+variants of its CA mode, beside the plain CA filter.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from clients import evaluate_heldout as held  # noqa: E402
+from service.estimation.catalog import FilterSpec  # noqa: E402
+from service.estimation.imm import ModeSet  # noqa: E402
+from service.tracking import noise_check  # noqa: E402
+from service.tracking.batches import Labelled  # noqa: E402
+from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from service.wire import Measurement  # noqa: E402
+
+ADJUST = noise_check.NoiseCheck.adjust
+
+
+def no_use(self, sensors, batch, *args):  # noqa: ANN001, ANN002, ANN202
+    """The noise check reports, the filter uses the stated noise."""
+    return batch, np.zeros(0, int), np.zeros((0, 0, 0))
+
+
+def no_inflation(self, sensors, batch, *args):  # noqa: ANN001, ANN002, ANN202
+    """The measured noise used, the tracks' covariances left as they are."""
+    out = ADJUST(self, sensors, batch, *args)
+    return out[0], np.zeros(0, int), np.zeros((0, 0, 0))
+
+
+def heldout(spec: FilterSpec, sigma: float, ts: np.ndarray, pos: np.ndarray) -> float:
+    tr = Tracker(TrackerConfig(filter=spec))
+    n = len(pos)
+    pred = np.full_like(pos, np.nan)
+    for k in range(0, len(ts), 2):
+        tr.step(Labelled.of([Measurement("feed", f"t{i}", float(ts[k]), 3, False, tuple(pos[i, k]),
+                              (sigma,) * 3, (0.0, 0.0, 0.0), None) for i in range(n)]))
+        if k + 1 < len(ts):
+            snap = tr.snapshot(ts[k + 1], detail=False)
+            order = {name: j for j, name in enumerate(snap.ids)}
+            pred[:, k + 1] = snap.pos[[order[f"t{i}"] for i in range(n)]]
+    first = np.zeros(n)
+    return (held.score(pred, pos, ts, first)["rms"]
+            / held.score(held.linear(ts, pos), pos, ts, first)["rms"])
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("what", choices=("heldout", "a"))
+    args = p.parse_args()
+    if args.what == "heldout":
+        ts, pos, _ = held.generate(50, 1, 0, 120.0)
+        print("RMS / linear extrapolation's, 50 aircraft, 120 s, seed 0")
+        print(f"{'variant':<34}{'filter':<8}{'sigma 0':>9}{'sigma 1':>9}")
+        for label, adjust in (("noise check (the service)", ADJUST),
+                              ("measured noise not used", no_use),
+                              ("no covariance inflation", no_inflation)):
+            noise_check.NoiseCheck.adjust = adjust
+            for name in ("imm", "cv", "ca"):
+                r = [heldout(FilterSpec(name), s, ts, pos) for s in (0.0, 1.0)]
+                print(f"{label:<34}{name:<8}{r[0]:>9.3f}{r[1]:>9.3f}", flush=True)
+        noise_check.NoiseCheck.adjust = ADJUST
+        return
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import imm_design  # noqa: PLC0415
+
+    def a_rms(tr: Tracker) -> float:
+        return imm_design.run("display", 1, tr)["frame RMS"]
+
+    print(f"ca (plain CA filter): {a_rms(imm_design.tracker(None, FilterSpec('ca'))):.4f} m")
+    tr = imm_design.tracker(None)
+    rms, sensor = a_rms(tr), tr.noise.sensors["s"]
+    print(f"default IMM as the service builds it: {rms:.4f} m; the noise check: reported "
+          f"{tr.noise.status() or 'nothing'}, jitter "
+          f"{np.sqrt(np.median(list(sensor.res)) / noise_check.CHI2_1_MEDIAN):.1e} m, "
+          f"mean NIS per axis {np.mean(list(sensor.nis)):.2f}")
+    for kw in ({}, {"ca_q": 0.05}, {"ca_q": 0.2}, {"ca_q": 0.3}, {"ca_q": 0.5},
+               {"ca_q": 0.3, "manoeuvre_sojourn": 30.0}, {"q": 0.75}):
+        print(f"default IMM {kw or ''}: {a_rms(imm_design.tracker(ModeSet(**kw).imm())):.4f} m",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()
