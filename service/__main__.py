@@ -11,9 +11,11 @@ import threading
 import uuid
 
 from . import __version__, defaults
+from .estimation import imm_jit, jit
 from .estimation.catalog import FILTERS, FilterSpec
 from .node import TrackService
 from .state import StateFile
+from .tracking import frame
 from .tracking.association import SensorModels
 from .tracking.display import DisplayConfig
 from .tracking.tracker import Tracker, TrackerConfig
@@ -192,14 +194,12 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     tracker = Tracker(tracker_config(args))
-    # the filter's kernels before the service is seen to be alive: compiled on a machine's
-    # first start (seconds: say so), loaded from Numba's cache after
-    note = threading.Timer(1.0, lambda: print(
+    # the compiled kernels: a realtime service is alive at once on their NumPy forms and
+    # takes the compiled ones when ready (a machine's first start compiles them in a child
+    # process); lockstep outputs are a function of the inputs alone, so it waits for them
+    jit.prepare([imm_jit, frame], wait=args.clock == "lockstep", slow=lambda: print(
         "track-service: compiling the filter kernels (the first start on this machine "
         "only)...", file=sys.stderr, flush=True))
-    note.start()
-    tracker.warm()
-    note.cancel()
     # lockstep drops nothing: BLOCK puts wait for a slow subscriber
     session = open_session(args, serve=True, block=args.clock == "lockstep",
                            admin=True, stamp=True)

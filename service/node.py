@@ -26,6 +26,7 @@ from typing import Any
 import zenoh
 
 from . import __version__, defaults
+from .estimation import jit
 from .inputs import Inputs
 from .outputs import MSGPACK, Publisher
 from .tracking.bulk import Rows
@@ -351,6 +352,7 @@ class TrackService(Inputs):
             "tracks": len(self.tracker), "meas_accepted": c.meas_accepted,
             "meas_rejected": c.meas_rejected, "frames_published": c.frames_published,
             "uptime_s": time.monotonic() - self.started, "version": __version__,
+            "kernels": jit.state(),
             "protocol": PROTOCOL_VERSION, "instance": self.instance,
             "clock": type(self.clock).__name__.lower(),
             "rate": self.rate, "meas_lost": c.meas_lost, "frames_missed": c.frames_missed,

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from .. import defaults
-from . import imm_jit, kalman, models
+from . import imm_jit, jit, kalman, models
 from .batch import einsum
 from .filters import Convert, Result, moments, predict
 from .ucm import CMKFConversion
@@ -140,7 +140,7 @@ class IMM:
         return c, x0, p0
 
     def update(self, arrays: Any, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
-        if isinstance(convert, CMKFConversion) and imm_jit.applies(self):
+        if jit.ready() and isinstance(convert, CMKFConversion) and imm_jit.applies(self):
             return imm_jit.step(self, arrays, rows, dt, convert.batch)  # the same, compiled
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
@@ -177,11 +177,6 @@ class IMM:
         rbar = einsum("nj,jnab->nab", c, np.stack(rs))
         _, _, nis, _ = kalman.update(xbar, pbar, z, rbar)
         return x, p, nis, ok
-
-    def warm(self) -> None:
-        """Compile the update's kernel, or load it from its cache (`imm_jit.warm`)."""
-        if imm_jit.applies(self):
-            imm_jit.warm()
 
     def inflate(self, arrays: Any, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the combined covariances of rows (the spread of a PDA

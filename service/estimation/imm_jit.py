@@ -7,8 +7,10 @@ sources are there) and written back in place; the loop releases the GIL (`nogil`
 the frame sender and Zenoh's threads run beside it.
 
 Compiled once per machine and cached (`cache=True`: beside the kernels, or in the
-user's cache directory where that is not writable); `warm` compiles or loads it before
-a service says it is ready (about 10 s the first time on a 2-core machine, 0.5 s after).
+user's cache directory where that is not writable); `warm` compiles or loads it. The
+service does so in the background (`jit.prepare`) and `IMM.update` calls `step` only once
+`jit.ready()`; until then its own NumPy code serves. Importing this module does not import
+Numba: the kernels are imported when first used.
 """
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from .imm_kernel import BLOCK
-from .imm_kernel import update_rows as _rows
 from .measurements import MeasurementBatch
+
+BLOCK = 16  # rows per block (imm_kernel.BLOCK; tests/test_imm_jit.py checks they agree)
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 __all__ = ["BLOCK", "applies", "design", "step", "warm"]
@@ -42,8 +44,10 @@ def step(imm: Any, arrays: Any, rows: np.ndarray, dt: np.ndarray,
     xn, pn = np.empty((k, n)), np.empty((k, n, n))
     nis, ok = np.empty(k), np.empty(k, dtype=np.bool_)
     if k:
+        from .imm_kernel import update_rows
+
         tau, dest, kinds, qs = design(imm)
-        _rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
+        update_rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
               np.ascontiguousarray(rows, dtype=np.int64),
               np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,))),
               tau, dest, kinds, qs, np.ascontiguousarray(batch.polar),
@@ -75,12 +79,13 @@ def design(imm: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 def warm() -> None:
     """Compile the kernel (or load it from the cache) on a tiny problem."""
     from .imm import ModeSet
+    from .imm_kernel import update_rows
 
     imm = ModeSet().imm()
     for d in (2, 3):
         n, m = 3 * d, len(imm.modes)
         mode_x, mode_p = np.zeros((1, m, n)), np.tile(np.eye(n) * 100.0, (1, m, 1, 1))
-        _rows(mode_x, mode_p, np.full((1, m), 1.0 / m), np.zeros(1, np.int64), np.ones(1),
-              *design(imm), np.ones(1, np.bool_), np.full((d, 1), 1e3),
-              np.full((d, 1), 0.01), np.zeros((3, 1)), np.empty((1, n)),
-              np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))
+        update_rows(mode_x, mode_p, np.full((1, m), 1.0 / m), np.zeros(1, np.int64),
+                    np.ones(1), *design(imm), np.ones(1, np.bool_), np.full((d, 1), 1e3),
+                    np.full((d, 1), 0.01), np.zeros((3, 1)), np.empty((1, n)),
+                    np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))

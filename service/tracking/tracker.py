@@ -168,13 +168,6 @@ class Tracker:
                                           for k, v in zip(ok.tolist(), nis.tolist(),
                                                           strict=True)], xn, pn)
 
-    def warm(self) -> None:
-        """Compile the filter's kernels (or load them from their cache) before the first
-        measurement: seconds on a machine's first start, then a fraction of one."""
-        warm = getattr(self.updater, "warm", None)
-        if warm is not None:
-            warm()
-
     def update_rows(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predict and update `rows` of `arrays` with `batch` (row i with measurement i):
