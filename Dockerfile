@@ -10,9 +10,9 @@ COPY pyproject.toml README.md ./
 COPY service ./service
 COPY clients ./clients
 RUN pip install . && rm -rf /src
-# compile the IMM kernel once into the image (Numba's cache beside the installed
-# package): each container starts in half a second instead of compiling for ~10 s
-RUN python -c "from service.estimation import imm_jit; imm_jit.warm()"
+# compile the kernels once into the image (Numba's cache beside the installed package):
+# each container's service takes them within a second instead of compiling them itself
+RUN python -m service.estimation.jit service.estimation.imm_jit service.tracking.frame
 WORKDIR /
 # no default command: each compose service names its console script
 CMD ["track-service", "--help"]

@@ -13,7 +13,9 @@ import uuid
 from . import __version__, defaults
 from .adapter import TrackService
 from .adapter.state import StateFile
+from .estimation import imm_jit, jit
 from .estimation.catalog import FILTERS, FilterSpec
+from .tracking import frame
 from .tracking.display import DisplayConfig
 from .tracking.plot_association import SensorModels
 from .tracking.tracker import SCAN_ASSOCIATORS, Tracker, TrackerConfig
@@ -196,14 +198,12 @@ def main(argv: list[str] | None = None) -> None:
     # kernels are compiled: a refused or unreachable router is said at once
     session = open_session(args, serve=True, block=args.clock == "lockstep",
                            admin=True, stamp=True)
-    # the filter's kernels before the service is seen to be alive: compiled on a machine's
-    # first start (seconds: say so), loaded from Numba's cache after
-    note = threading.Timer(1.0, lambda: print(
+    # the compiled kernels: a realtime service is alive at once on their NumPy forms and
+    # takes the compiled ones when ready (a machine's first start compiles them in a child
+    # process); lockstep outputs are a function of the inputs alone, so it waits for them
+    jit.prepare([imm_jit, frame], wait=args.clock == "lockstep", slow=lambda: print(
         "track-service: compiling the filter kernels (the first start on this machine "
         "only)...", file=sys.stderr, flush=True))
-    note.start()
-    tracker.warm()
-    note.cancel()
     svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),

@@ -101,11 +101,13 @@ def make_tracker(order: int = 2, q: float | None = None, **kw: Any) -> Tracker:
 
 @pytest.fixture(scope="session", autouse=True)
 def compiled_kernels() -> None:
-    """Compile the IMM kernel once, before any service process starts (on a fresh clone
-    it takes seconds; the processes then load it from the cache)."""
-    from service.estimation import imm_jit
+    """Compile the kernels once, before any service process starts (on a fresh clone it
+    takes tens of seconds; the processes then load them from the cache), and let them
+    serve in this process as in a service."""
+    from service.estimation import imm_jit, jit
+    from service.tracking import frame
 
-    imm_jit.warm()
+    jit.load([imm_jit, frame])
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

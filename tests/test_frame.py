@@ -151,3 +151,27 @@ def test_update_time_deleter_takes_the_tracks_the_plain_rule_takes():
         got = [k for k in deleter.delete_tracks(tr.store, now) if k in arrays.live()[1]]
         assert got == plain
     assert UpdateTimeDeleter(2.0).delete_tracks(Tracker().store, 1e9) == []
+
+
+@pytest.mark.parametrize("order,dim", [(3, 3), (3, 2), (2, 3), (2, 2)])
+def test_the_plain_draw_that_serves_before_the_compiled_one_gives_the_same_bits(order, dim):
+    """`frame.draw_plain` (NumPy, serving while the kernels compile: `estimation.jit`)
+    against the compiled `frame_kernel.draw` on random columns, rows in any order, times
+    before and after the tracks' own, a negative variance clipped."""
+    from service.tracking.frame_kernel import draw
+
+    rng = np.random.default_rng(order * 10 + dim)
+    cap, n = 300, order * dim
+    x, tt = rng.normal(0, 1e4, (n, cap)), rng.uniform(0, 100, cap)
+    a = rng.normal(0, 50, (len(frame.AXIS_ENTRIES[order]), cap)) ** 2
+    a[0, :5] = -1e9  # a variance below zero: sigma 0
+    base, limit = rng.integers(0, 3, cap).astype(np.uint8), rng.uniform(0.5, 5, cap)
+    rows = rng.permutation(cap)[:200].astype(np.int64)
+    outs = []
+    for fn in (draw, frame.draw_plain):
+        got = (np.zeros((200, 3)), np.zeros((200, 3)), np.empty(200), np.empty(200),
+               np.empty(200, np.uint8))
+        fn(x, tt, a, base, limit, rows, 60.0, 0.7, dim, order, *got)
+        outs.append(got)
+    for fast, plain in zip(*outs, strict=True):
+        np.testing.assert_array_equal(fast, plain)

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from .. import __version__
+from ..estimation import jit
 from ..wire import PROTOCOL_VERSION, Keys, pack
 from .admit import Admit
 from .ingest import Ingest, Query
@@ -36,6 +37,7 @@ class Queries:
             "tracks": len(self.tracking), "meas_accepted": c.meas_accepted,
             "meas_rejected": c.meas_rejected, "frames_published": c.frames_published,
             "uptime_s": time.monotonic() - self.started, "version": __version__,
+            "kernels": jit.state(),
             "protocol": PROTOCOL_VERSION, "instance": self.instance,
             "clock": self.clock.name,
             "rate": self.rate, "meas_lost": c.meas_lost, "frames_missed": c.frames_missed,

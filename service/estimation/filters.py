@@ -78,9 +78,6 @@ class SingleModelFilter:
     def labels(self, arrays: Rows, rows: np.ndarray) -> list[str]:
         return [self.kind] * len(rows)
 
-    def warm(self) -> None:
-        """Nothing to compile: NumPy only."""
-
 
 def cmkf_step(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: int,
               q: float | np.ndarray, batch: MeasurementBatch) -> Result:

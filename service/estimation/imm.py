@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from .. import defaults
-from . import imm_jit, kalman, models
+from . import imm_jit, jit, kalman, models
 from .batch import einsum
 from .filters import Convert, Result, Rows, moments, predict
 from .ucm import CMKFConversion
@@ -162,7 +162,7 @@ class IMM:
         return c, x0, p0
 
     def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
-        if isinstance(convert, CMKFConversion) and imm_jit.applies(self):
+        if jit.ready() and isinstance(convert, CMKFConversion) and imm_jit.applies(self):
             return imm_jit.step(self, arrays, rows, dt, convert.batch)  # the same, compiled
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
@@ -245,11 +245,6 @@ class IMM:
                 return np.logaddexp(np.log1p(-w[ti]) + ll, np.log(w[ti]) + loglik)
 
         return mean[:, :d], cross, likelihood
-
-    def warm(self) -> None:
-        """Compile the update's kernel, or load it from its cache (`imm_jit.warm`)."""
-        if imm_jit.applies(self):
-            imm_jit.warm()
 
     def inflate(self, arrays: Rows, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the combined covariances of rows (the spread of a PDA

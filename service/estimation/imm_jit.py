@@ -7,8 +7,10 @@ sources are there) and written back in place; the loop releases the GIL (`nogil`
 the frame sender and Zenoh's threads run beside it.
 
 Compiled once per machine and cached (`cache=True`: beside the kernels, or in the
-user's cache directory where that is not writable); `warm` compiles or loads it before
-a service says it is ready (about 10 s the first time on a 2-core machine, 0.5 s after).
+user's cache directory where that is not writable); `warm` compiles or loads it. The
+service does so in the background (`jit.prepare`) and `IMM.update` calls `step` only once
+`jit.ready()`; until then its own NumPy code serves. Importing this module does not import
+Numba: the kernels are imported when first used.
 """
 
 from __future__ import annotations
@@ -17,8 +19,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .imm_kernel import BLOCK
-from .imm_kernel import update_rows as _rows
 from .measurements import MeasurementBatch
 
 if TYPE_CHECKING:
@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from .imm import IMM
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+BLOCK = 16  # rows per block (imm_kernel.BLOCK; tests/test_imm_jit.py checks they agree)
 __all__ = ["BLOCK", "applies", "design", "step", "warm"]
 
 
@@ -46,6 +47,8 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
     xn, pn = np.empty((k, n)), np.empty((k, n, n))
     nis, ok = np.empty(k), np.empty(k, dtype=np.bool_)
     if k:
+        from .imm_kernel import update_rows as _rows
+
         tau, dest, kinds, qs = design(imm)
         _rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
               np.ascontiguousarray(rows, dtype=np.int64),
@@ -79,6 +82,7 @@ def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 def warm() -> None:
     """Compile the kernel (or load it from the cache) on a tiny problem."""
     from .imm import ModeSet
+    from .imm_kernel import update_rows as _rows
 
     imm = ModeSet().imm()
     for d in (2, 3):

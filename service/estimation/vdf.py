@@ -123,8 +123,5 @@ class VDF:
         """The tracker added dp to the covariances of rows: the history keeps the
         filtered states as they were."""
 
-    def warm(self) -> None:
-        """Nothing to compile: NumPy only."""
-
     def labels(self, arrays: Rows, rows: np.ndarray) -> list[str]:
         return ["ca" if ca else "cv" for ca in arrays.ca[rows].tolist()]

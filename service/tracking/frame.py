@@ -19,11 +19,9 @@ here, not the 25 ns `pow` per row that `predicted_at` calls).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import njit
 
+from ..estimation import jit
 from .status import COASTING
 from .store import Columns, TrackArrays
 
@@ -135,41 +133,52 @@ class FrameColumns:
     def _chunk(self, rows: np.ndarray, t: float, q: float, pos: np.ndarray,
                vel: np.ndarray, sigma: np.ndarray, age: np.ndarray, codes: np.ndarray
                ) -> None:
-        """The store rows `rows` drawn at t into the outputs (`_draw`, compiled)."""
+        """The store rows `rows` drawn at t into the outputs (`frame_kernel.draw` once
+        compiled, `draw_plain` until then: the same bits)."""
         # dim q^2 / ((o - 1)!^2 (2 o - 1)), times |dt|^(2 o): as `predicted_at`
         noise = self.dim * q * q / (20.0 if self.order == 3 else 3.0)
-        _draw(self.x, self.t, self.a, self.base, self.limit, rows, t, noise, self.dim,
-              self.order, pos, vel, sigma, age, codes)
-
-
-@njit(cache=True, nogil=True)
-def _draw(x, tt, a, base, limit, rows, t, noise, d, o, pos, vel, sigma, age,
-          codes):  # pragma: no cover - compiled
-    """The columns of store rows `rows` drawn at instant t into row i of the outputs: the
-    operations of `display.predicted_at` in its order, one row at a time (the same bits:
-    no fast-math, so no operation is fused or reordered)."""
-    for i in range(len(rows)):
-        r = rows[i]
-        dt = t - tt[r]
-        if o == 3:  # pos = x0 + dt (v + a dt / 2), vel = v + dt a
-            h = dt * 0.5
-            for k in range(d):
-                pos[i, k] = (x[2 * d + k, r] * h + x[d + k, r]) * dt + x[k, r]
-                vel[i, k] = x[2 * d + k, r] * dt + x[d + k, r]
-            # A00 + dt (2 A01 + dt (A11 + A02 + dt (A12 + dt A22 / 4)))
-            w = ((((a[5, r] * dt + a[4, r]) * dt + a[3, r] + a[2, r]) * dt + a[1, r]) * dt
-                 + a[0, r])
-            g = dt * dt
-            w += g * g * g * noise  # dim q^2 |dt|^6 / 20
+        if jit.ready():
+            from .frame_kernel import draw
         else:
-            for k in range(d):
-                pos[i, k] = x[d + k, r] * dt + x[k, r]
-                vel[i, k] = x[d + k, r]
-            w = (a[2, r] * dt + a[1, r]) * dt + a[0, r]  # A00 + dt (2 A01 + dt A11)
-            g = dt * dt
-            w += g * g * noise  # dim q^2 |dt|^4 / 3
-        if w < 0.0:
-            w = 0.0
-        sigma[i] = math.sqrt(w)
-        age[i] = 0.0 if dt < 0.0 else dt
-        codes[i] = COASTING if age[i] > limit[r] else base[r]
+            draw = draw_plain
+        draw(self.x, self.t, self.a, self.base, self.limit, rows, t, noise, self.dim,
+             self.order, pos, vel, sigma, age, codes)
+
+
+def draw_plain(x: np.ndarray, tt: np.ndarray, a: np.ndarray, base: np.ndarray,
+               limit: np.ndarray, rows: np.ndarray, t: float, noise: float, d: int, o: int,
+               pos: np.ndarray, vel: np.ndarray, sigma: np.ndarray, age: np.ndarray,
+               codes: np.ndarray) -> None:
+    """`frame_kernel.draw` in NumPy, row-wise operations in the same order (the same
+    bits): it serves until the compiled draw is loaded (`estimation.jit`)."""
+    dt = t - tt[rows]
+    if o == 3:  # pos = x0 + dt (v + a dt / 2), vel = v + dt a
+        h = dt * 0.5
+        for k in range(d):
+            pos[:, k] = (x[2 * d + k, rows] * h + x[d + k, rows]) * dt + x[k, rows]
+            vel[:, k] = x[2 * d + k, rows] * dt + x[d + k, rows]
+        w = ((((a[5, rows] * dt + a[4, rows]) * dt + a[3, rows] + a[2, rows]) * dt
+              + a[1, rows]) * dt + a[0, rows])
+        g = dt * dt
+        w += g * g * g * noise
+    else:
+        for k in range(d):
+            pos[:, k] = x[d + k, rows] * dt + x[k, rows]
+            vel[:, k] = x[d + k, rows]
+        w = (a[2, rows] * dt + a[1, rows]) * dt + a[0, rows]
+        g = dt * dt
+        w += g * g * noise
+    np.sqrt(np.where(w < 0.0, 0.0, w), out=sigma)
+    np.copyto(age, np.where(dt < 0.0, 0.0, dt))
+    np.copyto(codes, np.where(age > limit[rows], COASTING, base[rows]))
+
+
+def warm() -> None:
+    """Compile the frame's draw (or load it from the cache): `jit.prepare`'s child."""
+    from .frame_kernel import draw
+
+    for o, d in ((3, 3), (2, 2)):
+        n = o * d
+        draw(np.zeros((n, 1)), np.zeros(1), np.zeros((6, 1)), np.zeros(1, np.uint8),
+             np.ones(1), np.zeros(1, np.int64), 0.5, 1.0, d, o, np.zeros((1, 3)),
+             np.zeros((1, 3)), np.empty(1), np.empty(1), np.empty(1, np.uint8))

@@ -42,10 +42,6 @@ class Updater(Protocol):
 
     def labels(self, arrays: TrackArrays, rows: np.ndarray) -> Sequence[Any]: ...
 
-    def warm(self) -> None:
-        """Compile or load what it needs before the first measurement."""
-        ...
-
 
 ScanT = TypeVar("ScanT", Labelled, Unlabelled, contravariant=True)
 PartT = TypeVar("PartT", Labelled, Detections)

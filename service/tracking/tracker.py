@@ -300,11 +300,6 @@ class Tracker:
         self.display.initiate(arrays, rows, x, p)
         return arrays, rows, reasons, x, p
 
-    def warm(self) -> None:
-        """Compile the filter's kernels (or load them from their cache) before the first
-        measurement: seconds on a machine's first start, then a fraction of one."""
-        self.updater.warm()
-
     # ------------------------------------------------------------ checkpoints
     def memory(self) -> dict[str, dict]:
         """What the tracker keeps beside the store: the track numbers given per sensor

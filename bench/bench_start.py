@@ -1,0 +1,117 @@
+"""Start-up: seconds from `track-service` to its liveliness token, on a machine's first
+start (Numba's cache empty: a fresh directory in NUMBA_CACHE_DIR) and on a warm one (the
+cache filled), and how long the first 1,000 measurements after a first start take to
+come back on `tracks/` (one burst of 1,000 labelled positions, one per target, put as
+soon as the token is seen: the backlog is the time from the first put to the last
+`tracks/` sample). A second tree (`--before PATH`, e.g. a `git worktree` of an earlier
+commit) is measured in the same run, alternately, for the ratio.
+
+    python bench/bench_start.py --runs 3 --before /tmp/before
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import zenoh
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from clients.procs import stop  # noqa: E402
+from service.wire import Keys, free_port, pack, peer_config  # noqa: E402
+
+KERNELS = ("service.estimation.imm_jit", "service.tracking.frame")
+
+
+def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
+    """(seconds to the liveliness token, seconds from the burst's first put to its last
+    `tracks/` sample; nan without a burst)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    env = {**os.environ, "NUMBA_CACHE_DIR": cache, "PYTHONPATH": str(tree)}
+    session = zenoh.open(peer_config(endpoint))
+    alive, done = threading.Event(), threading.Event()
+    got = [0]
+
+    def on_tracks(_sample: zenoh.Sample) -> None:
+        got[0] += 1
+        if got[0] >= burst:
+            done.set()
+
+    token = session.liveliness().declare_subscriber(
+        Keys("track").alive("**"), lambda s: alive.set(), history=True)
+    sub = session.declare_subscriber("track/tracks/**", on_tracks)
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "service", "-l", endpoint], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        if not alive.wait(300):
+            raise SystemExit(f"no liveliness: {stop(proc)[-2000:]}")
+        up = time.perf_counter() - t0
+        backlog = float("nan")
+        if burst:
+            t1 = time.perf_counter()
+            for k in range(burst):
+                session.put(f"track/meas/r1/b{k}", pack({
+                    "t": 0.0, "pos": [100.0 * k, 50.0, 10.0], "sigma": 10.0}))
+            if not done.wait(120):
+                raise SystemExit(f"{got[0]} of {burst} tracks/ samples")
+            backlog = time.perf_counter() - t1
+        return up, backlog
+    finally:
+        sub.undeclare()
+        token.undeclare()
+        session.close()
+        stop(proc)
+
+
+def fill(tree: Path, cache: str) -> None:
+    """Compile the kernels of `tree` into `cache` (a warm machine)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": cache, "PYTHONPATH": str(tree)}
+    code = ("from service.estimation import imm_jit; imm_jit.warm()\n"
+            "try:\n    from service.tracking import frame; frame.warm()\n"
+            "except AttributeError:\n    pass\n")  # a tree before frame.warm existed
+    subprocess.run([sys.executable, "-c", code], env=env, check=True)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=int, default=3)
+    p.add_argument("--burst", type=int, default=1000)
+    p.add_argument("--before", type=Path, help="an earlier tree, measured alternately")
+    args = p.parse_args()
+    trees = {"this": ROOT} | ({"before": args.before} if args.before else {})
+    rows: dict[str, dict[str, list[float]]] = {k: {"cold": [], "backlog": [], "warm": []}
+                                               for k in trees}
+    for run in range(args.runs):
+        for name, tree in trees.items():
+            with tempfile.TemporaryDirectory() as cache:
+                up, backlog = start(tree, cache, args.burst)
+                rows[name]["cold"].append(up)
+                rows[name]["backlog"].append(backlog)
+                fill(tree, cache)
+                rows[name]["warm"].append(start(tree, cache, 0)[0])
+            print(f"run {run + 1}: {name}: first start {up:.2f} s (first {args.burst} "
+                  f"measurements back in {backlog:.2f} s), warm start "
+                  f"{rows[name]['warm'][-1]:.2f} s", flush=True)
+    print(f"\nmedian of {args.runs} runs, {os.cpu_count()} cores")
+    print(f"{'tree':8} {'first start s':>14} {'first 1,000 s':>14} {'warm start s':>13}")
+    for name, r in rows.items():
+        print(f"{name:8} {statistics.median(r['cold']):14.2f} "
+              f"{statistics.median(r['backlog']):14.2f} {statistics.median(r['warm']):13.2f}")
+    if args.before:
+        a, b = rows["this"], rows["before"]
+        for what in ("cold", "warm"):
+            print(f"{what} start: this / before = "
+                  f"{statistics.median(a[what]) / statistics.median(b[what]):.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,60 @@
+"""A machine's first start: the service is alive and tracking at once on the kernels'
+NumPy forms while a child process compiles them (`estimation.jit`), then takes the
+compiled ones. A cold cache is made by pointing Numba at an empty directory."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+import zenoh
+from conftest import Collector
+
+from clients.procs import stop
+from service.wire import Keys, free_port, pack, peer_config, unpack, wait_for_tracker
+
+pytestmark = pytest.mark.slow
+
+
+def status(s: zenoh.Session) -> dict:
+    replies = [r for r in s.get("track/status", timeout=10.0) if r.ok is not None]
+    assert replies, "no status reply"
+    return unpack(replies[0].ok.payload.to_bytes())
+
+
+def test_a_cold_cache_serves_at_once_and_takes_the_compiled_kernels_when_ready(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "NUMBA_CACHE_DIR": str(tmp_path)}
+    proc = subprocess.Popen([sys.executable, "-m", "service", "-l", endpoint],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env)
+    s = zenoh.open(peer_config(endpoint))
+    try:
+        assert wait_for_tracker(s, Keys("track"), 1, timeout=60), stop(proc)[-3000:]
+        # alive while the child compiles: the cache was empty, compiling takes seconds
+        assert status(s)["kernels"] == "compiling"
+        got = Collector(s, "track/tracks/a1")
+        for k in range(3):
+            s.put("track/meas/r1/a1", pack({"t": float(k), "pos": [100.0 * k, 5.0, 1.0],
+                                            "sigma": 10.0}))
+        assert got.wait_for(lambda smp: len(smp) == 3)
+        assert status(s)["kernels"] == "compiling"  # tracked by the NumPy forms
+        wait(lambda: status(s)["kernels"] == "compiled", 600)
+        assert list(tmp_path.rglob("*.nbi")), "the child compiled into the cache"
+        s.put("track/meas/r1/a1", pack({"t": 3.0, "pos": [300.0, 5.0, 1.0], "sigma": 10.0}))
+        assert got.wait_for(lambda smp: len(smp) == 4)  # and the compiled kernels go on
+        assert got.bodies()[-1]["x"][0] == pytest.approx(300.0, abs=20.0)
+    finally:
+        s.close()
+        stop(proc)
+
+
+def wait(cond, timeout: float) -> None:
+    """Ask again until a condition read by a query (the status) holds."""
+    end = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.2)  # between queries: nothing announces the kernels' state
