@@ -12,7 +12,7 @@ COPY clients ./clients
 RUN pip install . && rm -rf /src
 # compile the kernels once into the image (Numba's cache beside the installed package):
 # each container's service takes them within a second instead of compiling them itself
-RUN python -m service.estimation.jit service.estimation.imm_jit service.tracking.frame
+RUN python -m zenoh_track.estimation.jit zenoh_track.estimation.imm_jit zenoh_track.tracking.frame
 WORKDIR /
 # no default command: each compose service names its console script
 CMD ["track-service", "--help"]

@@ -13,11 +13,11 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.tracking import checkpoint  # noqa: E402
-from service.tracking.batches import Labelled  # noqa: E402
-from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
-from service.wire import Measurement  # noqa: E402
+from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.tracking import checkpoint  # noqa: E402
+from zenoh_track.tracking.batches import Labelled  # noqa: E402
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from zenoh_track.wire import Measurement  # noqa: E402
 
 
 def tracker(name: str, n: int) -> Tracker:

@@ -51,14 +51,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
-from clients.progress import bar  # noqa: E402
-from service.estimation import filters, kalman, models  # noqa: E402
-from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.estimation.measurements import MeasurementBatch  # noqa: E402
-from service.estimation.ucm import cmkf_arrays  # noqa: E402
-from service.tracking.batches import Labelled  # noqa: E402
-from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
-from service.wire import Measurement  # noqa: E402
+from zenoh_track.clients.progress import bar  # noqa: E402
+from zenoh_track.estimation import filters, kalman, models  # noqa: E402
+from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.estimation.measurements import MeasurementBatch  # noqa: E402
+from zenoh_track.estimation.ucm import cmkf_arrays  # noqa: E402
+from zenoh_track.tracking.batches import Labelled  # noqa: E402
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from zenoh_track.wire import Measurement  # noqa: E402
 
 try:
     from filterpy.common import Q_continuous_white_noise

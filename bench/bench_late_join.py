@@ -24,8 +24,8 @@ from pathlib import Path
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from clients.procs import stop  # noqa: E402
-from service.wire import Keys, decode_frame, free_port, peer_config, unpack  # noqa: E402
+from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.wire import Keys, decode_frame, free_port, peer_config, unpack  # noqa: E402
 
 HOWS = ("display", "display+get", "get display", "frame", "frame+get", "get frame")
 
@@ -90,7 +90,7 @@ def join(endpoint: str, keys: Keys, n: int, how: str, limit: float) -> float | N
 def run(clock: str, targets: int, joins: int) -> dict[str, list[float | None]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     keys = Keys("latebench")
-    svc = subprocess.Popen([sys.executable, "-m", "service", "-l", endpoint, "--ns", keys.ns,
+    svc = subprocess.Popen([sys.executable, "-m", "zenoh_track", "-l", endpoint, "--ns", keys.ns,
                             "--clock", clock], stdout=subprocess.DEVNULL,
                            stderr=subprocess.DEVNULL)
     feed = None
@@ -100,7 +100,8 @@ def run(clock: str, targets: int, joins: int) -> dict[str, list[float | None]]:
         s = zenoh.open(peer_config(endpoint))
         args = ["--duration", "3"] if clock == "lockstep" else ["--duration", "3600",
                                                                  "--realtime"]
-        feed = subprocess.Popen([sys.executable, "-m", "clients.feed", "swarm", "--targets",
+        feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feed", "swarm",
+                                 "--targets",
                                  str(targets), *args, "-e", endpoint, "--ns", keys.ns],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         if clock == "lockstep":

@@ -33,9 +33,9 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from clients.procs import stop  # noqa: E402
-from clients.recording import Recording  # noqa: E402
-from service.wire import Keys, free_port, peer_config, unpack, wait_for_tracker  # noqa: E402
+from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.recording import Recording  # noqa: E402
+from zenoh_track.wire import Keys, free_port, peer_config, unpack, wait_for_tracker  # noqa: E402
 
 PY = sys.executable
 
@@ -49,7 +49,7 @@ class Service:
         self.ns, self.endpoint = ns, f"tcp/127.0.0.1:{free_port()}"
         self.log = os.path.join(logdir, f"service-{ns}.log")
         with open(self.log, "w") as log_file:  # a pipe nobody reads would fill and block it
-            self.proc = subprocess.Popen([PY, "-m", "service", "--clock", "lockstep",
+            self.proc = subprocess.Popen([PY, "-m", "zenoh_track", "--clock", "lockstep",
                                           "--no-display-keys", "-l", self.endpoint, "--ns",
                                           ns], stdout=log_file, stderr=subprocess.STDOUT)
         self.session = zenoh.open(peer_config(self.endpoint))
@@ -69,7 +69,7 @@ class Service:
 
 
 def recorder(svc: Service, path: str, *keyexprs: str) -> subprocess.Popen:
-    proc = subprocess.Popen([PY, "-m", "clients.record", "-o", path, "--mode", "client",
+    proc = subprocess.Popen([PY, "-m", "zenoh_track.clients.record", "-o", path, "--mode", "client",
                              "-e", svc.endpoint, "--ns", svc.ns, "--idle", "20", "--quiet",
                              *keyexprs], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
@@ -92,7 +92,8 @@ def finish(proc: subprocess.Popen) -> tuple[int, int, str]:
 
 def feed(svc: Service, args: argparse.Namespace) -> tuple[int, float]:
     start = time.monotonic()
-    out = subprocess.run([PY, "-m", "clients.feed", "swarm", "--targets", str(args.targets),
+    out = subprocess.run([PY, "-m", "zenoh_track.clients.feed", "swarm", "--targets",
+                          str(args.targets),
                           "--duration", str(args.duration), "-e", svc.endpoint,
                           "--ns", svc.ns, "--receipt-timeout", "7200"],
                          capture_output=True, text=True, timeout=7200)
@@ -167,7 +168,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         rec2 = recorder(svc2, second, "replay/tracks/**")
         t0 = time.monotonic()
-        out = subprocess.run([PY, "-m", "clients.replay", first, "--feed", "--remap",
+        out = subprocess.run([PY, "-m", "zenoh_track.clients.replay", first, "--feed", "--remap",
                               "track=replay", "--fast", "-e", svc2.endpoint,
                               "--receipt-timeout", "7200"],
                              stdout=subprocess.PIPE, text=True, timeout=7200)

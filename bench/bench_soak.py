@@ -45,8 +45,8 @@ import zenoh
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from clients.procs import stop  # noqa: E402
-from service.wire import Keys, free_port, pack, quick_retry, unpack  # noqa: E402
+from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.wire import Keys, free_port, pack, quick_retry, unpack  # noqa: E402
 
 DEPLOY = ROOT / "deploy"
 DELETE_AFTER = 12.0  # s: ghosts go this long after their last measurement (> the outage
@@ -143,7 +143,7 @@ class SlowSubscriber:
 
 
 def router_proc(endpoint: str) -> subprocess.Popen:
-    p = subprocess.Popen([sys.executable, "-m", "service.router", "-c",
+    p = subprocess.Popen([sys.executable, "-m", "zenoh_track.router", "-c",
                           str(DEPLOY / "router.json5"), "-l", endpoint],
                          stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     if "listening" not in p.stdout.readline():
@@ -172,7 +172,7 @@ def run(minutes: float, targets: int, outage: float = 3.0, slow_ms: float = 2.0,
     rep: dict[str, Any] = {"minutes": minutes, "targets": targets}
     try:
         svc = subprocess.Popen(
-            [sys.executable, "-m", "service", "-c", str(DEPLOY / "shard-a.json5"), "-e",
+            [sys.executable, "-m", "zenoh_track", "-c", str(DEPLOY / "shard-a.json5"), "-e",
              endpoint, "--ns", keys.ns, "--instance", "soak", "--delete-after",
              str(DELETE_AFTER),
              "--state", str(state)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -183,7 +183,7 @@ def run(minutes: float, targets: int, outage: float = 3.0, slow_ms: float = 2.0,
         obs = Observer(obs_s, keys)
         slow = SlowSubscriber(slow_s, keys, slow_ms)
         feed = subprocess.Popen(
-            [sys.executable, "-m", "clients.feed", "swarm", "--targets", str(targets),
+            [sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(targets),
              "--duration", str(duration + 60), "--realtime", "-c",
              str(DEPLOY / "client.json5"), "-e", endpoint, "--ns", keys.ns],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

@@ -25,10 +25,10 @@ import zenoh
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from clients.procs import stop  # noqa: E402
-from service.wire import Keys, free_port, pack, peer_config  # noqa: E402
+from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.wire import Keys, free_port, pack, peer_config  # noqa: E402
 
-KERNELS = ("service.estimation.imm_jit", "service.tracking.frame")
+KERNELS = ("zenoh_track.estimation.imm_jit", "zenoh_track.tracking.frame")
 
 
 def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
@@ -49,7 +49,7 @@ def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
         Keys("track").alive("**"), lambda s: alive.set(), history=True)
     sub = session.declare_subscriber("track/tracks/**", on_tracks)
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "service", "-l", endpoint], env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "zenoh_track", "-l", endpoint], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         if not alive.wait(300):
@@ -75,8 +75,8 @@ def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
 def fill(tree: Path, cache: str) -> None:
     """Compile the kernels of `tree` into `cache` (a warm machine)."""
     env = {**os.environ, "NUMBA_CACHE_DIR": cache, "PYTHONPATH": str(tree)}
-    code = ("from service.estimation import imm_jit; imm_jit.warm()\n"
-            "try:\n    from service.tracking import frame; frame.warm()\n"
+    code = ("from zenoh_track.estimation import imm_jit; imm_jit.warm()\n"
+            "try:\n    from zenoh_track.tracking import frame; frame.warm()\n"
             "except AttributeError:\n    pass\n")  # a tree before frame.warm existed
     subprocess.run([sys.executable, "-c", code], env=env, check=True)
 

@@ -17,8 +17,8 @@ wins). Frames offered per second are counted by track-web (`/api/health`).
 Sources of the `<ns>/frame` key at 30 Hz:
 - `frames`: this process publishes frames in the contract's format (N tracks on straight
   lines, all three statuses) from a Zenoh peer on loopback: the page alone is measured;
-- `service`: `python -m service --clock realtime --filter cv --no-display-keys` fed by
-  `python -m clients.feed swarm --targets N --realtime` (or `--feed`): the whole chain,
+- `service`: `python -m zenoh_track --clock realtime --filter cv --no-display-keys` fed by
+  `python -m zenoh_track.clients.feed swarm --targets N --realtime` (or `--feed`): the whole chain,
   sharing the cores with the service (0.6 of a core at 10,000 targets,
   docs/performance.md).
 
@@ -41,8 +41,8 @@ import urllib.request
 import numpy as np
 import zenoh
 
-from clients.procs import stop
-from service.wire import Keys, free_port, pack, peer_config, unpack
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import Keys, free_port, pack, peer_config, unpack
 
 CHROMIUM = "/usr/bin/chromium"
 # no sandbox (root in CI), software drawing, nothing fetched from the network
@@ -178,13 +178,15 @@ def run(n: int, source: str, args: argparse.Namespace, playwright) -> dict:
         if source == "frames":
             publisher = FramePublisher(endpoint, n)
         else:
-            procs.append(subprocess.Popen([PY, "-m", "service", "--clock", "realtime",
+            procs.append(subprocess.Popen([PY, "-m", "zenoh_track", "--clock", "realtime",
                                            *args.service.split(), "--no-display-keys",
                                            "--instance", "bench-web", "-l", endpoint]))
             procs.append(subprocess.Popen(
-                [PY, "-m", "clients.feed", *args.feed.format(n=n).split(), "-e", endpoint],
+                [PY, "-m", "zenoh_track.clients.feed", *args.feed.format(n=n).split(), "-e",
+                 endpoint],
                 stdout=subprocess.DEVNULL))
-        procs.append(subprocess.Popen([PY, "-m", "clients.web", "-e", endpoint, "--port",
+        procs.append(subprocess.Popen([PY, "-m", "zenoh_track.clients.web", "-e", endpoint,
+                                       "--port",
                                        str(port)], stderr=subprocess.DEVNULL))
         wait_http(f"http://127.0.0.1:{port}/api/health")
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)

@@ -23,7 +23,7 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
-from service.wire import Keys, add_zenoh_args, pack, unpack, zenoh_config  # noqa: E402
+from zenoh_track.wire import Keys, add_zenoh_args, pack, unpack, zenoh_config  # noqa: E402
 
 CHANNEL = 1 << 13  # as the service's measurement channel
 

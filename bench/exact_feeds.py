@@ -4,7 +4,7 @@ service's tracker without Zenoh; `track-eval heldout` measures the service itsel
     python bench/exact_feeds.py heldout   # the held-out measure: the noise check's parts
     python bench/exact_feeds.py a         # scenario A: the default IMM's CA noise and sojourn
 
-`heldout`: 50 aircraft (`clients.evaluate_heldout.generate`, seed 0, 120 s), every other
+`heldout`: 50 aircraft (`zenoh_track.clients.evaluate_heldout.generate`, seed 0, 120 s), every other
 position sent with sigma 0 or 1 m, the frame 1 s later against the position held out,
 RMS as a multiple of linear extrapolation's; with the noise check as in the service,
 without using the measured noise, and without the one-time covariance inflation.
@@ -22,13 +22,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from clients import evaluate_heldout as held  # noqa: E402
-from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.estimation.imm import ModeSet  # noqa: E402
-from service.tracking import noise_check  # noqa: E402
-from service.tracking.batches import Labelled  # noqa: E402
-from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
-from service.wire import Measurement  # noqa: E402
+from zenoh_track.clients import evaluate_heldout as held  # noqa: E402
+from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.estimation.imm import ModeSet  # noqa: E402
+from zenoh_track.tracking import noise_check  # noqa: E402
+from zenoh_track.tracking.batches import Labelled  # noqa: E402
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from zenoh_track.wire import Measurement  # noqa: E402
 
 ADJUST = noise_check.NoiseCheck.adjust
 

@@ -25,12 +25,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from imm_design import measurement, tracker, variant  # noqa: E402
 
-from clients import scenarios  # noqa: E402
-from service.estimation import models  # noqa: E402
-from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.estimation.imm import IMM, ModeSet  # noqa: E402
-from service.tracking.batches import Labelled  # noqa: E402
-from service.tracking.tracker import Tracker  # noqa: E402
+from zenoh_track.clients import scenarios  # noqa: E402
+from zenoh_track.estimation import models  # noqa: E402
+from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.estimation.imm import IMM, ModeSet  # noqa: E402
+from zenoh_track.tracking.batches import Labelled  # noqa: E402
+from zenoh_track.tracking.tracker import Tracker  # noqa: E402
 
 PHASES = scenarios.ManeuverC.phases
 ONSET = 378.0  # s: the last scan of C's first straight leg, before the slow turn

@@ -22,16 +22,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from service.estimation import imm_jit  # noqa: E402
-from service.estimation.imm import IMM, ModeSet  # noqa: E402
-from service.estimation.measurements import MeasurementBatch  # noqa: E402
-from service.estimation.ucm import CMKFConversion  # noqa: E402
-from service.tracking.batches import Labelled  # noqa: E402
-from service.tracking.display import DISPLAY_COLUMNS  # noqa: E402
-from service.tracking.life import LIFE_COLUMNS  # noqa: E402
-from service.tracking.store import TrackStore  # noqa: E402
-from service.tracking.tracker import Tracker  # noqa: E402
-from service.wire import Measurement  # noqa: E402
+from zenoh_track.estimation import imm_jit  # noqa: E402
+from zenoh_track.estimation.imm import IMM, ModeSet  # noqa: E402
+from zenoh_track.estimation.measurements import MeasurementBatch  # noqa: E402
+from zenoh_track.estimation.ucm import CMKFConversion  # noqa: E402
+from zenoh_track.tracking.batches import Labelled  # noqa: E402
+from zenoh_track.tracking.display import DISPLAY_COLUMNS  # noqa: E402
+from zenoh_track.tracking.life import LIFE_COLUMNS  # noqa: E402
+from zenoh_track.tracking.store import TrackStore  # noqa: E402
+from zenoh_track.tracking.tracker import Tracker  # noqa: E402
+from zenoh_track.wire import Measurement  # noqa: E402
 
 
 def swarm(n: int, t: float, rng: np.random.Generator) -> list[Measurement]:

@@ -19,14 +19,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from clients import metrics, scenarios  # noqa: E402
-from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.estimation.imm import IMM, ModeSet, standard_modes  # noqa: E402
-from service.tracking.batches import Labelled  # noqa: E402
-from service.tracking.display import DisplayState  # noqa: E402
-from service.tracking.store import TrackStore  # noqa: E402
-from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
-from service.wire import Measurement  # noqa: E402
+from zenoh_track.clients import metrics, scenarios  # noqa: E402
+from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.estimation.imm import IMM, ModeSet, standard_modes  # noqa: E402
+from zenoh_track.tracking.batches import Labelled  # noqa: E402
+from zenoh_track.tracking.display import DisplayState  # noqa: E402
+from zenoh_track.tracking.store import TrackStore  # noqa: E402
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from zenoh_track.wire import Measurement  # noqa: E402
 
 
 def variant(**changes: object) -> IMM:

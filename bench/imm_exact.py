@@ -38,12 +38,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from imm_consistency import nees  # noqa: E402
 from imm_design import measurement, tracker  # noqa: E402
 
-from clients import metrics, scenarios  # noqa: E402
-from service import defaults  # noqa: E402
-from service.estimation import models  # noqa: E402
-from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.estimation.imm import IMM, ModeSet  # noqa: E402
-from service.tracking.batches import Labelled  # noqa: E402
+from zenoh_track import defaults  # noqa: E402
+from zenoh_track.clients import metrics, scenarios  # noqa: E402
+from zenoh_track.estimation import models  # noqa: E402
+from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.estimation.imm import IMM, ModeSet  # noqa: E402
+from zenoh_track.tracking.batches import Labelled  # noqa: E402
 
 C = scenarios.ManeuverC
 EPS = 0.2  # share of the proposal spread evenly over the modes

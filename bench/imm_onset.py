@@ -20,10 +20,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import imm_design as design  # noqa: E402
 import manoeuvres as bench  # noqa: E402
 
-from clients import manoeuvre_score as ms  # noqa: E402
-from clients.manoeuvres import Manoeuvres  # noqa: E402
-from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.estimation.imm import ModeSet  # noqa: E402
+from zenoh_track.clients import manoeuvre_score as ms  # noqa: E402
+from zenoh_track.clients.manoeuvres import Manoeuvres  # noqa: E402
+from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.estimation.imm import ModeSet  # noqa: E402
 
 RUNS = {"display": 1, "radar3d": 100, "maneuver": 20}
 

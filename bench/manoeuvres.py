@@ -26,17 +26,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from clients import manoeuvre_score as ms  # noqa: E402
-from clients.manoeuvres import Manoeuvres  # noqa: E402
-from service import defaults  # noqa: E402
-from service.estimation.catalog import FilterSpec  # noqa: E402
-from service.estimation.imm import ModeSet  # noqa: E402
-from service.tracking.batches import Labelled, Unlabelled  # noqa: E402
-from service.tracking.display import DISPLAY_COLUMNS  # noqa: E402
-from service.tracking.life import LIFE_COLUMNS  # noqa: E402
-from service.tracking.store import TrackStore  # noqa: E402
-from service.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
-from service.wire import Measurement  # noqa: E402
+from zenoh_track import defaults  # noqa: E402
+from zenoh_track.clients import manoeuvre_score as ms  # noqa: E402
+from zenoh_track.clients.manoeuvres import Manoeuvres  # noqa: E402
+from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.estimation.imm import ModeSet  # noqa: E402
+from zenoh_track.tracking.batches import Labelled, Unlabelled  # noqa: E402
+from zenoh_track.tracking.display import DISPLAY_COLUMNS  # noqa: E402
+from zenoh_track.tracking.life import LIFE_COLUMNS  # noqa: E402
+from zenoh_track.tracking.store import TrackStore  # noqa: E402
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from zenoh_track.wire import Measurement  # noqa: E402
 
 A_MAX = 7 * 9.80665
 SIGMA = 1.5e-3 * 36_000.0  # m: the radar's cross-range noise at the aircraft's distance

@@ -54,9 +54,9 @@ class Stopwatch:
 
 
 def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) -> None:
-    from service.tracking.batches import Instant
-    from service.wire import Keys, free_port, pack, peer_config
-    from service.wire.session import admin_space
+    from zenoh_track.tracking.batches import Instant
+    from zenoh_track.wire import Keys, free_port, pack, peer_config
+    from zenoh_track.wire.session import admin_space
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     conf = zenoh.Config()

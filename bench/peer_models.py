@@ -1,5 +1,5 @@
 """Motion models shared by the benchmarks' peers: Stone Soup's constant-velocity model,
-the continuous white-acceleration model of `service.estimation.models` (Bar-Shalom, Li &
+the continuous white-acceleration model of `zenoh_track.estimation.models` (Bar-Shalom, Li &
 Kirubarajan 2001, sec. 6.2.2), with the density ours takes over a step T, q^2 |T|
 (noise_diff_coeff = q^2), so that both sides filter with the same model. None when Stone
 Soup (the bench extra) is not installed."""

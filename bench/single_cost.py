@@ -22,7 +22,7 @@ import zenoh
 
 CONSUMER = """
 import sys, zenoh
-from service.wire import peer_config
+from zenoh_track.wire import peer_config
 s = zenoh.open(peer_config("{ep}"))
 n = [0]
 sub = s.declare_subscriber("{key}", zenoh.handlers.Callback(
@@ -42,8 +42,8 @@ def start_consumer(ep: str, key: str) -> subprocess.Popen:
 def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any:
     """A `TrackService` (no flags, realtime, its worker not started) on `session`, once
     the consumer is up and the service sees its subscription."""
-    from service.adapter import TrackService
-    from service.tracking.tracker import Tracker
+    from zenoh_track.adapter import TrackService
+    from zenoh_track.tracking.tracker import Tracker
 
     consumer.stdout.readline()  # type: ignore[union-attr]
     svc = TrackService(session, keys, Tracker(), clock="realtime")
@@ -55,8 +55,8 @@ def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any
 
 
 def single_cost(sizes: list[int], log: Any, scans: int = 5) -> None:
-    from service.adapter.ingest import MAX_BATCH, Singles
-    from service.wire import Keys, free_port, listen_config, pack, unpack
+    from zenoh_track.adapter.ingest import MAX_BATCH, Singles
+    from zenoh_track.wire import Keys, free_port, listen_config, pack, unpack
 
     clock = time.thread_time
     log(f"single-message cost: the worker's CPU per message (no flags, batches of "
@@ -113,10 +113,10 @@ def step_cost(log: Any, tracks: int = 10_000, sizes: tuple[int, ...] = (1, 64, 3
     """CPU of one pass of labelled rows (`Tracker.step`, the default IMM) at
     `tracks` tracks, by the rows in the pass: the fixed cost of a worker step, which
     decides the latency of small batches (a sector of 10,000 targets in 32 is 312)."""
-    from service.estimation.measurements import MeasurementBatch
-    from service.tracking.batches import Labelled
-    from service.tracking.tracker import Tracker
-    from service.wire import Measurement
+    from zenoh_track.estimation.measurements import MeasurementBatch
+    from zenoh_track.tracking.batches import Labelled
+    from zenoh_track.tracking.tracker import Tracker
+    from zenoh_track.wire import Measurement
 
     rng = np.random.default_rng(0)
     r, az = rng.uniform(5e3, 8e4, tracks), rng.uniform(-3, 3, tracks)

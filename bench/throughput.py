@@ -36,8 +36,8 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from clients.procs import stop  # noqa: E402
-from service.wire import Keys, free_port, listen_config, peer_config, wait_for_tracker  # noqa: E402
+from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.wire import Keys, free_port, listen_config, peer_config, wait_for_tracker  # noqa: E402
 
 
 class Replies:
@@ -72,7 +72,7 @@ def one(cmd: list[str], n: int, scans: int, batched: bool, log: Any) -> dict[str
             raise RuntimeError(f"{cmd} did not come up: {stop(proc)[-500:]}")
         replies = Replies(session, keys)
         time.sleep(0.5)
-        feed = [sys.executable, "-m", "clients.feed", "swarm", "--targets", str(n),
+        feed = [sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(n),
                 "--duration", str(scans - 1), "--sectors", "1", "-e", endpoint, "--ns", ns]
         t0 = time.monotonic()
         done = subprocess.run(feed + (["--batched"] if batched else []), cwd=ROOT,
@@ -93,7 +93,7 @@ def one(cmd: list[str], n: int, scans: int, batched: bool, log: Any) -> dict[str
 def throughput(args: argparse.Namespace, log: Any) -> None:
     n, scans = args.throughput, max(3, int(args.duration))
     py = sys.executable
-    service = [py, "-m", "service", "--clock", "realtime", "-l", "ENDPOINT", "--ns", "NS"]
+    service = [py, "-m", "zenoh_track", "--clock", "realtime", "-l", "ENDPOINT", "--ns", "NS"]
     runs = [("echo floor (bench/echo.py)", [py, "bench/echo.py", "-l", "ENDPOINT", "--ns",
                                              "NS"], False),
             ("service, no flags", service, False),
@@ -120,7 +120,7 @@ def throughput(args: argparse.Namespace, log: Any) -> None:
 
 FRAME_WATCHER = """
 import sys, zenoh
-from service.wire import peer_config
+from zenoh_track.wire import peer_config
 s = zenoh.open(peer_config(sys.argv[1]))
 n = [0]
 sub = s.declare_subscriber(sys.argv[2], zenoh.handlers.Callback(
@@ -142,9 +142,9 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     includes what those updates leave for it.
     Medians over `frames` frames with nobody subscribed to `frame`, then as many with a
     subscriber in another process (Zenoh's put then sends the body)."""
-    from service.adapter import TrackService
-    from service.tracking.batches import Instant, Labelled
-    from service.tracking.tracker import Tracker
+    from zenoh_track.adapter import TrackService
+    from zenoh_track.tracking.batches import Instant, Labelled
+    from zenoh_track.tracking.tracker import Tracker
 
     clock = time.thread_time
     log(f"frame cost: the worker's CPU per frame (thread time), default IMM, tracks "
@@ -217,8 +217,8 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
 
 def _swarm_batch(t: float, r: np.ndarray, az: np.ndarray, rows: Any) -> Any:
     """Radar measurements of swarm targets `rows` at time t (moving 10 m/s outwards)."""
-    from service.estimation.measurements import MeasurementBatch
-    from service.wire import Measurement
+    from zenoh_track.estimation.measurements import MeasurementBatch
+    from zenoh_track.wire import Measurement
 
     return MeasurementBatch.of([Measurement(
         "r", f"swarm-{i:06d}", t, 3, True, (float(r[i]) + 10 * t, float(az[i]), 0.1),
@@ -233,14 +233,14 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
     IMM), against the filter core (`filters.cmkf_step`, CV) on as many rows in the same
     run; the frame at N tracks (snapshot + pack_frame); and what one core could then
     sustain: measurements per second with 30 frames per second."""
-    from clients import scenarios
-    from service import defaults
-    from service.adapter.encode import pack_frame
-    from service.estimation.filters import cmkf_step
-    from service.estimation.measurements import MeasurementBatch
-    from service.tracking.batches import Labelled
-    from service.tracking.tracker import Tracker
-    from service.wire import pack, parse_scan, parse_scan_columns
+    from zenoh_track import defaults
+    from zenoh_track.adapter.encode import pack_frame
+    from zenoh_track.clients import scenarios
+    from zenoh_track.estimation.filters import cmkf_step
+    from zenoh_track.estimation.measurements import MeasurementBatch
+    from zenoh_track.tracking.batches import Labelled
+    from zenoh_track.tracking.tracker import Tracker
+    from zenoh_track.wire import pack, parse_scan, parse_scan_columns
 
     clock = time.process_time
     log(f"scan cost: swarm of N targets in scans of {rows} rows (N / {rows} sectors per "
@@ -345,7 +345,7 @@ def scaleout(args: argparse.Namespace, log: Any) -> None:
     for shards in (1, 2):
         ns = f"sco{os.getpid()}{shards}"
         keys, endpoint = Keys(ns), f"tcp/127.0.0.1:{free_port()}"
-        procs = [subprocess.Popen([py, "-m", "service.router", "-l", endpoint], cwd=ROOT,
+        procs = [subprocess.Popen([py, "-m", "zenoh_track.router", "-l", endpoint], cwd=ROOT,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
         session = None
         try:
@@ -354,14 +354,14 @@ def scaleout(args: argparse.Namespace, log: Any) -> None:
                 part = [] if shards == 1 else [
                     a for d in range(k, 10, 2) for a in ("--meas", f"{ns}/meas/*/$*{d}")]
                 procs.append(subprocess.Popen(
-                    [py, "-m", "service", "--clock", "realtime", "--mode", "client", "-e",
+                    [py, "-m", "zenoh_track", "--clock", "realtime", "--mode", "client", "-e",
                      endpoint, "--ns", ns, "--instance", f"shard{k}", *part], cwd=ROOT,
                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
             if not wait_for_tracker(session, keys, shards, timeout=60):
                 raise RuntimeError("shards did not come up")
             replies = Replies(session, keys)
             time.sleep(0.5)
-            subprocess.run([py, "-m", "clients.feed", "swarm", "--targets", str(n),
+            subprocess.run([py, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(n),
                             "--duration", str(scans - 1), "--sectors", "1", "--mode", "client",
                             "-e", endpoint, "--ns", ns, "--trackers", str(shards)],
                            cwd=ROOT, capture_output=True, text=True, timeout=600)

@@ -1,1 +1,1 @@
-"""Lightweight clients of the track service; they depend on service.wire only."""
+"""Lightweight clients of the track service; they depend on zenoh_track.wire only."""

@@ -14,8 +14,8 @@ from typing import Any
 
 import zenoh
 
-from service.wire import Keys, decode_frame, free_port, peer_config, unpack, wait_for_tracker
-from service.wire.cli import open_or_exit
+from zenoh_track.wire import Keys, decode_frame, free_port, peer_config, unpack, wait_for_tracker
+from zenoh_track.wire.cli import open_or_exit
 
 from . import feed, feed_plots, scenarios
 from .guidance import Law
@@ -36,7 +36,7 @@ class Collected:
 def lockstep_service(ns: str, service_args: list[str]) -> tuple[str, subprocess.Popen]:
     """A lockstep service on a free loopback port: its endpoint and process."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "service", "--clock", "lockstep",
+    proc = subprocess.Popen([sys.executable, "-m", "zenoh_track", "--clock", "lockstep",
                              "-l", endpoint, "--ns", ns, *service_args],
                             stdout=subprocess.DEVNULL)  # keep --json output clean
     return endpoint, proc

@@ -15,7 +15,7 @@ import subprocess
 import sys
 import webbrowser
 
-from service.wire import free_port
+from zenoh_track.wire import free_port
 
 from .procs import stop_all
 
@@ -38,18 +38,18 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     py = sys.executable
-    service = subprocess.Popen([py, "-m", "service", "-l", endpoint, "--clock", "realtime",
+    service = subprocess.Popen([py, "-m", "zenoh_track", "-l", endpoint, "--clock", "realtime",
                                 "--blend", "1"])
     signal.signal(signal.SIGTERM, _interrupt)  # stop the children on SIGTERM too
     feed_args = {"swarm": ["--targets", str(args.targets), "--duration", str(args.duration)],
                  "crossing": [], "multisensor": ["--radars", "3"]}.get(
                      args.scenario, ["--runs", str(args.runs)])
-    feed = subprocess.Popen([py, "-m", "clients.feed", args.scenario, "--realtime",
+    feed = subprocess.Popen([py, "-m", "zenoh_track.clients.feed", args.scenario, "--realtime",
                              "-e", endpoint, *feed_args], stdout=subprocess.DEVNULL)
     web = None
     try:
         if args.web:
-            web = subprocess.Popen([py, "-m", "clients.web", "-e", endpoint,
+            web = subprocess.Popen([py, "-m", "zenoh_track.clients.web", "-e", endpoint,
                                     "--port", str(args.port)])
             url = f"http://127.0.0.1:{args.port}/"
             print(f"track-demo: the live map is on {url} (Ctrl-C stops the demo)", flush=True)
@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> None:
                 webbrowser.open(url)
             web.wait()
         else:
-            subprocess.run([py, "-m", "clients.display", "-e", endpoint], check=False)
+            subprocess.run([py, "-m", "zenoh_track.clients.display", "-e", endpoint], check=False)
     except KeyboardInterrupt:
         pass
     finally:  # every child stopped at once, within one 10 s bound

@@ -35,7 +35,7 @@ from rich.live import Live
 from rich.table import Table as RichTable
 from rich.text import Text
 
-from service.wire import Keys, add_zenoh_args, open_session, unpack
+from zenoh_track.wire import Keys, add_zenoh_args, open_session, unpack
 
 from .display_model import COLUMNS, SORTS, Frame, Health, Table, fmt_int, fmt_t
 

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from service.wire import STATUSES
+from zenoh_track.wire import STATUSES
 
 # column name -> (title, justify); the sort keys are these names
 COLUMNS = {

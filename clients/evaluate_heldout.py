@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from service.wire import (
+from zenoh_track.wire import (
     MSGPACK_ENCODING,
     Keys,
     decode_frame,

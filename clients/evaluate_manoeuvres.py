@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from service.wire import Keys, peer_config, unpack, wait_for_tracker
+from zenoh_track.wire import Keys, peer_config, unpack, wait_for_tracker
 
 from . import feed, feed_plots
 from . import manoeuvre_score as ms

@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import zenoh
 
-from service.wire import (
+from zenoh_track.wire import (
     BLOCK_WAIT_US,
     MSGPACK_ENCODING,
     Keys,

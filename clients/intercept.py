@@ -66,7 +66,7 @@ from typing import Any
 
 import zenoh
 
-from service.wire import (
+from zenoh_track.wire import (
     CHUNK,
     MSGPACK_ENCODING,
     Keys,
@@ -109,7 +109,7 @@ class Interceptors:
     waited past Zenoh's `wait_before_close` and the link was reset, losing frames).
     A slow interceptor therefore slows the lockstep service down instead of losing data.
     Typical in-process use, on the session that publishes the scenario (e.g.
-    clients.evaluate.run_through_service's):
+    zenoh_track.clients.evaluate.run_through_service's):
 
         ic = Interceptors(Law(guidance="intercept")).attach(session, keys,
                                                            like="maneuver-", truth=True)

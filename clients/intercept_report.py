@@ -18,7 +18,7 @@ from .scenarios import interpolate
 class Truth:
     """True states of one target at scan instants, interpolated with constant acceleration
     (the sample's `acc`, else the velocity difference to the next sample, else 0) by
-    clients.scenarios.interpolate."""
+    zenoh_track.clients.scenarios.interpolate."""
 
     def __init__(self) -> None:
         self.t: list[float] = []

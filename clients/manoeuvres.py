@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from service.wire import pack
+from zenoh_track.wire import pack
 
 G = 9.80665
 CLASSES = ("straight", "standard-rate", "4g", "7g-s", "climbing")
@@ -222,7 +222,8 @@ class Manoeuvres:
 
     def labelled(self) -> Iterator[tuple[float, list[tuple[str, dict]], list[tuple[str, dict]]]]:
         """The same detections of the aircraft as labelled measurements (no clutter), in
-        the form of `clients.scenarios` (t, [(target, measurement)], [(target, truth)])."""
+        the form of `zenoh_track.clients.scenarios` (t, [(target, measurement)], [(target,
+                                                                                   truth)])."""
         names = [f.name for f in self.flights]
         for s in self:
             meas = [(names[o], {"r": float(d[0]), "az": float(d[1]), "el": float(d[2]),

@@ -237,8 +237,8 @@ def rmse_windows(sq_err: np.ndarray, edges: Sequence) -> list[float]:
 
 # ---------------------------------------------------------------- scenario B
 def scenario_b_truths(runs: int, seed: int) -> np.ndarray:
-    """Truth states (runs, scans, 6) of scenario B, from clients.scenarios.radar3d."""
-    from clients.scenarios import radar3d  # numpy-only module
+    """Truth states (runs, scans, 6) of scenario B, from zenoh_track.clients.scenarios.radar3d."""
+    from zenoh_track.clients.scenarios import radar3d  # numpy-only module
 
     scans = [np.array([tr["pos"] + tr["vel"] for _, tr in truth])
              for _, _, truth in radar3d(runs=runs, seed=seed)]
@@ -254,7 +254,7 @@ def scenario_b_bound(runs: int, seed: int, init: str = "diffuse",
     i.e. the bound of two-point differencing with the process noise between them kept.
     init "two-point": J1 of `j1_two_point` at scan 1; scan 0 then has the position bound of
     the first measurement alone and an infinite velocity bound."""
-    from clients.scenarios import RadarB
+    from zenoh_track.clients.scenarios import RadarB
 
     cfg = RadarB()
     truths = scenario_b_truths(runs, seed)

@@ -19,7 +19,7 @@ and Data Fusion", 2011, ch. 2: Poisson clutter, uniform in the surveillance volu
 
 `payload` turns one scan into the MessagePack payload of `<ns>/plots/<sensor>`
 (docs/protocol.md §3.2), as a list of maps (`dets`) or in columnar form (bins of
-little-endian float64); `service.wire.parse_plots` reads both.
+little-endian float64); `zenoh_track.wire.parse_plots` reads both.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from service.wire import pack
+from zenoh_track.wire import pack
 
 Truth = dict[str, tuple[np.ndarray, np.ndarray]]
 

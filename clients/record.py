@@ -25,7 +25,7 @@ from typing import Any
 
 import zenoh
 
-from service.wire import Keys, add_zenoh_args, open_session, stamp_ns
+from zenoh_track.wire import Keys, add_zenoh_args, open_session, stamp_ns
 
 from .progress import add_quiet_arg, bar
 from .recording import RecordingWriter

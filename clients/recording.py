@@ -27,7 +27,7 @@ from mcap.reader import make_reader
 from mcap.well_known import SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
-from service.wire import MSGPACK_ENCODING, PROTOCOL_VERSION, Keys, unpack
+from zenoh_track.wire import MSGPACK_ENCODING, PROTOCOL_VERSION, Keys, unpack
 
 from . import scene
 

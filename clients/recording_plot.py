@@ -14,7 +14,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from service.wire import unpack
+from zenoh_track.wire import unpack
 
 from .recording import Recording
 

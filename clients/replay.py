@@ -21,7 +21,7 @@ import time
 
 import zenoh
 
-from service.wire import BLOCK_WAIT_US, Keys, add_zenoh_args, open_session, wait_for_tracker
+from zenoh_track.wire import BLOCK_WAIT_US, Keys, add_zenoh_args, open_session, wait_for_tracker
 
 from .feed import delivered
 from .progress import add_quiet_arg, bar

@@ -27,7 +27,7 @@ from typing import Any
 import zenoh
 from aiohttp import WSMsgType, web
 
-from service.wire import CHUNK, Keys, add_zenoh_args, fail, open_session
+from zenoh_track.wire import CHUNK, Keys, add_zenoh_args, fail, open_session
 
 from .web_frames import FrameHub
 from .web_link import Link
@@ -35,7 +35,7 @@ from .web_link import Link
 WINDOW = 2  # frames in flight to one browser (unanswered)
 HEALTH_PERIOD = 1.0  # s between health messages
 TRAIL = 30.0  # s of history drawn behind each track
-STATIC = resources.files("clients") / "web_static"
+STATIC = resources.files("zenoh_track.clients") / "web_static"
 
 
 def parse_origin(text: str) -> list[float]:

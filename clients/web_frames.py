@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from service.wire import decode_map
+from zenoh_track.wire import decode_map
 
 MAGIC = b"TWF1"
 HEADER = struct.Struct("<4sIdIIII")  # 32 bytes

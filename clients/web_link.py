@@ -15,7 +15,7 @@ from typing import Any
 
 import zenoh
 
-from service.wire import Keys, decode_map, unpack
+from zenoh_track.wire import Keys, decode_map, unpack
 
 SENSOR_REFRESH = 2.0  # s: a sensor's position is read again at most this often
 STATUS_PERIOD = 1.0  # s between status queries

@@ -25,7 +25,7 @@ import atheris
 with atheris.instrument_imports():
     import msgpack
 
-    from service.wire import (
+    from zenoh_track.wire import (
         BOUNDS,
         MAX_ROWS,
         Rejected,

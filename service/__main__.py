@@ -1,4 +1,4 @@
-"""`track-service` / `python -m service`: run one tracker instance."""
+"""`track-service` / `python -m zenoh_track`: run one tracker instance."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
-"""Every default of the service, once: the CLI (`service.__main__`), the estimation and
+"""Every default of the service, once: the CLI (`zenoh_track.__main__`), the estimation and
 tracking classes and the tests read them from here.
 
 Protocol constants (version, namespace, endpoint, statuses, key names) live with the
-wire contract, `service.wire`.
+wire contract, `zenoh_track.wire`.
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ NOISE_EVERY = 10.0  # s of wall time: at most one errors/<sensor> report per sen
 
 # ---------------------------------------------------------------- time faults
 # (docs/protocol.md §6.1) the input limits themselves are protocol constants
-# (service.wire.keys: MAX_TIME, sizes, bounds)
+# (zenoh_track.wire.keys: MAX_TIME, sizes, bounds)
 MAX_JUMP = 600.0  # s: an input farther than this from the picture's time is rejected ...
 NEW_TIMELINE = 10  # ... unless this many such inputs come in a row: a new timeline
 

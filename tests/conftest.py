@@ -12,11 +12,11 @@ from typing import Any
 import pytest
 import zenoh
 
-from clients.procs import stop
-from service.estimation.catalog import FilterSpec
-from service.tracking.display import DisplayConfig
-from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import Keys, free_port, peer_config, unpack, wait_for_tracker
+from zenoh_track.clients.procs import stop
+from zenoh_track.estimation.catalog import FilterSpec
+from zenoh_track.tracking.display import DisplayConfig
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.wire import Keys, free_port, peer_config, unpack, wait_for_tracker
 
 
 def client_session(endpoint: str) -> zenoh.Session:
@@ -48,18 +48,19 @@ class Collector:
 
 
 class ServiceProc:
-    """`python -m service` as a separate process on a free loopback port."""
+    """`python -m zenoh_track` as a separate process on a free loopback port."""
 
     def __init__(self, *extra: str, ns: str = "track") -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.ns = ns
         self.keys = Keys(ns)
-        cmd = [sys.executable, "-m", "service", "-l", self.endpoint, "--ns", ns, *extra]
+        cmd = [sys.executable, "-m", "zenoh_track", "-l", self.endpoint, "--ns", ns, *extra]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
     def feed(self, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-        cmd = [sys.executable, "-m", "clients.feed", *args, "-e", self.endpoint, "--ns", self.ns]
+        cmd = [sys.executable, "-m", "zenoh_track.clients.feed", *args, "-e", self.endpoint,
+               "--ns", self.ns]
         return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=True)
 
     def stop(self) -> str:
@@ -104,8 +105,8 @@ def compiled_kernels() -> None:
     """Compile the kernels once, before any service process starts (on a fresh clone it
     takes tens of seconds; the processes then load them from the cache), and let them
     serve in this process as in a service."""
-    from service.estimation import imm_jit, jit
-    from service.tracking import frame
+    from zenoh_track.estimation import imm_jit, jit
+    from zenoh_track.tracking import frame
 
     jit.load([imm_jit, frame])
 

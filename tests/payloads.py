@@ -21,7 +21,7 @@ import msgpack
 from hypothesis import assume
 from hypothesis import strategies as st
 
-from service.wire import (
+from zenoh_track.wire import (
     BOUNDS,
     MAX_MEAS_BYTES,
     Keys,

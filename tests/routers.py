@@ -14,8 +14,8 @@ from typing import Any
 
 import zenoh
 
-from clients.procs import stop
-from service.wire import quick_retry, unpack
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import quick_retry, unpack
 
 ROOT = Path(__file__).resolve().parent.parent
 DEPLOY = ROOT / "deploy"
@@ -32,7 +32,7 @@ class RouterProc:
     def start(self) -> float:
         """Start the router; the monotonic time at which it said it was listening."""
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "service.router", "-c", str(self.config),
+            [sys.executable, "-m", "zenoh_track.router", "-c", str(self.config),
              "-l", self.endpoint], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
             text=True, env=ENV)
         line = self.proc.stdout.readline()

@@ -15,8 +15,8 @@ import pytest
 import zenoh
 from routers import DEPLOY, ENV, RouterProc, client_conf
 
-from clients.procs import stop
-from service.wire import Keys, free_port, wait_for_tracker
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import Keys, free_port, wait_for_tracker
 
 SECURE = DEPLOY / "secure"
 MOUNT = "/deploy/secure/certs/"

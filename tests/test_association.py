@@ -11,17 +11,17 @@ import pytest
 from reference.association import assign_reference
 from reference.record import Outcome, scan_step
 
-import service.tracking.tracker as tracker_module
-from service.estimation import models
-from service.estimation.catalog import FilterSpec
-from service.estimation.measurements import MeasurementBatch
-from service.tracking import gating
-from service.tracking import plot_association as association
-from service.tracking.batches import Detections
-from service.tracking.hypotheses import Hypotheses
-from service.tracking.plot_association import GNNAssociator, JPDAAssociator, SensorModels
-from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import Measurement
+import zenoh_track.tracking.tracker as tracker_module
+from zenoh_track.estimation import models
+from zenoh_track.estimation.catalog import FilterSpec
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.tracking import gating
+from zenoh_track.tracking import plot_association as association
+from zenoh_track.tracking.batches import Detections
+from zenoh_track.tracking.hypotheses import Hypotheses
+from zenoh_track.tracking.plot_association import GNNAssociator, JPDAAssociator, SensorModels
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.wire import Measurement
 
 SIGMA = 25.0
 
@@ -401,7 +401,7 @@ def test_a_new_associator_is_one_class_and_one_registration(monkeypatch):
 
 def parser_choices(monkeypatch) -> tuple[str, ...]:
     """--associator's choices, read from the registry when the parser is built."""
-    from service.__main__ import parser
+    from zenoh_track.__main__ import parser
 
     action = next(a for a in parser()._actions if "--associator" in a.option_strings)
     return tuple(action.choices)

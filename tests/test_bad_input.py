@@ -8,7 +8,7 @@ import math
 import msgpack
 import pytest
 
-from service.wire import (
+from zenoh_track.wire import (
     MAX_MEAS_BYTES,
     MAX_ROWS,
     MAX_SCAN_BYTES,

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from reference.record import track
 
-from clients import scenarios
-from service import defaults
-from service.estimation.batch import einsum
-from service.estimation.catalog import FilterSpec
-from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import pack, parse_measurement
+from zenoh_track import defaults
+from zenoh_track.clients import scenarios
+from zenoh_track.estimation.batch import einsum
+from zenoh_track.estimation.catalog import FilterSpec
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.wire import pack, parse_measurement
 
 
 def swarm_measurements(targets: int = 12, duration: float = 8.0) -> list:

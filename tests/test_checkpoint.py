@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from reference.record import track, track_scan
 
-from service.estimation.catalog import FilterSpec
-from service.tracking import checkpoint
-from service.tracking.checkpoint import CheckpointError
-from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import DEFAULT_NS, Measurement, pack, parse_plots
+from zenoh_track.estimation.catalog import FilterSpec
+from zenoh_track.tracking import checkpoint
+from zenoh_track.tracking.checkpoint import CheckpointError
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.wire import DEFAULT_NS, Measurement, pack, parse_plots
 
 NOISE = (10.0, 0.01, 0.01, 1.0)
 

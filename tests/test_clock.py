@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.adapter import schedule as clock
+from zenoh_track.adapter import schedule as clock
 
 RATE = 30.0
 

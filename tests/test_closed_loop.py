@@ -19,11 +19,11 @@ import math
 import numpy as np
 import pytest
 
-from service.estimation import models
-from service.estimation.catalog import FILTERS, FilterSpec
-from service.estimation.filters import SingleModelFilter
-from service.estimation.imm import IMM
-from service.estimation.vdf import VDF
+from zenoh_track.estimation import models
+from zenoh_track.estimation.catalog import FILTERS, FilterSpec
+from zenoh_track.estimation.filters import SingleModelFilter
+from zenoh_track.estimation.imm import IMM
+from zenoh_track.estimation.vdf import VDF
 
 VARIANCES = (0.0, 1e-4, 1e-2, 1.0, 1e2, 1e4)  # m^2 per axis
 PERIODS = (1.0, 2.0)  # s

@@ -22,10 +22,10 @@ import pytest
 import zenoh
 from conftest import Collector
 
-from clients import feed as feed_cli
-from clients.procs import stop
-from service import __main__ as service_cli
-from service.wire import Keys, free_port, unpack, wait_for_tracker
+from zenoh_track import __main__ as service_cli
+from zenoh_track.clients import feed as feed_cli
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPOSE = ROOT / "docker-compose.yml"
@@ -253,7 +253,7 @@ def test_loopback_mirror_tracks_every_target_once():
             cmd[cmd.index("-c") + 1] = str(host_path(svc, config_arg(cmd)))
             cmd = [re.sub(r"^track/", f"{ns}/", a) for a in cmd]
             procs.append(subprocess.Popen(
-                [sys.executable, "-m", "service", *cmd, "-e", endpoint, "--clock", "lockstep",
+                [sys.executable, "-m", "zenoh_track", *cmd, "-e", endpoint, "--clock", "lockstep",
                  "--ns", ns],
                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
         session = observer(endpoint)
@@ -261,7 +261,7 @@ def test_loopback_mirror_tracks_every_target_once():
         frames = Collector(session, keys.frame)
         assert wait_for_tracker(session, keys, len(SHARDS), timeout=20), "shards not up"
         feed = services["feed"]
-        subprocess.run([sys.executable, "-m", "clients.feed", "swarm", "--targets",
+        subprocess.run([sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets",
                         str(n_targets), "--duration", str(duration), "--trackers", "2",
                         "-c", str(host_path(feed, config_arg(feed["command"]))),
                         "-e", endpoint, "--ns", ns],

@@ -1,4 +1,4 @@
-"""Unit tests of service.convert: geometry of the compass convention and a Monte Carlo
+"""Unit tests of zenoh_track.convert: geometry of the compass convention and a Monte Carlo
 check of the unbiased converted measurement (UCM) and its error covariance.
 
 Monte Carlo tolerances: with N = 200 000 independent samples of the conversion error
@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from service.estimation import polar, ucm
+from zenoh_track.estimation import polar, ucm
 
 N_MC = 200_000
 K_SE = 5.0

@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from service.estimation import filters, kalman, linalg, models, polar, scratch
-from service.estimation.measurements import MeasurementBatch
-from service.estimation.ucm import cmkf_arrays
-from service.wire import Measurement
+from zenoh_track.estimation import filters, kalman, linalg, models, polar, scratch
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.estimation.ucm import cmkf_arrays
+from zenoh_track.wire import Measurement
 
 
 def polar3(target: str, t: float, r: float, az: float, el: float,

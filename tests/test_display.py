@@ -12,9 +12,9 @@ import pytest
 from conftest import make_tracker as make
 from reference.record import track
 
-from service.tracking import display
-from service.tracking.tracker import Tracker
-from service.wire import Measurement
+from zenoh_track.tracking import display
+from zenoh_track.tracking.tracker import Tracker
+from zenoh_track.wire import Measurement
 
 RATE = 30.0
 
@@ -176,7 +176,7 @@ def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
     hold no acceleration, and mixing keeps the mean. |c_CA - mu_CA| <= 1 - exp(-dt / 10 s)
     with the default sojourns (the CA mode's, 10 s, beside its onset of the manoeuvre
     modes)."""
-    from service.estimation import models
+    from zenoh_track.estimation import models
 
     tracker = Tracker()
     for k in range(6):  # accelerating targets: the CA mode gains weight

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from service.wire import MAX_ROWS, f64_bin, pack, unpack
+from zenoh_track.wire import MAX_ROWS, f64_bin, pack, unpack
 
 pytestmark = pytest.mark.slow
 BLOCK = zenoh.CongestionControl.BLOCK

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from conftest import Collector
 
-from clients import feed, feed_plots, plotgen, scenarios
-from service.wire import MSGPACK_ENCODING, Keys, unpack
+from zenoh_track.clients import feed, feed_plots, plotgen, scenarios
+from zenoh_track.wire import MSGPACK_ENCODING, Keys, unpack
 
 
 class Recorder:

@@ -12,14 +12,14 @@ import pytest
 from reference.record import track
 from test_checkpoint import busy_tracker, polar
 
-from service.adapter.encode import pack_frame
-from service.estimation.catalog import FilterSpec
-from service.tracking import checkpoint, frame
-from service.tracking.deleter import UpdateTimeDeleter
-from service.tracking.display import predicted_at
-from service.tracking.status import status_codes
-from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import STATUSES, pack
+from zenoh_track.adapter.encode import pack_frame
+from zenoh_track.estimation.catalog import FilterSpec
+from zenoh_track.tracking import checkpoint, frame
+from zenoh_track.tracking.deleter import UpdateTimeDeleter
+from zenoh_track.tracking.display import predicted_at
+from zenoh_track.tracking.status import status_codes
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.wire import STATUSES, pack
 
 
 def reference(tracker: Tracker, t: float) -> dict[str, tuple]:
@@ -158,7 +158,7 @@ def test_the_plain_draw_that_serves_before_the_compiled_one_gives_the_same_bits(
     """`frame.draw_plain` (NumPy, serving while the kernels compile: `estimation.jit`)
     against the compiled `frame_kernel.draw` on random columns, rows in any order, times
     before and after the tracks' own, a negative variance clipped."""
-    from service.tracking.frame_kernel import draw
+    from zenoh_track.tracking.frame_kernel import draw
 
     rng = np.random.default_rng(order * 10 + dim)
     cap, n = 300, order * dim

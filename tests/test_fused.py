@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 from reference.record import Outcome, scan_step
 
-from service.estimation import kalman, models
-from service.estimation.linalg import ldl_inverse
-from service.estimation.measurements import MeasurementBatch
-from service.estimation.ucm import at_point, cmkf_arrays, cmkf_soa
-from service.tracking import gating
-from service.tracking import plot_association as association
-from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import Measurement
+from zenoh_track.estimation import kalman, models
+from zenoh_track.estimation.linalg import ldl_inverse
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.estimation.ucm import at_point, cmkf_arrays, cmkf_soa
+from zenoh_track.tracking import gating
+from zenoh_track.tracking import plot_association as association
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.wire import Measurement
 
 
 def same_bits(a: np.ndarray, b: np.ndarray) -> bool:

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from reference.record import track
 
-from service.estimation import imm_jit
-from service.estimation.catalog import FilterSpec
-from service.estimation.measurements import MeasurementBatch
-from service.estimation.ucm import CMKFConversion
-from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import Measurement
+from zenoh_track.estimation import imm_jit
+from zenoh_track.estimation.catalog import FilterSpec
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.estimation.ucm import CMKFConversion
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.wire import Measurement
 
 
 def measurements(n: int, t: float, dim: int, rng: np.random.Generator) -> list[Measurement]:

@@ -3,7 +3,7 @@ cut at a count of messages and joined again keeps every message once, in order."
 
 from __future__ import annotations
 
-from service.adapter.ingest import ClockMessage, Plots, Query, Scan, Singles, cut, size
+from zenoh_track.adapter.ingest import ClockMessage, Plots, Query, Scan, Singles, cut, size
 
 
 def run(lo: int, hi: int) -> Singles:

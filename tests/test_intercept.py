@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 import zenoh
 
-from clients import evaluate as track_eval
-from clients.guidance import Interceptor, Law, earliest_reach, intercept_time
-from clients.intercept import Interceptors
-from clients.intercept_report import Truth
-from clients.procs import stop
-from clients.scenarios import ManeuverC
+from zenoh_track.clients import evaluate as track_eval
+from zenoh_track.clients.guidance import Interceptor, Law, earliest_reach, intercept_time
+from zenoh_track.clients.intercept import Interceptors
+from zenoh_track.clients.intercept_report import Truth
+from zenoh_track.clients.procs import stop
+from zenoh_track.clients.scenarios import ManeuverC
 
 START, SPEED, CAPTURE, RATE = np.array([7000.0, 6000.0]), 20.0, 2.55, 30.0
 TARGET = ManeuverC()
@@ -148,7 +148,7 @@ def test_truth_interpolation_is_exact_for_scenario_c():
 @pytest.fixture(scope="module")
 def service_filters() -> set[str]:
     """The service's --filter choices, as its --help states them."""
-    out = subprocess.run([sys.executable, "-m", "service", "--help"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "zenoh_track", "--help"], capture_output=True,
                          text=True, timeout=60, check=True).stdout
     m = re.search(r"--filter \{([^}]*)\}", out)
     assert m, f"no --filter {{...}} choices in the service's --help:\n{out}"
@@ -158,7 +158,8 @@ def service_filters() -> set[str]:
 # (service arguments, allowed mean capture time over the physical limit). Measured with
 # 5 runs, seed 0: the default filter (IMM since 0c9ac8e; CV before: 645 s, +7.6 %)
 # 646 s (+7.8 %): its velocity lags the slow turn, so the collision course aims short;
-# the IMM at scenario C's low process noise (clients.evaluate.SERVICE_ARGS) 618 s (+3.1 %).
+# the IMM at scenario C's low process noise (zenoh_track.clients.evaluate.SERVICE_ARGS)
+# 618 s (+3.1 %).
 CASES = [pytest.param([], 0.10, id="default-filter"),
          pytest.param(["--filter", "imm", *track_eval.SERVICE_ARGS["maneuver"]], 0.05,
                       id="imm-scenario-c")]
@@ -193,7 +194,7 @@ def wait_for_token(session: zenoh.Session, key: str, timeout: float = 30.0) -> b
 @pytest.mark.slow
 @pytest.mark.parametrize(("service_args", "tolerance"), CASES)
 def test_intercept_through_service(service_factory, service_filters, service_args, tolerance):
-    from service.wire import unpack
+    from zenoh_track.wire import unpack
 
     if "--filter" in service_args:  # a case the service cannot run fails, it is not skipped
         name = service_args[service_args.index("--filter") + 1]
@@ -205,7 +206,7 @@ def test_intercept_through_service(service_factory, service_filters, service_arg
     pursuit = Interceptors(Law(guidance="pure"), name="pursuit").attach(
         s, svc.keys, like="maneuver-", truth=True, publish=False)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "clients.intercept", "-e", svc.endpoint, "--ns", svc.ns,
+        [sys.executable, "-m", "zenoh_track.clients.intercept", "-e", svc.endpoint, "--ns", svc.ns,
          "--targets-like", "maneuver-", "--guidance", "intercept", "--truth", "--json",
          "--instance", "itest"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -1,4 +1,4 @@
-"""Unit tests of service.kalman.update against hand-worked Kalman updates.
+"""Unit tests of zenoh_track.kalman.update against hand-worked Kalman updates.
 
 H = [I_d 0], S = H P H' + R (+ S_FLOOR I, 1e-9 m^2, negligible at rtol 1e-8 below),
 K = P H' S^-1, x+ = x + K (z - H x), P+ = (I - K H) P (I - K H)' + K R K'
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.estimation import kalman
+from zenoh_track.estimation import kalman
 
 RTOL = 1e-8
 

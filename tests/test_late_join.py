@@ -12,8 +12,8 @@ import time
 import pytest
 from conftest import Collector, client_session
 
-from clients.procs import stop
-from service.wire import decode_frame, unpack
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import decode_frame, unpack
 
 
 @pytest.mark.slow
@@ -49,7 +49,8 @@ def test_a_late_joiner_gets_the_latest_instant_at_once(service_factory):
         late.close()
 
     # track-display started now shows every track of the paused picture
-    shown = subprocess.Popen([sys.executable, "-m", "clients.display", "-e", svc.endpoint,
+    shown = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.display", "-e",
+                              svc.endpoint,
                               "--ns", svc.ns, "--hz", "10"], stdout=subprocess.PIPE,
                              text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:

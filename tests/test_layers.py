@@ -1,5 +1,5 @@
 """The data's way is one direction (docs/architecture.md): wire contract -> estimation ->
-tracking -> the Zenoh adapter (`service.adapter`, which may import everything below it
+tracking -> the Zenoh adapter (`zenoh_track.adapter`, which may import everything below it
 and which nothing below imports) -> clients. Every import of the product's modules is read
 from the source and checked against the rules; the wire package is also imported in a
 fresh interpreter to show it loads neither NumPy nor Zenoh."""
@@ -18,18 +18,19 @@ STDLIB = set(sys.stdlib_module_names) | {"__future__"}
 
 # package -> (allowed third-party top-level modules, allowed service sub-packages/modules)
 RULES: dict[str, tuple[set[str], set[str]]] = {
-    "service.wire": ({"msgpack", "zenoh"}, {"service.wire"}),
-    "service.defaults": (set(), set()),
-    "service.estimation": ({"numpy", "numba"}, {"service.estimation", "service.wire",
-                                       "service.defaults"}),
-    "service.tracking": ({"numpy", "scipy", "numba"}, {"service.tracking", "service.estimation",
-                                              "service.wire", "service.defaults"}),
-    "service.adapter": ({"numpy", "zenoh"},
-                        {"service.adapter", "service.tracking", "service.estimation",
-                         "service.wire", "service.defaults", "service.__version__"}),
+    "zenoh_track.wire": ({"msgpack", "zenoh"}, {"zenoh_track.wire"}),
+    "zenoh_track.defaults": (set(), set()),
+    "zenoh_track.estimation": ({"numpy", "numba"}, {"zenoh_track.estimation", "zenoh_track.wire",
+                                       "zenoh_track.defaults"}),
+    "zenoh_track.tracking": ({"numpy", "scipy", "numba"}, {"zenoh_track.tracking",
+                                                           "zenoh_track.estimation",
+                                              "zenoh_track.wire", "zenoh_track.defaults"}),
+    "zenoh_track.adapter": ({"numpy", "zenoh"},
+                        {"zenoh_track.adapter", "zenoh_track.tracking", "zenoh_track.estimation",
+                         "zenoh_track.wire", "zenoh_track.defaults", "zenoh_track.__version__"}),
     "clients": ({"numpy", "scipy", "zenoh", "msgpack", "matplotlib", "mcap", "rich", "tqdm",
                  "aiohttp"},
-                {"service.wire", "clients"}),
+                {"zenoh_track.wire", "clients"}),
 }
 
 
@@ -74,7 +75,7 @@ FILES = sorted(p for d in ("service", "clients") for p in (ROOT / d).rglob("*.py
 @pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_imports_follow_the_layers(path: Path) -> None:
     found = rule_for(module_name(path))
-    if found is None:  # the programs (service.__main__, service.router)
+    if found is None:  # the programs (zenoh_track.__main__, zenoh_track.router)
         return
     _, (third_party, ours) = found
     bad = []
@@ -83,7 +84,7 @@ def test_imports_follow_the_layers(path: Path) -> None:
         if top in STDLIB:
             continue
         if top in ("service", "clients"):
-            ok = under(imp, ours) or (imp == "service" and "service.wire" in ours)
+            ok = under(imp, ours) or (imp == "service" and "zenoh_track.wire" in ours)
         else:
             ok = top in third_party
         if not ok:
@@ -93,18 +94,19 @@ def test_imports_follow_the_layers(path: Path) -> None:
 
 def test_the_rules_catch_a_wrong_import(tmp_path: Path) -> None:
     """The checker itself: an estimation module importing tracking is reported."""
-    rule = rule_for("service.estimation.kalman")
+    rule = rule_for("zenoh_track.estimation.kalman")
     assert rule is not None
     _, (_, ours) = rule
-    assert not under("service.tracking.store", ours)
+    assert not under("zenoh_track.tracking.store", ours)
     assert not under("zenoh", ours)
-    assert under("service.wire", ours)
-    assert rule_for("service.__main__") is None
-    for below in ("service.wire", "service.estimation", "service.tracking"):
+    assert under("zenoh_track.wire", ours)
+    assert rule_for("zenoh_track.__main__") is None
+    for below in ("zenoh_track.wire", "zenoh_track.estimation", "zenoh_track.tracking"):
         _, (_, allowed) = rule_for(below + ".x")  # type: ignore[misc]
-        assert not under("service.adapter.worker", allowed), below
-    _, (_, adapter) = rule_for("service.adapter.worker")  # type: ignore[misc]
-    assert under("service.tracking.tracker", adapter) and not under("clients.feed", adapter)
+        assert not under("zenoh_track.adapter.worker", allowed), below
+    _, (_, adapter) = rule_for("zenoh_track.adapter.worker")  # type: ignore[misc]
+    assert under("zenoh_track.tracking.tracker", adapter) and not under("zenoh_track.clients.feed",
+                                                                        adapter)
 
 
 def test_the_adapter_is_its_own_package() -> None:
@@ -126,10 +128,10 @@ def test_wire_and_estimation_load_without_zenoh() -> None:
     estimation and tracking packages do not pull in Zenoh."""
     code = (
         "import sys\n"
-        "import service.wire\n"
+        "import zenoh_track.wire\n"
         "assert 'numpy' not in sys.modules and 'zenoh' not in sys.modules, 'wire'\n"
-        "import service.estimation.filters, service.estimation.imm, service.estimation.vdf\n"
-        "import service.tracking.tracker\n"
+        "import zenoh_track.estimation.filters, zenoh_track.estimation.imm, zenoh_track.estimation.vdf\n"
+        "import zenoh_track.tracking.tracker\n"
         "assert 'zenoh' not in sys.modules, 'estimation/tracking'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)

@@ -12,9 +12,9 @@ import pytest
 import zenoh
 from conftest import Collector
 
-from clients.procs import stop
-from service.wire import MSGPACK_ENCODING as ENCODING
-from service.wire import unpack
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import MSGPACK_ENCODING as ENCODING
+from zenoh_track.wire import unpack
 
 pytestmark = pytest.mark.slow
 
@@ -47,7 +47,8 @@ class Encodings:
 def test_display_keys_only_for_the_tracks_someone_listens_to(service_factory):
     svc, s = service_factory("--clock", "realtime")
     frames = Encodings(s, "track/frame")
-    feed = subprocess.Popen([sys.executable, "-m", "clients.feed", "swarm", "--targets", "20",
+    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feed", "swarm",
+                             "--targets", "20",
                              "--duration", "30", "--realtime", "-e", svc.endpoint],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:

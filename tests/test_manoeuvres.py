@@ -12,16 +12,16 @@ import math
 import numpy as np
 import pytest
 
-from clients import evaluate as track_eval
-from clients import manoeuvre_score as ms
-from clients.manoeuvres import CLASSES, G, Manoeuvres
-from service.estimation.measurements import MeasurementBatch
-from service.tracking import gating
-from service.tracking.batches import Unlabelled
-from service.tracking.display import DISPLAY_COLUMNS
-from service.tracking.life import LIFE_COLUMNS
-from service.tracking.tracker import Tracker
-from service.wire import Measurement
+from zenoh_track.clients import evaluate as track_eval
+from zenoh_track.clients import manoeuvre_score as ms
+from zenoh_track.clients.manoeuvres import CLASSES, G, Manoeuvres
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.tracking import gating
+from zenoh_track.tracking.batches import Unlabelled
+from zenoh_track.tracking.display import DISPLAY_COLUMNS
+from zenoh_track.tracking.life import LIFE_COLUMNS
+from zenoh_track.tracking.tracker import Tracker
+from zenoh_track.wire import Measurement
 
 
 def test_each_class_flies_its_manoeuvre():
@@ -133,9 +133,9 @@ def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
     default) it is left to start a track of its own."""
     import dataclasses
 
-    from service.tracking.plot_association import SensorModels
-    from service.tracking.store import TrackStore
-    from service.tracking.tracker import TrackerConfig
+    from zenoh_track.tracking.plot_association import SensorModels
+    from zenoh_track.tracking.store import TrackStore
+    from zenoh_track.tracking.tracker import TrackerConfig
 
     tracker = Tracker(TrackerConfig(sensors=SensorModels(clutter_density=9e-14)))
     if gate_wide is not None:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from clients.metrics import (
+from zenoh_track.clients.metrics import (
     chi2_cdf,
     chi2_interval,
     chi2_ppf_wh,

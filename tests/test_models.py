@@ -1,4 +1,4 @@
-"""Unit tests of service.models against hand-computed CV / CA matrices.
+"""Unit tests of zenoh_track.models against hand-computed CV / CA matrices.
 
 Bar-Shalom, Li & Kirubarajan (2001) sec. 6.2.2-6.2.3 (continuous white noise, here of
 spectral density q^2 |dt| over a step dt), per axis:
@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.estimation import models
+from zenoh_track.estimation import models
 
 DT = np.array([2.0])
 Q_STD = 3.0

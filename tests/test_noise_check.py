@@ -10,10 +10,10 @@ import pytest
 import zenoh
 from conftest import Collector, make_tracker
 
-from service.estimation.measurements import MeasurementBatch
-from service.tracking.batches import Labelled
-from service.tracking.noise_check import NoiseCheck
-from service.wire import MSGPACK_ENCODING, Measurement, pack, unpack
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.tracking.batches import Labelled
+from zenoh_track.tracking.noise_check import NoiseCheck
+from zenoh_track.wire import MSGPACK_ENCODING, Measurement, pack, unpack
 
 
 def path(n: int, seed: int = 0, turn: float = 0.02) -> np.ndarray:

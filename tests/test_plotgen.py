@@ -1,6 +1,6 @@
-"""clients.plotgen: unlabelled-scan scenarios are deterministic, have the shapes, detection
+"""zenoh_track.clients.plotgen: unlabelled-scan scenarios are deterministic, have the shapes, detection
 probability, clutter rate and noise asked for, their polar detections agree with the
-truth, and their payloads read back through `service.wire.parse_plots` unchanged."""
+truth, and their payloads read back through `zenoh_track.wire.parse_plots` unchanged."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from reference.record import track_scan
 
-from clients import plotgen
-from service.wire import parse_plots
+from zenoh_track.clients import plotgen
+from zenoh_track.wire import parse_plots
 
 NOISE = (1.0, 1.0, 1.0, 1.0)  # parse_plots' fallback noise: the payloads must override it
 
@@ -118,9 +118,9 @@ def test_multisensor_phases_and_polar_detections_match_the_truth():
 def test_multisensor_scans_through_the_service_find_every_target():
     """The service's own conversion agrees with plotgen's, and our tracker fed the three
     radars' payloads (parse_plots -> Tracker.track_scan) holds a track on every target."""
-    from service.estimation.polar import polar_to_cartesian
-    from service.tracking.plot_association import SensorModels
-    from service.tracking.tracker import Tracker, TrackerConfig
+    from zenoh_track.estimation.polar import polar_to_cartesian
+    from zenoh_track.tracking.plot_association import SensorModels
+    from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 
     sc = plotgen.multisensor(targets=10, radars=3, scans=20, clutter=10.0, seed=8)
     tracker = Tracker(TrackerConfig(sensors=SensorModels(

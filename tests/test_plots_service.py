@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import Collector
 
-from service.wire import Keys, unpack
+from zenoh_track.wire import Keys, unpack
 
 pytestmark = pytest.mark.slow
 

@@ -1,4 +1,4 @@
-"""Unit tests of service.wire.parse_plots: unlabelled scans on `<ns>/plots/<sensor>`, in the
+"""Unit tests of zenoh_track.wire.parse_plots: unlabelled scans on `<ns>/plots/<sensor>`, in the
 `dets` form and the columnar form (bins of little-endian float64). Each detection must come
 out exactly as `parse_full` makes the labelled measurement with the scan's fields plus the
 detection's own: the same record, or the same reason prefixed `detection <i>: `."""
@@ -14,8 +14,8 @@ import msgpack
 import pytest
 from reference.record import track_scan
 
-from service.wire import Measurement, PlotScan, Rejected, parse_full, parse_plots
-from service.wire import plots as plots_module
+from zenoh_track.wire import Measurement, PlotScan, Rejected, parse_full, parse_plots
+from zenoh_track.wire import plots as plots_module
 
 NOISE = (10.0, 0.01, 0.02, 5.0)  # (sr, saz, sel, sigma) when neither scan nor detection has one
 NAN, INF = math.nan, math.inf

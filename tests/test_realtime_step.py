@@ -11,11 +11,11 @@ import time
 
 import zenoh
 
-from service.adapter import TrackService
-from service.adapter.ingest import TRANSIT, ClockMessage, Singles, arrival
-from service.adapter.publish import FrameSender
-from service.tracking.tracker import Tracker, TrackerConfig
-from service.wire import Keys, free_port, listen_config, pack, peer_config, stamp_ns, stamping
+from zenoh_track.adapter import TrackService
+from zenoh_track.adapter.ingest import TRANSIT, ClockMessage, Singles, arrival
+from zenoh_track.adapter.publish import FrameSender
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.wire import Keys, free_port, listen_config, pack, peer_config, stamp_ns, stamping
 
 
 def wait_until(wall: float) -> None:

@@ -1,4 +1,4 @@
-"""The fast batch-last kernels of service.estimation against their textbook forms in
+"""The fast batch-last kernels of zenoh_track.estimation against their textbook forms in
 `reference`, on random rows and on the geometries where the fast forms take shortcuts
 (the zenith, the horizon, the axes, the azimuth wrap-around, tight and broad
 predictions).
@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 from reference import estimation as reference
 
-from service.estimation import filters, kalman, linalg, models, polar, ucm
-from service.estimation.measurements import MeasurementBatch
+from zenoh_track.estimation import filters, kalman, linalg, models, polar, ucm
+from zenoh_track.estimation.measurements import MeasurementBatch
 
 RTOL = 1e-9
 DIMS = [2, 3]

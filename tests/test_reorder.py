@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from service.adapter.reorder import ReorderBuffer
+from zenoh_track.adapter.reorder import ReorderBuffer
 
 
 def feed(buf: ReorderBuffer, items) -> list:

@@ -16,8 +16,8 @@ import zenoh
 from conftest import ServiceProc, client_session
 from routers import DEPLOY, ENV, RouterProc, Stamped, client_conf
 
-from clients.procs import stop
-from service.wire import Keys, decode_frame, free_port, unpack, wait_for_tracker
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import Keys, decode_frame, free_port, unpack, wait_for_tracker
 
 TARGETS = 20
 
@@ -28,7 +28,7 @@ def get_all(session: zenoh.Session, selector: str) -> list[dict]:
 
 def service(endpoint: str, keys: Keys, state, *extra: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "service", "-c", str(DEPLOY / "shard-a.json5"), "-e", endpoint,
+        [sys.executable, "-m", "zenoh_track", "-c", str(DEPLOY / "shard-a.json5"), "-e", endpoint,
          "--ns", keys.ns, "--state", str(state), *extra],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)
 
@@ -54,7 +54,7 @@ def test_restart_brings_every_track_back_before_any_measurement(tmp_path):
         frames = Stamped(session, keys.frame)
         display = Stamped(session, keys.space("display"))
         assert wait_for_tracker(session, keys, 1, timeout=30)
-        subprocess.run([sys.executable, "-m", "clients.feed", "swarm", "--targets",
+        subprocess.run([sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets",
                         str(TARGETS), "--duration", "3", "--realtime", "-c",
                         str(DEPLOY / "client.json5"), "-e", endpoint, "--ns", keys.ns],
                        capture_output=True, timeout=60, check=True, env=ENV)

@@ -35,10 +35,10 @@ from hypothesis import strategies as st
 from payloads import KEYS, Sent, batched, clock, labelled, scan
 from reference.record import track
 
-from clients.procs import stop
-from service.__main__ import parser, tracker_config
-from service.tracking.tracker import Tracker
-from service.wire import Measurement, free_port, pack, unpack, wait_for_tracker
+from zenoh_track.__main__ import parser, tracker_config
+from zenoh_track.clients.procs import stop
+from zenoh_track.tracking.tracker import Tracker
+from zenoh_track.wire import Measurement, free_port, pack, unpack, wait_for_tracker
 
 pytestmark = pytest.mark.slow
 
@@ -97,7 +97,7 @@ class Run:
     def __init__(self) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "service", "-l", self.endpoint, *OPTIONS],
+            [sys.executable, "-m", "zenoh_track", "-l", self.endpoint, *OPTIONS],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})
         self.session = client_session(self.endpoint)

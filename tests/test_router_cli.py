@@ -9,8 +9,8 @@ import time
 
 from routers import DEPLOY, ENV, RouterProc
 
-from service import router
-from service.wire import DEFAULT_ENDPOINT, free_port
+from zenoh_track import router
+from zenoh_track.wire import DEFAULT_ENDPOINT, free_port
 
 
 def conf_of(*argv: str) -> dict:
@@ -32,7 +32,7 @@ def test_router_config_from_file_and_command_line():
 
 
 def run_router(*argv: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "service.router", *argv],
+    return subprocess.run([sys.executable, "-m", "zenoh_track.router", *argv],
                           capture_output=True, text=True, timeout=60, env=ENV)
 
 

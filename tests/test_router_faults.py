@@ -15,8 +15,8 @@ import pytest
 import zenoh
 from routers import DEPLOY, ENV, RouterProc, Stamped, client_conf, ids_since
 
-from clients.procs import stop
-from service.wire import Keys, free_port, unpack, wait_for_tracker
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker
 
 TARGETS = 12
 
@@ -38,7 +38,7 @@ def test_router_restart_resumes_tracking_with_every_track_kept():
     session = None
     try:
         procs.append(subprocess.Popen(
-            [sys.executable, "-m", "service", "-c", str(DEPLOY / "shard-a.json5"),
+            [sys.executable, "-m", "zenoh_track", "-c", str(DEPLOY / "shard-a.json5"),
              "-e", endpoint, "--ns", keys.ns, "--instance", "rf"],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV))
         session = zenoh.open(client_conf(DEPLOY / "client.json5", endpoint))
@@ -46,7 +46,7 @@ def test_router_restart_resumes_tracking_with_every_track_kept():
         display = Stamped(session, keys.space("display"))
         assert wait_for_tracker(session, keys, 1, timeout=30), "service not up"
         procs.append(subprocess.Popen(
-            [sys.executable, "-m", "clients.feed", "swarm", "--targets", str(TARGETS),
+            [sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(TARGETS),
              "--duration", "60", "--realtime", "-c", str(DEPLOY / "client.json5"),
              "-e", endpoint, "--ns", keys.ns],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV))

@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from service.wire import f64_bin, pack, unpack
+from zenoh_track.wire import f64_bin, pack, unpack
 
 pytestmark = pytest.mark.slow
 DIGESTS = Path(__file__).parent / "data" / "same_bytes.json"

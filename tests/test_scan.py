@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import Collector
 
-from service.wire import Rejected, f64_bin, pack, parse_full, parse_measurement, parse_scan
+from zenoh_track.wire import Rejected, f64_bin, pack, parse_full, parse_measurement, parse_scan
 
 NOISE = (10.0, 0.01, 0.01, 1.0)
 

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from reference.record import track
 
-from service import defaults
-from service.estimation.measurements import MeasurementBatch
-from service.tracking.batches import Labelled
-from service.tracking.tracker import Tracker
-from service.wire import (
+from zenoh_track import defaults
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.tracking.batches import Labelled
+from zenoh_track.tracking.tracker import Tracker
+from zenoh_track.wire import (
     Rejected,
     f64_bin,
     pack,
@@ -226,7 +226,7 @@ def test_service_takes_a_scan_as_its_single_messages(service_factory):
 def test_an_update_in_parts_gives_the_same_tracks(monkeypatch):
     """A realtime service publishes a due frame between parts of a scan's update
     (`pause`): the tracks are those of the update in one part."""
-    import service.tracking.tracker as tracker_module
+    import zenoh_track.tracking.tracker as tracker_module
 
     rng = random.Random(5)
     msgs = scans(rng)

@@ -21,9 +21,9 @@ import zenoh
 from routers import ENV, Stamped
 from secure_kit import KEYS, program
 
-from clients.procs import stop
-from clients.recording import Recording
-from service.wire import pack, unpack
+from zenoh_track.clients.procs import stop
+from zenoh_track.clients.recording import Recording
+from zenoh_track.wire import pack, unpack
 
 pytestmark = pytest.mark.slow
 pki, deployment = secure_kit.pki, secure_kit.deployment  # the fixtures

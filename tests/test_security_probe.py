@@ -10,8 +10,8 @@ import threading
 
 from secure_kit import make_certs
 
-from service.wire import free_port
-from service.wire.refusal import probe, split_endpoint
+from zenoh_track.wire import free_port
+from zenoh_track.wire.refusal import probe, split_endpoint
 
 
 def test_endpoints_are_read_with_their_metadata_and_ipv6():

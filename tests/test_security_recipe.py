@@ -17,8 +17,8 @@ import pytest
 from routers import DEPLOY, ENV, ROOT
 from secure_kit import BIN, VARIANTS
 
-from clients.procs import stop_all
-from service.wire import free_port
+from zenoh_track.clients.procs import stop_all
+from zenoh_track.wire import free_port
 
 pytestmark = pytest.mark.slow
 WAIT = 120.0  # s: generous for a loaded machine; the wait ends when the table is full

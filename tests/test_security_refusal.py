@@ -15,10 +15,10 @@ import zenoh
 from routers import client_conf
 from secure_kit import Deployment, mounted, one_line, program
 
-from clients.recording import RecordingWriter
-from service.wire import free_port
-from service.wire.cli import bound_connect
-from service.wire.refusal import why_refused
+from zenoh_track.clients.recording import RecordingWriter
+from zenoh_track.wire import free_port
+from zenoh_track.wire.cli import bound_connect
+from zenoh_track.wire.refusal import why_refused
 
 pytestmark = pytest.mark.slow
 pki = secure_kit.pki  # the fixture

@@ -9,7 +9,7 @@ import pytest
 import zenoh
 from conftest import Collector
 
-from service.wire import decode_frame, pack, unpack
+from zenoh_track.wire import decode_frame, pack, unpack
 
 pytestmark = pytest.mark.slow
 

@@ -15,10 +15,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from payloads import bad_measurement, measurement
 
-from service import defaults
-from service.adapter.layouts import by_layout
-from service.estimation.measurements import MeasurementBatch
-from service.wire import Rejected, pack, parse_measurement, parse_singles
+from zenoh_track import defaults
+from zenoh_track.adapter.layouts import by_layout
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.wire import Rejected, pack, parse_measurement, parse_singles
 
 NOISE = defaults.NOISE
 

@@ -13,8 +13,8 @@ import pytest
 import zenoh
 from conftest import Collector
 
-from clients.procs import stop
-from service.wire import Keys, free_port, pack, peer_config, unpack, wait_for_tracker
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import Keys, free_port, pack, peer_config, unpack, wait_for_tracker
 
 pytestmark = pytest.mark.slow
 
@@ -28,7 +28,7 @@ def status(s: zenoh.Session) -> dict:
 def test_a_cold_cache_serves_at_once_and_takes_the_compiled_kernels_when_ready(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "NUMBA_CACHE_DIR": str(tmp_path)}
-    proc = subprocess.Popen([sys.executable, "-m", "service", "-l", endpoint],
+    proc = subprocess.Popen([sys.executable, "-m", "zenoh_track", "-l", endpoint],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=env)
     s = zenoh.open(peer_config(endpoint))

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from service.adapter.schedule import Lockstep
-from service.adapter.timeline import Timeline
+from zenoh_track.adapter.schedule import Lockstep
+from zenoh_track.adapter.timeline import Timeline
 
 
 def test_near_inputs_taken_far_ones_refused():

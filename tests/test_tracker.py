@@ -1,4 +1,4 @@
-"""Unit tests of service.tracking.tracker.Tracker (stacked CV / CA tracks, no Zenoh)."""
+"""Unit tests of zenoh_track.tracking.tracker.Tracker (stacked CV / CA tracks, no Zenoh)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import pytest
 from conftest import make_tracker as make
 from reference.record import track
 
-from service.estimation import models, ucm
-from service.estimation import polar as geometry
-from service.tracking.batches import Instant
-from service.wire import Measurement
+from zenoh_track.estimation import models, ucm
+from zenoh_track.estimation import polar as geometry
+from zenoh_track.tracking.batches import Instant
+from zenoh_track.wire import Measurement
 
 
 def cart(target, t, pos, sigma=0.0, sensor="s1"):

@@ -1,4 +1,4 @@
-"""Unit tests of service.validate.parse_measurement against PROTOCOL.md (labelled
+"""Unit tests of zenoh_track.validate.parse_measurement against PROTOCOL.md (labelled
 measurements on `<ns>/meas/<sensor>/<target>`)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import msgpack
 import pytest
 
-from service.wire import Measurement, Rejected, pack, parse_clock, parse_measurement
+from zenoh_track.wire import Measurement, Rejected, pack, parse_clock, parse_measurement
 
 DEFAULTS = (10.0, 0.01, 0.02, 5.0)  # (sr, saz, sel, sigma) used when a message gives none
 
@@ -274,7 +274,7 @@ VARIANTS = [
 @pytest.mark.parametrize("change", VARIANTS)
 @pytest.mark.parametrize("drop", [None, "sel", "seq", "t", "el"])
 def test_fast_path_agrees_with_the_full_check(change, drop):
-    from service.wire import parse_full
+    from zenoh_track.wire import parse_full
     msg = {**FULL, **change}
     if drop:
         msg.pop(drop, None)

@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 import zenoh
 
-from clients.procs import stop
-from clients.web import WINDOW, parse_origin
-from clients.web_frames import UNKNOWN_STATUS, FrameHub, read_message
-from service.wire import STATUSES, Keys, free_port, pack, unpack
+from zenoh_track.clients.procs import stop
+from zenoh_track.clients.web import WINDOW, parse_origin
+from zenoh_track.clients.web_frames import UNKNOWN_STATUS, FrameHub, read_message
+from zenoh_track.wire import STATUSES, Keys, free_port, pack, unpack
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 # no sandbox (root in CI), software drawing, nothing fetched from the network
@@ -87,13 +87,14 @@ def test_origin_option():
 
 # ------------------------------------------------------------------ the server
 class WebProc:
-    """`python -m clients.web` on a free port, connected to `endpoint`."""
+    """`python -m zenoh_track.clients.web` on a free port, connected to `endpoint`."""
 
     def __init__(self, endpoint: str, *extra: str) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "clients.web", "-e", endpoint, "--port", str(self.port),
+            [sys.executable, "-m", "zenoh_track.clients.web", "-e", endpoint, "--port",
+             str(self.port),
              *extra], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 30
         while True:
@@ -304,7 +305,8 @@ def test_page_keeps_drawing_a_realtime_service(service_factory, browser, capsys)
     n = 1000
     svc, session = service_factory("--clock", "realtime", "--filter", "cv",
                                    "--no-display-keys")
-    feed = subprocess.Popen([sys.executable, "-m", "clients.feed", "swarm", "--targets", str(n),
+    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feed", "swarm",
+                             "--targets", str(n),
                              "--realtime", "--duration", "600", "-e", svc.endpoint],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     web = WebProc(svc.endpoint)
@@ -336,7 +338,8 @@ def test_demo_web_serves_the_live_map_and_stops_everything():
     port = free_port()
     # Ctrl-C as in a terminal: SIGINT handled, even when this test runs in a background
     # job (whose children inherit an ignored SIGINT from a shell without job control)
-    demo = subprocess.Popen([sys.executable, "-m", "clients.demo", "--web", "--port", str(port),
+    demo = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.demo", "--web", "--port",
+                             str(port),
                              "--targets", "20"], stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.adapter.encode import pack_displays, pack_frame, pack_tracks
-from service.estimation.imm import ModeProbabilities
-from service.wire import pack, unpack
+from zenoh_track.adapter.encode import pack_displays, pack_frame, pack_tracks
+from zenoh_track.estimation.imm import ModeProbabilities
+from zenoh_track.wire import pack, unpack
 
 
 def test_pack_displays_decodes_to_the_same_maps_as_pack():

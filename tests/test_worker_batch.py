@@ -11,7 +11,7 @@ import pytest
 import zenoh
 from conftest import Collector
 
-from service.wire import pack, unpack
+from zenoh_track.wire import pack, unpack
 
 pytestmark = pytest.mark.slow
 BLOCK = zenoh.CongestionControl.BLOCK
@@ -81,10 +81,10 @@ def test_bursts_keep_order_count_gaps_and_report_bad_keys(service_factory):
 def test_a_burst_behind_a_query_comes_in_batches_of_at_most_max_batch_in_order():
     """2,500 messages moved into the inbox as one run by a query behind them: the worker
     takes them 1,024 messages at a time, in order, and the query after the last."""
-    from service.adapter import TrackService
-    from service.adapter.ingest import MAX_BATCH, Query, Singles, size
-    from service.tracking.tracker import Tracker
-    from service.wire import Keys, free_port, listen_config, peer_config
+    from zenoh_track.adapter import TrackService
+    from zenoh_track.adapter.ingest import MAX_BATCH, Query, Singles, size
+    from zenoh_track.tracking.tracker import Tracker
+    from zenoh_track.wire import Keys, free_port, listen_config, peer_config
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     session, feed = zenoh.open(listen_config(ep)), zenoh.open(peer_config(ep))

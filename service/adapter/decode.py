@@ -1,5 +1,5 @@
 """Ingest, continued: the typed inputs' keys and payloads read into checked values (the
-contract's checks, `service.wire`), each bad one with its reason. Nothing is reported or
+contract's checks, `zenoh_track.wire`), each bad one with its reason. Nothing is reported or
 applied here: the worker reports the reasons in message order, among the time policy's.
 """
 

@@ -4,7 +4,7 @@ The bodies of many tracks at once: the numbers of every row are written by NumPy
 one buffer laid out as MessagePack (float 64 0xcb and int 64 0xd3, big-endian; fixarray
 0x9n or array 16 0xdc), and each body is its row's slice followed by its own packed
 strings and maps. Decoded, the maps equal what `wire.pack` gives for the same dicts
-(tests/test_wire.py). Part of the Zenoh adapter: clients decode with `service.wire`.
+(tests/test_wire.py). Part of the Zenoh adapter: clients decode with `zenoh_track.wire`.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The filters the service offers by name, built from one specification whose defaults
-are the service's (`service.defaults`): the CLI and the tracker build them the same way."""
+are the service's (`zenoh_track.defaults`): the CLI and the tracker build them the same way."""
 
 from __future__ import annotations
 

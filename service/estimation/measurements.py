@@ -1,5 +1,5 @@
 """Measurements as columns, the input of the filter kernels: `MeasurementBatch.of`
-turns the validated records of the wire contract (`service.wire.Measurement`) into one
+turns the validated records of the wire contract (`zenoh_track.wire.Measurement`) into one
 array per field, once per batch.
 """
 

@@ -1,6 +1,6 @@
 """Track status: tentative until the track is established, confirmed, and coasting
 while measurements are overdue or missed (the contract's `status`,
-`service.wire.STATUSES`)."""
+`zenoh_track.wire.STATUSES`)."""
 
 from __future__ import annotations
 

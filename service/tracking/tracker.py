@@ -43,7 +43,7 @@ SCAN_ASSOCIATORS = {"gnn": GNNAssociator, "jpda": JPDAAssociator}  # --associato
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """What a tracker is built from; every default from `service.defaults`."""
+    """What a tracker is built from; every default from `zenoh_track.defaults`."""
 
     filter: FilterSpec = field(default_factory=FilterSpec)  # the updater, by name
     init_speed: float = defaults.INIT_SPEED  # m/s: prior std of velocity at initiation

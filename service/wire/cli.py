@@ -17,7 +17,7 @@ ENDPOINT = r"(?:tcp|udp|tls|quic|ws|unixsock-stream)/[^\s\)\]\,]+"
 
 
 def prog_name() -> str:
-    """The program's name as the operator typed it (`python -m service`: track-service)."""
+    """The program's name as the operator typed it (`python -m zenoh_track`: track-service)."""
     stem = os.path.splitext(os.path.basename(sys.argv[0]))[0]
     if stem in ("__main__", "", "-c"):
         return "track-service"

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.tracking.gating import Gating, split
-from service.tracking.plot_association import UNLIKELY
+from zenoh_track.tracking.gating import Gating, split
+from zenoh_track.tracking.plot_association import UNLIKELY
 
 
 def assign_reference(g: Gating, multi: np.ndarray, score: np.ndarray, miss: float

@@ -12,10 +12,10 @@ import math
 
 import numpy as np
 
-from service.estimation.kalman import S_FLOOR
-from service.estimation.measurements import MeasurementBatch
-from service.estimation.polar import cartesian_to_polar, ucm_covariance_polar, unbiased
-from service.estimation.ucm import ROUNDING
+from zenoh_track.estimation.kalman import S_FLOOR
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.estimation.polar import cartesian_to_polar, ucm_covariance_polar, unbiased
+from zenoh_track.estimation.ucm import ROUNDING
 
 
 def motion_matrices(dt: np.ndarray, order: int, dim: int, q: float | np.ndarray

@@ -15,17 +15,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.estimation.measurements import MeasurementBatch
-from service.tracking.batches import Unlabelled
-from service.tracking.label_association import (
+from zenoh_track.estimation.measurements import MeasurementBatch
+from zenoh_track.tracking.batches import Unlabelled
+from zenoh_track.tracking.label_association import (
     duplicate,
     out_of_sequence,
     split_repeats,
     wrong_dimension,
 )
-from service.tracking.store import States
-from service.tracking.tracker import NON_FINITE, Tracker
-from service.wire import TIME_TOL, Measurement, PlotScan
+from zenoh_track.tracking.store import States
+from zenoh_track.tracking.tracker import NON_FINITE, Tracker
+from zenoh_track.wire import TIME_TOL, Measurement, PlotScan
 
 
 @dataclass
