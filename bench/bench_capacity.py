@@ -8,7 +8,8 @@ For each N and each display mode this starts, as separate processes on 127.0.0.1
 port, multicast scouting off):
 
     python -m zenoh_track --clock realtime --filter cv -l tcp/127.0.0.1:PORT [--no-display-keys]
-    python -m zenoh_track.clients.feed swarm --targets N --realtime --duration D -e tcp/127.0.0.1:PORT
+    python -m zenoh_track.clients.feed swarm --targets N --realtime --duration D \
+        -e tcp/127.0.0.1:PORT
 
 (N targets, one radar measurement each per second, reported by sector as the beam turns)
 and observes them from this process's own Zenoh session:

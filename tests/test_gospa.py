@@ -1,5 +1,5 @@
-"""zenoh_track.clients.gospa: GOSPA (alpha = 2) on hand-worked cases, against brute force and against
-Stone Soup's `GOSPAMetric` on random sets; the track-level counts of `evaluate`."""
+"""zenoh_track.clients.gospa: GOSPA (alpha = 2) on hand-worked cases, against brute force and
+against Stone Soup's `GOSPAMetric` on random sets; the track-level counts of `evaluate`."""
 
 from __future__ import annotations
 

@@ -20,28 +20,37 @@ STDLIB = set(sys.stdlib_module_names) | {"__future__"}
 RULES: dict[str, tuple[set[str], set[str]]] = {
     "zenoh_track.wire": ({"msgpack", "zenoh"}, {"zenoh_track.wire"}),
     "zenoh_track.defaults": (set(), set()),
-    "zenoh_track.estimation": ({"numpy", "numba"}, {"zenoh_track.estimation", "zenoh_track.wire",
-                                       "zenoh_track.defaults"}),
-    "zenoh_track.tracking": ({"numpy", "scipy", "numba"}, {"zenoh_track.tracking",
-                                                           "zenoh_track.estimation",
-                                              "zenoh_track.wire", "zenoh_track.defaults"}),
+    "zenoh_track.estimation": ({"numpy", "numba"}, {"zenoh_track.estimation",
+                                                    "zenoh_track.wire", "zenoh_track.defaults"}),
+    "zenoh_track.tracking": ({"numpy", "scipy", "numba"},
+                             {"zenoh_track.tracking", "zenoh_track.estimation",
+                              "zenoh_track.wire", "zenoh_track.defaults"}),
     "zenoh_track.adapter": ({"numpy", "zenoh"},
-                        {"zenoh_track.adapter", "zenoh_track.tracking", "zenoh_track.estimation",
-                         "zenoh_track.wire", "zenoh_track.defaults", "zenoh_track.__version__"}),
-    "clients": ({"numpy", "scipy", "zenoh", "msgpack", "matplotlib", "mcap", "rich", "tqdm",
-                 "aiohttp"},
-                {"zenoh_track.wire", "clients"}),
+                            {"zenoh_track.adapter", "zenoh_track.tracking",
+                             "zenoh_track.estimation", "zenoh_track.wire",
+                             "zenoh_track.defaults", "zenoh_track.__version__"}),
+    "zenoh_track.clients": ({"numpy", "scipy", "zenoh", "msgpack", "matplotlib", "mcap", "rich",
+                             "tqdm", "aiohttp"},
+                            {"zenoh_track.wire", "zenoh_track.clients"}),
 }
+# the folders of the import names (pyproject.toml's package-dir)
+PACKAGE_DIR = {"service": "zenoh_track", "clients": "zenoh_track.clients"}
 
 
 def module_name(path: Path) -> str:
+    """The import name of a file of service/ or clients/ (zenoh_track...)."""
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    parts = [PACKAGE_DIR[parts[0]], *parts[1:]]
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
 def imports(path: Path) -> list[str]:
     """Every module the file imports (relative imports resolved), wherever it stands."""
-    name = module_name(path)
+    return imports_of(path, module_name(path))
+
+
+def imports_of(path: Path, name: str) -> list[str]:
+    """Every module the file `path`, of the module `name`, imports."""
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out = []
     for node in ast.walk(ast.parse(path.read_text())):
@@ -83,8 +92,8 @@ def test_imports_follow_the_layers(path: Path) -> None:
         top = imp.split(".")[0]
         if top in STDLIB:
             continue
-        if top in ("service", "clients"):
-            ok = under(imp, ours) or (imp == "service" and "zenoh_track.wire" in ours)
+        if top == "zenoh_track":
+            ok = under(imp, ours) or (imp == "zenoh_track" and "zenoh_track.wire" in ours)
         else:
             ok = top in third_party
         if not ok:
@@ -130,8 +139,25 @@ def test_wire_and_estimation_load_without_zenoh() -> None:
         "import sys\n"
         "import zenoh_track.wire\n"
         "assert 'numpy' not in sys.modules and 'zenoh' not in sys.modules, 'wire'\n"
-        "import zenoh_track.estimation.filters, zenoh_track.estimation.imm, zenoh_track.estimation.vdf\n"
+        "import zenoh_track.estimation.filters, zenoh_track.estimation.imm\n"
+        "import zenoh_track.estimation.vdf\n"
         "import zenoh_track.tracking.tracker\n"
         "assert 'zenoh' not in sys.modules, 'estimation/tracking'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+def test_the_old_import_names_are_gone() -> None:
+    """The product installs one top-level package, `zenoh_track`: no module of it, no test
+    and no benchmark imports the folders' names `service` or `clients`, and nothing in this
+    test session loaded a second copy of the product under those names."""
+    old = []
+    for path in sorted(p for d in ("service", "clients", "tests", "bench", "fuzz")
+                       for p in (ROOT / d).rglob("*.py")):
+        name = module_name(path) if path.parts[len(ROOT.parts)] in PACKAGE_DIR else "x.y"
+        for imp in imports_of(path, name):
+            if imp.split(".")[0] in PACKAGE_DIR:
+                old.append(f"{path.relative_to(ROOT)}: {imp}")
+    assert not old, old
+    assert not set(PACKAGE_DIR) & set(sys.modules), "a second copy under the folders' names"
+    assert module_name(ROOT / "clients" / "feed.py") == "zenoh_track.clients.feed"

@@ -1,5 +1,5 @@
-"""zenoh_track.clients.plotgen: unlabelled-scan scenarios are deterministic, have the shapes, detection
-probability, clutter rate and noise asked for, their polar detections agree with the
+"""zenoh_track.clients.plotgen: unlabelled-scan scenarios are deterministic, have the shapes,
+detection probability, clutter rate and noise asked for, their polar detections agree with the
 truth, and their payloads read back through `zenoh_track.wire.parse_plots` unchanged."""
 
 from __future__ import annotations
