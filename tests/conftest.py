@@ -1,22 +1,22 @@
-"""Loopback fixtures: real service processes and real Zenoh sessions on 127.0.0.1."""
+"""Loopback fixtures: real service processes and real Zenoh sessions on 127.0.0.1 (the
+service processes are the pytest plugin's, docs/client.md)."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable
 from typing import Any
 
 import pytest
 import zenoh
 
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients import ServiceProcess
 from zenoh_track.estimation.catalog import FilterSpec
 from zenoh_track.tracking.display import DisplayConfig
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
-from zenoh_track.wire import Keys, free_port, peer_config, unpack, wait_for_tracker
+from zenoh_track.wire import peer_config, unpack
+
+pytest_plugins = ["zenoh_track.clients.pytest_plugin"]
 
 
 def client_session(endpoint: str) -> zenoh.Session:
@@ -47,46 +47,21 @@ class Collector:
             return [b for _, kind, b in self.samples if kind == "PUT"]
 
 
-class ServiceProc:
-    """`python -m zenoh_track` as a separate process on a free loopback port."""
-
-    def __init__(self, *extra: str, ns: str = "track") -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.ns = ns
-        self.keys = Keys(ns)
-        cmd = [sys.executable, "-m", "zenoh_track", "-l", self.endpoint, "--ns", ns, *extra]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-
-    def feed(self, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-        cmd = [sys.executable, "-m", "zenoh_track.clients.feed", *args, "-e", self.endpoint,
-               "--ns", self.ns]
-        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=True)
-
-    def stop(self) -> str:
-        """Terminate the service (then kill it); its stderr."""
-        return stop(self.proc)
+def ServiceProc(*extra: str, ns: str = "track") -> ServiceProcess:  # noqa: N802
+    """`python -m zenoh_track` on a free loopback port (the plugin's ServiceProcess), the
+    service's own default clock unless `extra` says `--clock`."""
+    return ServiceProcess(*extra, ns=ns, clock=None)
 
 
 @pytest.fixture
-def service_factory() -> Iterator:
-    procs: list[ServiceProc] = []
-    sessions: list[zenoh.Session] = []
+def service_factory(track_service_factory) -> Callable[..., tuple[ServiceProcess, zenoh.Session]]:
+    """`start(*extra, ns="track")`: a service of these options, alive, and a session
+    connected to it (the plugin's `track_service_factory`, the service's default clock)."""
+    def start(*extra: str, ns: str = "track") -> tuple[ServiceProcess, zenoh.Session]:
+        svc = track_service_factory(*extra, ns=ns, clock=None)
+        return svc, svc.client.session
 
-    def start(*extra: str, ns: str = "track") -> tuple[ServiceProc, zenoh.Session]:
-        svc = ServiceProc(*extra, ns=ns)
-        procs.append(svc)
-        session = client_session(svc.endpoint)
-        sessions.append(session)
-        if not wait_for_tracker(session, svc.keys, 1, timeout=30):
-            pytest.fail(f"service did not come up: {svc.stop()[-3000:]}")
-        return svc, session
-
-    yield start
-    for s in sessions:
-        s.close()
-    for p in procs:
-        p.stop()
+    return start
 
 
 DISPLAY_OPTIONS = {"blend", "blend_speed", "rate", "lag", "coast_after"}

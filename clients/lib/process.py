@@ -1,0 +1,95 @@
+"""`track-service` as a child process on a free loopback port: what the pytest plugin,
+the project's tests and track-eval start a service with."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from types import TracebackType
+
+from ...wire import DEFAULT_NS, Keys, free_port
+from ..procs import stop
+from .session import Client, connect
+
+
+class ServiceProcess:
+    """`python -m zenoh_track` (the track-service program) listening on a free
+    127.0.0.1 port (or `endpoint`), namespace `ns`, `--clock clock` unless None, then
+    `args`; its stdout and stderr go to `log` (a temporary file by default).
+
+    `wait()` blocks until its liveliness token is seen (its `client` then open),
+    `stop()` ends it and returns its log."""
+
+    def __init__(self, *args: str, ns: str = DEFAULT_NS, clock: str | None = "lockstep",
+                 endpoint: str | None = None, log: str | Path | None = None,
+                 python: str = sys.executable) -> None:
+        self.endpoint = endpoint or f"tcp/127.0.0.1:{free_port()}"
+        self.ns = ns
+        self.keys = Keys(ns)
+        self.args = ("-l", self.endpoint, "--ns", ns,
+                     *(("--clock", clock) if clock else ()), *args)
+        self.client: Client | None = None
+        self._own_log = log is None
+        if log is None:
+            fd, name = tempfile.mkstemp(prefix=f"track-service-{ns}-", suffix=".log")
+            os.close(fd)
+            log = name
+        self.log_path = Path(log)
+        self._log_text: str | None = None
+        with open(self.log_path, "wb") as out:
+            self.proc = subprocess.Popen([python, "-m", "zenoh_track", *self.args],
+                                         stdout=out, stderr=subprocess.STDOUT,
+                                         env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+    def log(self) -> str:
+        """What the service has written so far (stdout and stderr, in order)."""
+        if self._log_text is not None:
+            return self._log_text
+        try:
+            return self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def wait(self, timeout: float = 30.0) -> Client:
+        """Its `client` (a Client of its namespace) once it is alive; RuntimeError with
+        the end of its log when it exits or stays silent for `timeout` s."""
+        if self.client is None:
+            self.client = connect(self.endpoint, ns=self.ns)
+        try:
+            self.client.wait_for_service(timeout=timeout)
+        except TimeoutError:
+            code = self.proc.poll()
+            state = f"exited with status {code}" if code is not None else \
+                f"not alive after {timeout:g} s"
+            raise RuntimeError(f"track-service {' '.join(self.args)}: {state}; its log:\n"
+                               f"{self.log()[-3000:]}") from None
+        return self.client
+
+    def feed(self, *args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+        """Run `track-feed ARGS` against it (its endpoint and namespace); raises
+        CalledProcessError when the feed fails."""
+        cmd = [sys.executable, "-m", "zenoh_track.clients.feed", *args, "-e", self.endpoint,
+               "--ns", self.ns]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=True)
+
+    def stop(self, timeout: float = 15.0) -> str:
+        """Close its client, terminate it (kill it after `timeout` s) and return its log."""
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+        stop(self.proc, timeout)
+        if self._log_text is None:
+            self._log_text = self.log()
+            if self._own_log:
+                self.log_path.unlink(missing_ok=True)
+        return self._log_text
+
+    def __enter__(self) -> ServiceProcess:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
