@@ -87,10 +87,13 @@ class Loopback:
 
     def advance(self, t: float, timeout: float = 30.0) -> Frame:
         """Move the lockstep clock to `t` (after the measurements sent before it) and
-        return the frame of the last display instant at or before `t`, once it is out."""
+        return the frame of the last display instant at or before `t`, once it is out.
+
+        A lockstep service publishes the instants before its clock's time (docs/protocol.md
+        section 6); the clock goes to `t` + 2 us, so that the instant at `t` is one of them."""
         if self._rate is None:
             self._rate = float(self.client.status()["rate"])
-        self.feed.clock(t)
+        self.feed.clock(t + 2e-6)
         due = t - 1.0 / self._rate + 1e-9
         return self.picture.wait_for(lambda f: f.t > due, timeout)
 

@@ -16,7 +16,7 @@ from zenoh_track.tracking.display import DisplayConfig
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 from zenoh_track.wire import peer_config, unpack
 
-pytest_plugins = ["zenoh_track.clients.pytest_plugin"]
+pytest_plugins = ["zenoh_track.clients.pytest_plugin", "pytester"]
 
 
 def client_session(endpoint: str) -> zenoh.Session:
