@@ -5,7 +5,6 @@ or an unlabelled-scan scenario, collecting the tracks shown at its scan instants
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import threading
 import uuid
@@ -14,13 +13,13 @@ from typing import Any
 
 import zenoh
 
-from zenoh_track.wire import Keys, decode_frame, free_port, peer_config, unpack, wait_for_tracker
+from zenoh_track.wire import Keys, decode_frame, peer_config, unpack, wait_for_tracker
 from zenoh_track.wire.cli import open_or_exit
 
 from . import feed, feed_plots, scenarios
 from .guidance import Law
 from .intercept import Interceptors
-from .procs import stop
+from .lib import ServiceProcess
 
 
 @dataclass
@@ -33,13 +32,10 @@ class Collected:
     interception: dict[str, dict] = field(default_factory=dict)  # guidance -> summary
 
 
-def lockstep_service(ns: str, service_args: list[str]) -> tuple[str, subprocess.Popen]:
-    """A lockstep service on a free loopback port: its endpoint and process."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "zenoh_track", "--clock", "lockstep",
-                             "-l", endpoint, "--ns", ns, *service_args],
-                            stdout=subprocess.DEVNULL)  # keep --json output clean
-    return endpoint, proc
+def lockstep_service(ns: str, service_args: list[str]) -> ServiceProcess:
+    """A lockstep service on a free loopback port (its output in a log file of its own,
+    which keeps --json output clean)."""
+    return ServiceProcess(*service_args, ns=ns, clock="lockstep")
 
 
 def option(service_args: list[str], name: str, default: float) -> float:
@@ -57,7 +53,8 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
     ns = ns or f"eval{uuid.uuid4().hex[:8]}"
     proc = None
     if endpoint is None:
-        endpoint, proc = lockstep_service(ns, service_args)
+        proc = lockstep_service(ns, service_args)
+        endpoint = proc.endpoint
     keys = Keys(ns)
     out = Collected()
     done = threading.Event()
@@ -111,7 +108,8 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
             sub.undeclare()
     finally:
         session.close()
-        stop(proc)
+        if proc is not None:
+            proc.stop()
     return out
 
 
@@ -161,7 +159,8 @@ def run_plots_through_service(feed_argv: list[str], service_args: list[str],
         return len(expect) == len(needed) and all(len(shown[t]) >= n
                                                   for t, n in expect.items())
 
-    endpoint, proc = lockstep_service(ns, service_args)
+    proc = lockstep_service(ns, service_args)
+    endpoint = proc.endpoint
     session = zenoh.open(peer_config(endpoint))
     try:
         direct = [zenoh.handlers.Callback(f, indirect=False) for f in (on_frame, on_display)]
@@ -178,5 +177,6 @@ def run_plots_through_service(feed_argv: list[str], service_args: list[str],
             sub.undeclare()
     finally:
         session.close()
-        stop(proc)
+        if proc is not None:
+            proc.stop()
     return shown

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from zenoh_track.wire import STATUSES
+from .lib.frames import Frame
 
 # column name -> (title, justify); the sort keys are these names
 COLUMNS = {
@@ -37,33 +37,6 @@ def fmt_duration(s: float) -> str:
     s = int(s)
     return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else \
         f"{s // 60}:{s % 60:02d}"
-
-
-@dataclass
-class Frame:
-    """One display instant: every track's state, as arrays (rows in the order of ids)."""
-
-    t: float
-    ids: np.ndarray  # of str
-    pos: np.ndarray  # (N, 3)
-    vel: np.ndarray  # (N, 3)
-    sigma: np.ndarray  # (N,)
-    status: np.ndarray  # of str ("-" when the frame has no status bin)
-
-    @classmethod
-    def decode(cls, msg: dict[str, Any]) -> Frame:
-        ids = list(msg["ids"])
-        n = len(ids)
-        pos = np.frombuffer(msg["pos"], "<f8").reshape(n, 3)
-        vel = np.frombuffer(msg["vel"], "<f8").reshape(n, 3)
-        sigma = np.frombuffer(msg["sigma"], "<f8").reshape(n)
-        codes = msg.get("status")
-        names = np.array([*STATUSES, "unknown"])
-        if isinstance(codes, bytes) and len(codes) == n:
-            status = names[np.minimum(np.frombuffer(codes, np.uint8), len(STATUSES))]
-        else:
-            status = np.full(n, "-")
-        return cls(float(msg["t"]), np.array(ids, dtype=str), pos, vel, sigma, status)
 
 
 @dataclass

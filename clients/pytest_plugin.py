@@ -92,7 +92,7 @@ class Loopback:
         A lockstep service publishes the instants before its clock's time (docs/protocol.md
         section 6); the clock goes to `t` + 2 us, so that the instant at `t` is one of them."""
         if self._rate is None:
-            self._rate = float(self.client.status()["rate"])
+            self._rate = float(self.client.status(timeout)["rate"])
         self.feed.clock(t + 2e-6)
         due = t - 1.0 / self._rate + 1e-9
         return self.picture.wait_for(lambda f: f.t > due, timeout)

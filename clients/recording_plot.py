@@ -16,6 +16,7 @@ import numpy as np
 
 from zenoh_track.wire import unpack
 
+from .lib.frames import NO_STATUS, Frame
 from .recording import Recording
 
 MAX_LABELS = 30  # tracks labelled by id when there are at most this many
@@ -38,13 +39,11 @@ def paths(rec: Recording, channels: set[int]
             if frames:
                 if k % 10:
                     continue
-                ids = msg["ids"]
-                pos = struct.unpack(f"<{3 * len(ids)}d", msg["pos"])
-                for n, tid in enumerate(ids):
-                    out[tid].append((pos[3 * n], pos[3 * n + 1]))
-                codes = msg.get("status")
-                if isinstance(codes, bytes) and len(codes) == len(ids):
-                    for tid, code in zip(ids, codes, strict=True):
+                f = Frame.decode(msg)
+                for tid, (x, y) in zip(f.id_list, f.pos[:, :2].tolist(), strict=True):
+                    out[tid].append((x, y))
+                for tid, code in zip(f.id_list, f.codes.tolist(), strict=True):
+                    if code != NO_STATUS:
                         (seen_tentative if code == 0 else established).add(tid)
             else:
                 out[ch.key.rsplit("/", 1)[1]].append((msg["pos"][0], msg["pos"][1]))

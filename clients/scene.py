@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import json
 import math
-import struct
 from typing import Any
+
+from .lib.frames import Frame
 
 SCHEMA_NAME = "foxglove.SceneUpdate"
 TOPIC = "/scene"
@@ -132,9 +133,5 @@ def scene_update(t: float, ids: list[str], pos: list[float], vel: list[float],
 def frame_arrays(msg: dict[str, Any]) -> tuple[list[str], list[float], list[float],
                                                 list[float]]:
     """ids, pos, vel, sigma of a decoded `frame` message (flat float lists)."""
-    ids = list(msg["ids"])
-    n = len(ids)
-    pos = struct.unpack(f"<{3 * n}d", msg["pos"])
-    vel = struct.unpack(f"<{3 * n}d", msg["vel"])
-    sigma = struct.unpack(f"<{n}d", msg["sigma"])
-    return ids, list(pos), list(vel), list(sigma)
+    f = Frame.decode(msg)
+    return f.id_list, f.pos.ravel().tolist(), f.vel.ravel().tolist(), f.sigma.tolist()

@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from zenoh_track.wire import decode_map
+from .lib.frames import NO_STATUS
+from .lib.frames import Frame as Columns
 
 MAGIC = b"TWF1"
 HEADER = struct.Struct("<4sIdIIII")  # 32 bytes
@@ -92,22 +93,15 @@ class FrameHub:
         return self.frame
 
     def decode(self, payload: bytes, seq: int) -> Frame:
-        msg = decode_map(payload)
-        ids = msg["ids"]
-        n = len(ids)
-        pos, vel, sigma = (np.frombuffer(msg[k], dtype="<f8") for k in ("pos", "vel", "sigma"))
-        if not isinstance(ids, list) or pos.size != 3 * n or vel.size != 3 * n \
-                or sigma.size != n:
-            raise ValueError("frame arrays do not match its ids")
-        status = msg.get("status")
-        codes = np.frombuffer(status, dtype=np.uint8) if isinstance(status, bytes) \
-            and len(status) == n else np.full(n, UNKNOWN_STATUS, np.uint8)
+        cols = Columns.from_payload(payload)
+        ids, pos, vel, sigma = cols.id_list, cols.pos, cols.vel, cols.sigma
+        codes = np.where(cols.codes >= NO_STATUS, UNKNOWN_STATUS, cols.codes).astype(np.uint8)
         if ids != self.ids:
             self.ids, self.ids_seq = ids, self.ids_seq + 1
             self.ids_block = _pad("\n".join(ids).encode(), b"\0")
         body = b"".join((pos.astype("<f4").tobytes(), vel.astype("<f4").tobytes(),
                          sigma.astype("<f4").tobytes(), codes.tobytes()))
-        return Frame(seq, float(msg["t"]), self.ids, self.ids_seq, self.ids_block, body, codes)
+        return Frame(seq, cols.t, self.ids, self.ids_seq, self.ids_block, body, codes)
 
 
 def read_message(data: bytes) -> dict:

@@ -3,7 +3,8 @@ it in the clients (the wire's `decode_frame` is its plain, per-track reference).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -25,12 +26,17 @@ class Frame:
     ("-" for none). The arrays are read-only views of the message's bytes."""
 
     t: float
-    ids: npt.NDArray[np.str_]
+    id_list: list[str]  # the ids as the message holds them
     pos: F64
     vel: F64
     sigma: F64
     codes: npt.NDArray[np.uint8]
-    id_list: list[str] = field(repr=False)
+
+    @cached_property
+    def ids(self) -> npt.NDArray[np.str_]:
+        """The ids as a NumPy array (made on first use: most readers of most frames never
+        look them up)."""
+        return np.array(self.id_list, dtype=str)
 
     @property
     def status(self) -> npt.NDArray[np.str_]:
@@ -42,8 +48,10 @@ class Frame:
 
     def index(self, track_id: str) -> int | None:
         """The row of `track_id`, None when the frame does not hold it."""
-        hit = np.flatnonzero(self.ids == track_id)
-        return int(hit[0]) if hit.size else None
+        try:
+            return self.id_list.index(track_id)
+        except ValueError:
+            return None
 
     def track(self, track_id: str) -> dict[str, Any] | None:
         """One track's row {id, pos, vel, sigma, status}, None when absent."""
@@ -74,8 +82,8 @@ class Frame:
         raw = msg.get("status")
         codes = np.frombuffer(raw, np.uint8) if isinstance(raw, bytes) and len(raw) == n \
             else np.full(n, NO_STATUS, np.uint8)
-        return cls(float(msg["t"]), np.array(ids, dtype=str), cols[0].reshape(n, 3),
-                   cols[1].reshape(n, 3), cols[2], codes, ids)
+        return cls(float(msg["t"]), ids, cols[0].reshape(n, 3), cols[1].reshape(n, 3), cols[2],
+                   codes)
 
     @classmethod
     def from_payload(cls, payload: bytes) -> Frame:
