@@ -16,7 +16,7 @@ import zenoh
 from conftest import ServiceProc, client_session
 from routers import DEPLOY, ENV, RouterProc, Stamped, client_conf
 
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients import ServiceProcess
 from zenoh_track.wire import Keys, decode_frame, free_port, unpack, wait_for_tracker
 
 TARGETS = 20
@@ -26,11 +26,10 @@ def get_all(session: zenoh.Session, selector: str) -> list[dict]:
     return [unpack(r.ok.payload.to_bytes()) for r in session.get(selector, timeout=10)]
 
 
-def service(endpoint: str, keys: Keys, state, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "zenoh_track", "-c", str(DEPLOY / "shard-a.json5"), "-e", endpoint,
-         "--ns", keys.ns, "--state", str(state), *extra],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)
+def service(endpoint: str, keys: Keys, state, *extra: str) -> ServiceProcess:
+    """A service of deploy/shard-a.json5, a client of the router at `endpoint`."""
+    return ServiceProcess("-c", str(DEPLOY / "shard-a.json5"), "--state", str(state), *extra,
+                          ns=keys.ns, clock=None, connect=endpoint)
 
 
 def frames_with(frames: Stamped, names: set[str], since: float) -> list:
@@ -60,7 +59,7 @@ def test_restart_brings_every_track_back_before_any_measurement(tmp_path):
                        capture_output=True, timeout=60, check=True, env=ENV)
         before = {b["id"]: b for b in get_all(session, keys.space("tracks"))}
         assert set(before) == names
-        err = stop(svc)  # SIGTERM: the last checkpoint is written on the way out
+        err = svc.stop()  # SIGTERM: the last checkpoint is written on the way out
         assert "Traceback" not in err and state.is_file(), err
         down = time.monotonic()
         last = display.snapshot()[-1][3]
@@ -107,7 +106,8 @@ def test_restart_brings_every_track_back_before_any_measurement(tmp_path):
     finally:
         if session is not None:
             session.close()
-        stop(svc)
+        if svc is not None:
+            svc.stop()
         router.stop()
 
 

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import math
 import os
-import subprocess
-import sys
 import threading
 import time
 from collections import Counter, defaultdict
@@ -36,7 +34,7 @@ from payloads import KEYS, Sent, batched, clock, labelled, scan
 from reference.record import track
 
 from zenoh_track.__main__ import parser, tracker_config
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients import ServiceProcess
 from zenoh_track.tracking.tracker import Tracker
 from zenoh_track.wire import Measurement, free_port, pack, unpack, wait_for_tracker
 
@@ -96,13 +94,10 @@ class Run:
 
     def __init__(self) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "zenoh_track", "-l", self.endpoint, *OPTIONS],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        self.svc = ServiceProcess(*OPTIONS, ns=KEYS.ns, clock=None, endpoint=self.endpoint)
         self.session = client_session(self.endpoint)
         if not wait_for_tracker(self.session, KEYS, 1, timeout=30):
-            raise RuntimeError(f"service did not come up: {stop(self.proc)[-2000:]}")
+            raise RuntimeError(f"service did not come up: {self.svc.stop()[-2000:]}")
         self.listen = Listener(self.session)
         self.t = 10.0
         self.rng = np.random.default_rng(12)
@@ -193,7 +188,7 @@ class Run:
         for sub in self.listen.subs:
             sub.undeclare()
         self.session.close()
-        return stop(self.proc)
+        return self.svc.stop()
 
 
 def run_examples(examples: int, derandomize: bool = True) -> dict:

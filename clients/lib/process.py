@@ -17,19 +17,20 @@ from .session import Client, connect
 
 class ServiceProcess:
     """`python -m zenoh_track` (the track-service program) listening on a free
-    127.0.0.1 port (or `endpoint`), namespace `ns`, `--clock clock` unless None, then
-    `args`; its stdout and stderr go to `log` (a temporary file by default).
+    127.0.0.1 port (or `endpoint`), or connected to `connect` (a router, say), namespace
+    `ns`, `--clock clock` unless None, then `args`; its stdout and stderr go to `log` (a
+    temporary file by default).
 
     `wait()` blocks until its liveliness token is seen (its `client` then open),
     `stop()` ends it and returns its log."""
 
     def __init__(self, *args: str, ns: str = DEFAULT_NS, clock: str | None = "lockstep",
-                 endpoint: str | None = None, log: str | Path | None = None,
-                 python: str = sys.executable) -> None:
-        self.endpoint = endpoint or f"tcp/127.0.0.1:{free_port()}"
+                 endpoint: str | None = None, connect: str | None = None,
+                 log: str | Path | None = None, python: str = sys.executable) -> None:
+        self.endpoint = connect or endpoint or f"tcp/127.0.0.1:{free_port()}"
         self.ns = ns
         self.keys = Keys(ns)
-        self.args = ("-l", self.endpoint, "--ns", ns,
+        self.args = ("-e" if connect else "-l", self.endpoint, "--ns", ns,
                      *(("--clock", clock) if clock else ()), *args)
         self.client: Client | None = None
         self._own_log = log is None
