@@ -15,13 +15,14 @@ import pytest
 
 pytestmark = pytest.mark.slow
 
-DOC = Path(__file__).resolve().parent.parent / "docs" / "client.md"
+ROOT = Path(__file__).resolve().parent.parent
+DOC = ROOT / "docs" / "client.md"
 ENABLE = 'pytest_plugins = ["zenoh_track.clients.pytest_plugin"]\n'
 
 
-def doc_blocks() -> list[str]:
-    """The python code blocks of docs/client.md, in order."""
-    return re.findall(r"```python\n(.*?)```", DOC.read_text(), re.S)
+def doc_blocks(path: Path = DOC) -> list[str]:
+    """The python code blocks of a document, in order."""
+    return re.findall(r"```python\n(.*?)```", path.read_text(), re.S)
 
 
 def alive(pid: int) -> bool:
@@ -51,15 +52,18 @@ def note_pid(request):
         with open({str(pids)!r}, "a") as f:
             f.write(f"{{svc.proc.pid}}\\n")
 """)
-    pytester.makepyfile(test_doc=first, test_wrong=wrong, test_marker="import pytest\n\n" + marker)
+    readme = doc_blocks(ROOT / "README.md")[0]
+    assert "def test_my_feed_confirms_a_track(track)" in readme
+    pytester.makepyfile(test_doc=first, test_wrong=wrong, test_readme=readme,
+                        test_marker="import pytest\n\n" + marker)
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "-rA", timeout=600)
-    result.assert_outcomes(passed=3, failed=1)
+    result.assert_outcomes(passed=4, failed=1)
     out = result.stdout.str()
     assert "FAILED test_wrong.py::test_wrong_position" in out
     assert re.search(r"track-service test[0-9a-f]+ log", out), out[-3000:]
     assert "track-service 0.1.0: ns=test" in out  # the service's own first line
     started = [int(p) for p in pids.read_text().split()]
-    assert len(started) == 3 and not any(alive(p) for p in started)
+    assert len(started) == 4 and not any(alive(p) for p in started)
 
 
 def test_the_factories_of_a_conftest(pytester):
