@@ -123,6 +123,8 @@ def test_feed_picture_and_queries_against_a_service(track):
     assert status["meas_rejected"] == 1 and status["meas_accepted"] == 8
     assert set(track.client.tracks()) == set(frame.ids.tolist())
     assert pic.latest() is frame or pic.latest().t >= frame.t
+    with track.client.picture() as late:  # a late joiner has the picture at once
+        assert late.latest().t == frame.t and late.latest().id_list == frame.id_list
     with pytest.raises(TimeoutError, match="condition not met"):
         track.wait_for(lambda f: "nobody" in f.id_list, timeout=0.5)
 

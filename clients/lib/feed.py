@@ -74,8 +74,9 @@ class Feed:
                                    f"{self.keys.errors(self.sensor)} within {timeout:g} s")
             return list(self._errors)
 
-    def _put(self, key: str, msg: dict[str, Any]) -> None:
-        self.client.session.put(key, pack(msg), encoding=MSGPACK_ENCODING,
+    def _send(self, key: str, payload: bytes) -> None:
+        """Put as a feed must: nothing dropped (BLOCK), MessagePack's encoding."""
+        self.client.session.put(key, payload, encoding=MSGPACK_ENCODING,
                                 congestion_control=zenoh.CongestionControl.BLOCK)
 
     def measure(self, target: str, t: float, *, r: float | None = None,
@@ -95,9 +96,7 @@ class Feed:
         payload = pack(msg)
         if self.check:
             parse_full(self.sensor, target, payload, _NOISE)
-        self.client.session.put(self.keys.meas(self.sensor, target), payload,
-                                encoding=MSGPACK_ENCODING,
-                                congestion_control=zenoh.CongestionControl.BLOCK)
+        self._send(self.keys.meas(self.sensor, target), payload)
 
     def _columns(self, t: Values | None, r: Values | None, az: Values | None,
                  el: Values | None, pos: Any, noise: dict[str, Values | None],
@@ -131,8 +130,7 @@ class Feed:
             rejected = parse_scan(self.sensor, payload, _NOISE).rejected
             if rejected:
                 raise Rejected(rejected[0][1])
-        self.client.session.put(self.keys.scan(self.sensor), payload, encoding=MSGPACK_ENCODING,
-                                congestion_control=zenoh.CongestionControl.BLOCK)
+        self._send(self.keys.scan(self.sensor), payload)
 
     def plots(self, t: float, *, r: Values | None = None, az: Values | None = None,
               el: Values | None = None, pos: Any = None, sigma: Values | None = None,
@@ -148,14 +146,12 @@ class Feed:
             rejected = parse_plots(self.sensor, payload, _NOISE).rejected
             if rejected:
                 raise Rejected(rejected[0][1])
-        self.client.session.put(self.keys.plots(self.sensor), payload,
-                                encoding=MSGPACK_ENCODING,
-                                congestion_control=zenoh.CongestionControl.BLOCK)
+        self._send(self.keys.plots(self.sensor), payload)
 
     def clock(self, t: float) -> None:
         """Advance a lockstep service's clock to `t` (frames up to `t` are published once
         the measurements sent before are applied)."""
-        self._put(self.keys.clock, {"t": float(t)})
+        self._send(self.keys.clock, pack({"t": float(t)}))
 
     def close(self) -> None:
         if self._sub is not None:

@@ -32,10 +32,12 @@ class Picture:
         self._latest: Frame | None = None
         self._closed = False
         self._cond = threading.Condition()
-        self._sub = client.session.declare_subscriber(self.keys.frame, self._on_frame)
-        for reply in client.session.get(self.keys.frame, timeout=2.0):  # a late joiner's
+        # a late joiner's picture: the latest frame at once (before the subscription, so
+        # that every frame that follows is newer)
+        for reply in client.session.get(self.keys.frame, timeout=2.0):
             if reply.ok is not None:
                 self._on_frame(reply.ok)
+        self._sub = client.session.declare_subscriber(self.keys.frame, self._on_frame)
 
     def _on_frame(self, sample: Any) -> None:
         try:
@@ -45,9 +47,6 @@ class Picture:
                 self.bad += 1
             return
         with self._cond:
-            if self._latest is not None and frame.t <= self._latest.t \
-                    and frame.id_list == self._latest.id_list:
-                return  # the late joiner's reply and the subscription's copy of one frame
             self.received += 1
             if len(self.queue) == self.queue.maxlen:
                 self.dropped += 1
