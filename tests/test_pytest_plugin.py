@@ -76,9 +76,15 @@ def test_module_scoped(cv_service, cv_client):
 def test_same_service(cv_service, cv_client, track_service):
     assert cv_service.ns != track_service.ns
     assert cv_service.proc.poll() is None
+
+def test_feed_and_picture_fixtures(track_feed, track_picture, track_client):
+    track_feed.measure("x-1", t=0.0, pos=[1.0, 2.0, 3.0])
+    track_feed.clock(1.0)
+    frame = track_picture.wait_for(lambda f: f.t > 0.95)
+    assert frame.id_list == ["x-1"] and list(track_client.tracks()) == ["x-1"]
 """)
     pytester.runpytest_subprocess("-p", "no:cacheprovider", timeout=300) \
-        .assert_outcomes(passed=2)
+        .assert_outcomes(passed=3)
 
 
 @pytest.mark.parametrize("how", ["ini", "-p", "none"])
