@@ -23,6 +23,7 @@ import zenoh
 from conftest import Collector
 
 from zenoh_track import __main__ as service_cli
+from zenoh_track.clients import ServiceProcess
 from zenoh_track.clients import feed as feed_cli
 from zenoh_track.clients.procs import stop
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker
@@ -237,6 +238,7 @@ def test_loopback_mirror_tracks_every_target_once():
     ns = f"compose{uuid.uuid4().hex[:8]}"
     keys = Keys(ns)
     procs: list[subprocess.Popen] = []
+    shards: list[ServiceProcess] = []
     session = None
     n_targets, duration = 40, 4.0
     names = {f"swarm-{i:05d}" for i in range(n_targets)}
@@ -252,10 +254,7 @@ def test_loopback_mirror_tracks_every_target_once():
             cmd = [unescape(a) for a in svc["command"][1:]]
             cmd[cmd.index("-c") + 1] = str(host_path(svc, config_arg(cmd)))
             cmd = [re.sub(r"^track/", f"{ns}/", a) for a in cmd]
-            procs.append(subprocess.Popen(
-                [sys.executable, "-m", "zenoh_track", *cmd, "-e", endpoint, "--clock", "lockstep",
-                 "--ns", ns],
-                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+            shards.append(ServiceProcess(*cmd, ns=ns, connect=endpoint))  # lockstep
         session = observer(endpoint)
         display = Collector(session, keys.space("display"))
         frames = Collector(session, keys.frame)
@@ -303,5 +302,7 @@ def test_loopback_mirror_tracks_every_target_once():
             session.close()
         # last-started first, each waited for before the next: the shards close their
         # sessions while the router is still there
+        for svc in shards:
+            svc.stop()
         for p in reversed(procs):
             stop(p)

@@ -15,6 +15,7 @@ import pytest
 import zenoh
 from routers import DEPLOY, ENV, RouterProc, Stamped, client_conf, ids_since
 
+from zenoh_track.clients import ServiceProcess
 from zenoh_track.clients.procs import stop
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker
 
@@ -36,11 +37,10 @@ def test_router_restart_resumes_tracking_with_every_track_kept():
     router.start()
     procs: list[subprocess.Popen] = []
     session = None
+    svc = None
     try:
-        procs.append(subprocess.Popen(
-            [sys.executable, "-m", "zenoh_track", "-c", str(DEPLOY / "shard-a.json5"),
-             "-e", endpoint, "--ns", keys.ns, "--instance", "rf"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV))
+        svc = ServiceProcess("-c", str(DEPLOY / "shard-a.json5"), "--instance", "rf",
+                             ns=keys.ns, clock=None, connect=endpoint)
         session = zenoh.open(client_conf(DEPLOY / "client.json5", endpoint))
         tracks = Stamped(session, keys.space("tracks"))
         display = Stamped(session, keys.space("display"))
@@ -89,4 +89,6 @@ def test_router_restart_resumes_tracking_with_every_track_kept():
             session.close()
         for p in reversed(procs):
             stop(p)
+        if svc is not None:
+            svc.stop()
         router.stop()
