@@ -19,6 +19,26 @@ from zenoh_track.wire import free_port
 
 from .procs import stop_all
 
+# s: the most the service may take to come up: its first start on a machine compiles the
+# filter kernels (docs/operations.md), longer than the feed's own wait on a busy machine
+START_WAIT = 600.0
+
+
+def _alive(service: subprocess.Popen, endpoint: str) -> bool:
+    """Wait for the service's liveliness token while it runs (at most START_WAIT s)."""
+    from .lib import connect
+
+    with connect(endpoint) as client:
+        for _ in range(int(START_WAIT)):
+            if service.poll() is not None:
+                return False
+            try:
+                client.wait_for_service(timeout=1.0)
+                return True
+            except TimeoutError:
+                continue
+    return False
+
 
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
@@ -41,6 +61,13 @@ def main(argv: list[str] | None = None) -> None:
     service = subprocess.Popen([py, "-m", "zenoh_track", "-l", endpoint, "--clock", "realtime",
                                 "--blend", "1"])
     signal.signal(signal.SIGTERM, _interrupt)  # stop the children on SIGTERM too
+    try:
+        if not _alive(service, endpoint):
+            stop_all([service], timeout=10)
+            sys.exit("track-demo: track-service did not start")
+    except KeyboardInterrupt:
+        stop_all([service], timeout=10)
+        return
     feed_args = {"swarm": ["--targets", str(args.targets), "--duration", str(args.duration)],
                  "crossing": [], "multisensor": ["--radars", "3"]}.get(
                      args.scenario, ["--runs", str(args.runs)])
