@@ -1,6 +1,6 @@
 """The client library's Picture keeps up with the service's frames: the decode of one
 `frame` into NumPy columns (`Frame.from_payload`, what a Picture does with each frame)
-beside the service's own encoding of it (`zenoh_track.encode.pack_frame`) and the wire's
+beside the service's own encoding of it (`zenoh_track.adapter.encode.pack_frame`) and the wire's
 plain per-track reading (`zenoh_track.wire.decode_frame`), at N tracks; then, live, one
 publisher putting N-track frames at 30 Hz for D seconds through Zenoh on loopback to a
 Picture read in the same Python process: frames received of those sent, dropped, and the
@@ -19,8 +19,8 @@ import time
 import numpy as np
 import zenoh
 
+from zenoh_track.adapter.encode import pack_frame
 from zenoh_track.clients import Client, Frame
-from zenoh_track.encode import pack_frame
 from zenoh_track.wire import (
     MSGPACK_ENCODING,
     decode_frame,

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from zenoh_track.adapter.encode import pack_frame
 from zenoh_track.clients import Client, Frame, Rejected, connect
-from zenoh_track.encode import pack_frame
 from zenoh_track.wire import STATUSES, decode_frame, free_port, listen_config, pack, unpack
 
 ROOT = Path(__file__).resolve().parent.parent

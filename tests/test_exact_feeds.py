@@ -1,11 +1,12 @@
 """Jittered 1 Hz positions stated exact, through the real service on loopback (lockstep):
 a smooth path with turns, climbs and speed changes plus 10-30 m of noise per axis,
-quantised to 1 m, with a 50 m dead-reckoning snap now and then (`zenoh_track.clients.evaluate_heldout`,
-the held-out measure of `track-eval heldout`): every other position sent with `sigma` 0
-(and without sigma), the frame 1 s later scored against the position held out. The
-service must stay stable (no error growing like a random walk, as the piecewise-constant
-noise model's undamped oscillation did: 8 x linear extrapolation's error on a real feed)
-and be at least as good as linear extrapolation from the last two positions."""
+quantised to 1 m, with a 50 m dead-reckoning snap now and then
+(`zenoh_track.clients.evaluate_heldout`, the held-out measure of `track-eval heldout`):
+every other position sent with `sigma` 0 (and without sigma), the frame 1 s later scored
+against the position held out. The service must stay stable (no error growing like a
+random walk, as the piecewise-constant noise model's undamped oscillation did: 8 x linear
+extrapolation's error on a real feed) and be at least as good as linear extrapolation from
+the last two positions."""
 
 from __future__ import annotations
 

@@ -143,6 +143,8 @@ def test_wire_and_estimation_load_without_zenoh() -> None:
         "import zenoh_track.estimation.vdf\n"
         "import zenoh_track.tracking.tracker\n"
         "assert 'zenoh' not in sys.modules, 'estimation/tracking'\n"
+        "import zenoh_track.__main__\n"
+        "assert 'numba' not in sys.modules, 'the kernels load in the background (jit)'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 
