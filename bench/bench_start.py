@@ -28,14 +28,24 @@ sys.path.insert(0, str(ROOT))
 from zenoh_track.clients.procs import stop  # noqa: E402
 from zenoh_track.wire import Keys, free_port, pack, peer_config  # noqa: E402
 
-KERNELS = ("zenoh_track.estimation.imm_jit", "zenoh_track.tracking.frame")
+
+def how(tree: Path, cache: str) -> tuple[dict[str, str], str, str]:
+    """The environment, working directory and import name that run `tree`'s service: this
+    tree as installed (`zenoh_track`), an earlier one from its folders (`service`, the
+    import name before the rename; its own folder first on the path)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+    if tree == ROOT:
+        return env, tempfile.gettempdir(), "zenoh_track"
+    name = "zenoh_track" if (tree / "service" / "adapter").is_dir() and \
+        "zenoh_track" in (tree / "pyproject.toml").read_text() else "service"
+    return {**env, "PYTHONPATH": str(tree)}, str(tree), name
 
 
 def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
     """(seconds to the liveliness token, seconds from the burst's first put to its last
     `tracks/` sample; nan without a burst)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    env = {**os.environ, "NUMBA_CACHE_DIR": cache, "PYTHONPATH": str(tree)}
+    env, cwd, name = how(tree, cache)
     session = zenoh.open(peer_config(endpoint))
     alive, done = threading.Event(), threading.Event()
     got = [0]
@@ -49,7 +59,7 @@ def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
         Keys("track").alive("**"), lambda s: alive.set(), history=True)
     sub = session.declare_subscriber("track/tracks/**", on_tracks)
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "zenoh_track", "-l", endpoint], env=env,
+    proc = subprocess.Popen([sys.executable, "-m", name, "-l", endpoint], env=env, cwd=cwd,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         if not alive.wait(300):
@@ -74,11 +84,11 @@ def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
 
 def fill(tree: Path, cache: str) -> None:
     """Compile the kernels of `tree` into `cache` (a warm machine)."""
-    env = {**os.environ, "NUMBA_CACHE_DIR": cache, "PYTHONPATH": str(tree)}
-    code = ("from zenoh_track.estimation import imm_jit; imm_jit.warm()\n"
-            "try:\n    from zenoh_track.tracking import frame; frame.warm()\n"
+    env, cwd, name = how(tree, cache)
+    code = (f"from {name}.estimation import imm_jit; imm_jit.warm()\n"
+            f"try:\n    from {name}.tracking import frame; frame.warm()\n"
             "except AttributeError:\n    pass\n")  # a tree before frame.warm existed
-    subprocess.run([sys.executable, "-c", code], env=env, check=True)
+    subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, check=True)
 
 
 def main() -> None:
