@@ -4,17 +4,14 @@ compiled ones. A cold cache is made by pointing Numba at an empty directory."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import time
 
 import pytest
 import zenoh
 from conftest import Collector
 
-from zenoh_track.clients.procs import stop
-from zenoh_track.wire import Keys, free_port, pack, peer_config, unpack, wait_for_tracker
+from zenoh_track.clients.lib import ServiceProcess
+from zenoh_track.wire import pack, unpack
 
 pytestmark = pytest.mark.slow
 
@@ -26,14 +23,9 @@ def status(s: zenoh.Session) -> dict:
 
 
 def test_a_cold_cache_serves_at_once_and_takes_the_compiled_kernels_when_ready(tmp_path):
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "NUMBA_CACHE_DIR": str(tmp_path)}
-    proc = subprocess.Popen([sys.executable, "-m", "zenoh_track", "-l", endpoint],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env)
-    s = zenoh.open(peer_config(endpoint))
+    svc = ServiceProcess(clock=None, env={"NUMBA_CACHE_DIR": str(tmp_path)})  # realtime
     try:
-        assert wait_for_tracker(s, Keys("track"), 1, timeout=60), stop(proc)[-3000:]
+        s = svc.wait(timeout=60).session
         # alive while the child compiles: the cache was empty, compiling takes seconds
         assert status(s)["kernels"] == "compiling"
         got = Collector(s, "track/tracks/a1")
@@ -48,8 +40,7 @@ def test_a_cold_cache_serves_at_once_and_takes_the_compiled_kernels_when_ready(t
         assert got.wait_for(lambda smp: len(smp) == 4)  # and the compiled kernels go on
         assert got.bodies()[-1]["x"][0] == pytest.approx(300.0, abs=20.0)
     finally:
-        s.close()
-        stop(proc)
+        svc.stop()
 
 
 def wait(cond, timeout: float) -> None:

@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
 
@@ -18,7 +19,8 @@ from .session import Client, connect
 class ServiceProcess:
     """`python -m zenoh_track` (the track-service program) listening on a free
     127.0.0.1 port (or `endpoint`), or connected to `connect` (a router, say), namespace
-    `ns`, `--clock clock` unless None, then `args`; its stdout and stderr go to `log` (a
+    `ns`, `--clock clock` unless None, then `args`, with `env` added to the environment
+    (NUMBA_CACHE_DIR, say); its stdout and stderr go to `log` (a
     temporary file by default).
 
     `wait()` blocks until its liveliness token is seen (its `client` then open),
@@ -26,7 +28,8 @@ class ServiceProcess:
 
     def __init__(self, *args: str, ns: str = DEFAULT_NS, clock: str | None = "lockstep",
                  endpoint: str | None = None, connect: str | None = None,
-                 log: str | Path | None = None, python: str = sys.executable) -> None:
+                 log: str | Path | None = None, python: str = sys.executable,
+                 env: Mapping[str, str] | None = None) -> None:
         self.endpoint = connect or endpoint or f"tcp/127.0.0.1:{free_port()}"
         self.ns = ns
         self.keys = Keys(ns)
@@ -43,7 +46,8 @@ class ServiceProcess:
         with open(self.log_path, "wb") as out:
             self.proc = subprocess.Popen([python, "-m", "zenoh_track", *self.args],
                                          stdout=out, stderr=subprocess.STDOUT,
-                                         env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                                         env={**os.environ, "PYTHONUNBUFFERED": "1",
+                                              **(env or {})})
 
     def log(self) -> str:
         """What the service has written so far (stdout and stderr, in order)."""
