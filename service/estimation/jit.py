@@ -49,22 +49,27 @@ def state() -> str:
 def prepare(modules: Sequence[ModuleType], wait: bool = False,
             slow: Callable[[], None] | None = None) -> None:
     """Compile the kernels of `modules` in a child process (a machine's first start) or
-    find them in the cache, then load them here and let them serve. Returns at once
-    unless `wait`; `slow` is called if the wait lasts more than a second. Idempotent."""
+    find them in the cache, then load them here and let them serve, returning at once;
+    or, with `wait`, compile or load them here before returning (`slow` is called if that
+    lasts more than a second: a first start). Idempotent."""
     global _thread, _state
+    if wait:
+        note = threading.Timer(1.0, slow) if slow is not None else None
+        if note is not None:
+            note.start()
+        try:
+            load(modules)
+        finally:
+            if note is not None:
+                note.cancel()
+        return
     with _lock:
-        if _thread is None:
+        if _thread is None and not _ready.is_set():
             _state = "compiling"
             names = [m.__name__ for m in modules]
             _thread = threading.Thread(target=_compile_and_load, args=(names,),
                                        name="kernels", daemon=True)
             _thread.start()
-        thread = _thread
-    if wait:
-        thread.join(1.0)
-        if thread.is_alive() and slow is not None:
-            slow()
-        thread.join()
 
 
 def load(modules: Sequence[ModuleType]) -> None:
