@@ -38,7 +38,6 @@ from zenoh_track.wire import (
 )
 
 from .collect import lockstep_service
-from .procs import stop
 
 SENSOR = "feed"
 WARMUP = 10.0  # s: scored from this long after a target's first position
@@ -168,7 +167,8 @@ def run_service(ts: np.ndarray, pos: np.ndarray, sigma: float | None,
     """Send the even-indexed positions to a lockstep service; its frame positions at the
     odd-indexed instants (N, K, 3), NaN elsewhere."""
     ns = f"held{uuid.uuid4().hex[:8]}"
-    endpoint, proc = lockstep_service(ns, ["--no-display-keys", *service_args])
+    proc = lockstep_service(ns, ["--no-display-keys", *service_args])
+    endpoint = proc.endpoint
     keys = Keys(ns)
     names = [f"t{i:05d}" for i in range(pos.shape[0])]
     index = {k: i for i, k in enumerate(names)}
@@ -209,7 +209,7 @@ def run_service(ts: np.ndarray, pos: np.ndarray, sigma: float | None,
         sub.undeclare()
     finally:
         session.close()
-        stop(proc)
+        proc.stop()
     return out
 
 

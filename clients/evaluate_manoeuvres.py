@@ -32,7 +32,6 @@ from zenoh_track.wire import Keys, peer_config, unpack, wait_for_tracker
 from . import feed, feed_plots
 from . import manoeuvre_score as ms
 from .collect import lockstep_service
-from .procs import stop
 
 A_MAX = 7 * 9.80665  # m/s^2: the largest manoeuvre of the scenario
 SIGMA = 1.5e-3 * 36_000.0  # m: the radar's cross-range noise at the aircraft's distance
@@ -83,7 +82,8 @@ def through_service(feed_argv: list[str], options: list[str],
                 states.setdefault(round(float(t[i]), 6), {})[k] = (x[i].copy(), p[i].copy())
             arrived.notify_all()
 
-    endpoint, proc = lockstep_service(ns, ["--rate", "1", "--no-display-keys", *options])
+    proc = lockstep_service(ns, ["--rate", "1", "--no-display-keys", *options])
+    endpoint = proc.endpoint
     session = zenoh.open(peer_config(endpoint))
     try:
         subs = [session.declare_subscriber(keys.frame,
@@ -103,7 +103,7 @@ def through_service(feed_argv: list[str], options: list[str],
             sub.undeclare()
     finally:
         session.close()
-        stop(proc)
+        proc.stop()
     return shown, states
 
 
