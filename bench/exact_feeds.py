@@ -9,7 +9,7 @@ position sent with sigma 0 or 1 m, the frame 1 s later against the position held
 RMS as a multiple of linear extrapolation's; with the noise check as in the service,
 without using the measured noise, and without the one-time covariance inflation.
 `a`: scenario A's frame RMS (as `bench/imm_design.py`) for the default IMM and for
-variants of its CA mode, beside the plain CA filter.
+variants of its CA mode's noise and of a new track's start, beside the plain CA filter.
 """
 
 from __future__ import annotations
@@ -90,8 +90,10 @@ def main() -> None:
           f"{tr.noise.status() or 'nothing'}, jitter "
           f"{np.sqrt(np.median(list(sensor.res)) / noise_check.CHI2_1_MEDIAN):.1e} m, "
           f"mean NIS per axis {np.mean(list(sensor.nis)):.2f}")
-    for kw in ({}, {"ca_q": 0.05}, {"ca_q": 0.2}, {"ca_q": 0.3}, {"ca_q": 0.5},
-               {"ca_q": 0.3, "manoeuvre_sojourn": 30.0}, {"q": 0.75}):
+    before = (0.1, 0.6, 0.3, 0.0)  # a new track's start before the CA mode's 0.6
+    for kw in ({}, {"ca_q": 0.1, "initial": before}, {"ca_q": 0.1}, {"initial": before},
+               {"ca_q": 0.15}, {"ca_q": 0.3}, {"ca_q": 0.5}, {"initial": (0.1, 0.45, 0.45, 0.0)},
+               {"initial": (0.0, 0.0, 1.0, 0.0)}, {"manoeuvre_sojourn": 30.0}):
         print(f"default IMM {kw or ''}: {a_rms(imm_design.tracker(ModeSet(**kw).imm())):.4f} m",
               flush=True)
 
