@@ -12,6 +12,7 @@ commit) is measured in the same run, alternately, for the ratio.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -26,7 +27,7 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from zenoh_track.clients.procs import stop  # noqa: E402
-from zenoh_track.wire import Keys, free_port, pack, peer_config  # noqa: E402
+from zenoh_track.wire import Keys, free_port, pack  # noqa: E402
 
 
 def how(tree: Path, cache: str) -> tuple[dict[str, str], str, str]:
@@ -44,9 +45,15 @@ def how(tree: Path, cache: str) -> tuple[dict[str, str], str, str]:
 def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
     """(seconds to the liveliness token, seconds from the burst's first put to its last
     `tracks/` sample; nan without a burst)."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint, here = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
     env, cwd, name = how(tree, cache)
-    session = zenoh.open(peer_config(endpoint))
+    # this session listens and the service connects to it: the token is seen as soon as
+    # it is declared (a session connecting to a service not yet listening would retry)
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps([here]))
+    session = zenoh.open(conf)
     alive, done = threading.Event(), threading.Event()
     got = [0]
 
@@ -59,7 +66,8 @@ def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
         Keys("track").alive("**"), lambda s: alive.set(), history=True)
     sub = session.declare_subscriber("track/tracks/**", on_tracks)
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", name, "-l", endpoint], env=env, cwd=cwd,
+    proc = subprocess.Popen([sys.executable, "-m", name, "-l", endpoint, "-e", here],
+                            env=env, cwd=cwd,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         if not alive.wait(300):

@@ -32,15 +32,20 @@ def test_a_cold_cache_serves_at_once_and_takes_the_compiled_kernels_when_ready(t
         for k in range(3):
             s.put("track/meas/r1/a1", pack({"t": float(k), "pos": [100.0 * k, 5.0, 1.0],
                                             "sigma": 10.0}))
-        assert got.wait_for(lambda smp: len(smp) == 3)
+        assert got.wait_for(lambda smp: at(smp, 2.0))
         assert status(s)["kernels"] == "compiling"  # tracked by the NumPy forms
         wait(lambda: status(s)["kernels"] == "compiled", 600)
         assert list(tmp_path.rglob("*.nbi")), "the child compiled into the cache"
         s.put("track/meas/r1/a1", pack({"t": 3.0, "pos": [300.0, 5.0, 1.0], "sigma": 10.0}))
-        assert got.wait_for(lambda smp: len(smp) == 4)  # and the compiled kernels go on
-        assert got.bodies()[-1]["x"][0] == pytest.approx(300.0, abs=20.0)
+        assert got.wait_for(lambda smp: at(smp, 3.0))  # and the compiled kernels go on
+        assert at(got.samples, 3.0)["x"][0] == pytest.approx(300.0, abs=20.0)
     finally:
         svc.stop()
+
+
+def at(samples: list, t: float) -> dict | None:
+    """The `tracks/` body of time t among the samples, if any."""
+    return next((b for _, _, b in samples if b is not None and b["t"] == t), None)
 
 
 def wait(cond, timeout: float) -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import numpy as np
 
@@ -46,6 +46,9 @@ class Rows(Protocol):
 @dataclass(frozen=True)
 class SingleModelFilter:
     """One motion model ("cv" or "ca") with the CMKF, or the EKF on polar input."""
+
+    # no gate of its own: the tracks are gated with their state and the display's q
+    gate_prediction: ClassVar[None] = None
 
     kind: str = "cv"
     q: float = 1.0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -31,6 +32,8 @@ class VDF:
     inside the unit circle (docs/accuracy.md, "Exact positions"). The CA noise is the
     paper's per step: an acceleration increment of std `ca_noise` x |a| over each step.
     """
+
+    gate_prediction: ClassVar[None] = None  # gated with its state and the display's q
 
     alpha: float = 0.8
     detect: float = defaults.VDF_DETECT

@@ -42,6 +42,10 @@ class Updater(Protocol):
 
     def labels(self, arrays: TrackArrays, rows: np.ndarray) -> Sequence[Any]: ...
 
+    # what its tracks are gated with at t (rows -> mean, covariance, likelihood: the IMM's
+    # widest mode, `imm.IMM.gate_prediction`), or None: their combined state
+    gate_prediction: Callable[[TrackArrays, np.ndarray, float], tuple] | None
+
 
 ScanT = TypeVar("ScanT", Labelled, Unlabelled, contravariant=True)
 PartT = TypeVar("PartT", Labelled, Detections)

@@ -102,7 +102,7 @@ class Tracker:
         self.scan_associator: Associator[Unlabelled, Detections] = SCAN_ASSOCIATORS[c.associator](
             built.q, c.sensors, c.gate_probability)
         # the filter's own gate (the IMM's widest mode), if it has one
-        self.scan_associator.predict = getattr(self.updater, "gate_prediction", None)
+        self.scan_associator.predict = self.updater.gate_prediction
         self.initiator: Initiator = SinglePointInitiator(c.init_speed, c.init_accel)
         self.deleter: Deleter = CompositeDeleter(
             UpdateTimeDeleter(c.delete_after),
