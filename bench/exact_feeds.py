@@ -3,13 +3,16 @@ service's tracker without Zenoh; `track-eval heldout` measures the service itsel
 
     python bench/exact_feeds.py heldout   # the held-out measure: the noise check's parts
     python bench/exact_feeds.py a         # scenario A: the default IMM's CA noise and sojourn
+    python bench/exact_feeds.py a-trace   # scenario A per scan: mode probabilities, frame RMS
 
 `heldout`: 50 aircraft (`zenoh_track.clients.evaluate_heldout.generate`, seed 0, 120 s), every other
 position sent with sigma 0 or 1 m, the frame 1 s later against the position held out,
 RMS as a multiple of linear extrapolation's; with the noise check as in the service,
 without using the measured noise, and without the one-time covariance inflation.
 `a`: scenario A's frame RMS (as `bench/imm_design.py`) for the default IMM and for
-variants of its CA mode, beside the plain CA filter.
+variants of its CA mode's noise and of a new track's start, beside the plain CA filter.
+`a-trace`: per scan of A, the mode probabilities after the update and the RMS of the 30
+frames that follow it, for the default and for the mode set before (CA 0.1, start 0.3).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from zenoh_track.clients import evaluate_heldout as held  # noqa: E402
+from zenoh_track.clients import scenarios  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import ModeSet  # noqa: E402
 from zenoh_track.tracking import noise_check  # noqa: E402
@@ -62,7 +66,7 @@ def heldout(spec: FilterSpec, sigma: float, ts: np.ndarray, pos: np.ndarray) -> 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("what", choices=("heldout", "a"))
+    p.add_argument("what", choices=("heldout", "a", "a-trace"))
     args = p.parse_args()
     if args.what == "heldout":
         ts, pos, _ = held.generate(50, 1, 0, 120.0)
@@ -80,6 +84,10 @@ def main() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import imm_design  # noqa: PLC0415
 
+    if args.what == "a-trace":
+        trace(imm_design)
+        return
+
     def a_rms(tr: Tracker) -> float:
         return imm_design.run("display", 1, tr)["frame RMS"]
 
@@ -90,10 +98,32 @@ def main() -> None:
           f"{tr.noise.status() or 'nothing'}, jitter "
           f"{np.sqrt(np.median(list(sensor.res)) / noise_check.CHI2_1_MEDIAN):.1e} m, "
           f"mean NIS per axis {np.mean(list(sensor.nis)):.2f}")
-    for kw in ({}, {"ca_q": 0.05}, {"ca_q": 0.2}, {"ca_q": 0.3}, {"ca_q": 0.5},
-               {"ca_q": 0.3, "manoeuvre_sojourn": 30.0}, {"q": 0.75}):
+    before = (0.1, 0.6, 0.3, 0.0)  # a new track's start before the CA mode's 0.6
+    for kw in ({}, {"ca_q": 0.1, "initial": before}, {"ca_q": 0.1}, {"initial": before},
+               {"ca_q": 0.15}, {"ca_q": 0.3}, {"ca_q": 0.5}, {"initial": (0.1, 0.45, 0.45, 0.0)},
+               {"initial": (0.0, 0.0, 1.0, 0.0)}, {"manoeuvre_sojourn": 30.0}):
         print(f"default IMM {kw or ''}: {a_rms(imm_design.tracker(ModeSet(**kw).imm())):.4f} m",
               flush=True)
+
+
+def trace(imm_design) -> None:  # noqa: ANN001
+    """Scenario A scan by scan: mode probabilities and the following second's frame RMS."""
+    sets = {"default": ModeSet(), "before": ModeSet(ca_q=0.1, initial=(0.1, 0.6, 0.3, 0.0))}
+    trackers = {k: imm_design.tracker(m.imm()) for k, m in sets.items()}
+    names = [m[0] for m in sets["default"].imm().modes]
+    print(f"{'t':>4}  " + "  ".join(f"{k}: {' '.join(f'{n:>5}' for n in names)}  frames"
+                                    for k in sets))
+    flight = scenarios.FlightA()
+    for t, meas, _ in scenarios.display():
+        cols = []
+        for tr in trackers.values():
+            tr.step(Labelled.of([imm_design.measurement(t, n, m) for n, m in meas]))
+            mu = tr.store.layout(3).mode_prob[tr.store.where[meas[0][0]][1]]
+            tf = t + np.arange(30) / 30
+            e = np.array([tr.snapshot(x, detail=False).pos[0] for x in tf]) - flight.state(tf)[0]
+            cols.append(" " * 9 + " ".join(f"{p:5.3f}" for p in mu)
+                        + f"  {np.sqrt(np.mean((e ** 2).sum(1))):6.3f}")
+        print(f"{t:4.0f}  " + "  ".join(cols), flush=True)
 
 
 if __name__ == "__main__":

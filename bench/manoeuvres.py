@@ -8,7 +8,7 @@ peer on the same scans.
     python bench/manoeuvres.py default --labelled
     python bench/manoeuvres.py before default   # the default before the manoeuvre modes
 
-`before` is the default IMM before the manoeuvre modes (quiet, nominal, CA), gated by
+`before` is the default IMM before the manoeuvre modes (quiet, nominal, CA with jerk 0.1), gated by
 the combined state and the nominal noise, deleted after 4 misses; `default:k=v;k=v` a
 variant of `imm.ModeSet` (e.g. `default:onset=600.0`).
 """
@@ -57,7 +57,7 @@ def ours(name: str, sc: Manoeuvres, labelled: bool, associator: str = "gnn"
     tr = Tracker(TrackerConfig(filter=spec(name, sc.period), associator=associator,
                                delete_misses=4 if name == "before" else defaults.DELETE_MISSES))
     if name == "before":  # the default before the manoeuvre modes, gated by the store's state
-        tr.updater = ModeSet(manoeuvre=(), initial=(0.1, 0.6, 0.3)).imm()
+        tr.updater = ModeSet(manoeuvre=(), ca_q=0.1, initial=(0.1, 0.6, 0.3)).imm()
         tr.store = TrackStore(tr.updater.order, tr.updater.fields,
                               {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
         tr.scan_associator.predict = None

@@ -25,10 +25,10 @@ Q_CA = 0.5  # m/s^3: white jerk per axis, q (estimation.models) (CA)
 # mode (Q_CV, or --q) and a CA mode, chained quiet <-> nominal <-> CA, and manoeuvre
 # modes entered from any of them (docs/accuracy.md, "Manoeuvres")
 IMM_QUIET_Q = 0.003  # m/s^2: the quiet mode's white acceleration std per axis
-IMM_CA_Q = 0.1  # m/s^3: the CA mode's white jerk std per axis
+IMM_CA_Q = 0.2  # m/s^3: the CA mode's white jerk std per axis (docs/accuracy.md, "Exact positions")
 IMM_SOJOURN = 600.0  # s: mean time in the quiet and in the nominal mode
 IMM_MANOEUVRE_SOJOURN = 10.0  # s: mean time in the CA (and any turn) mode
-IMM_INITIAL = (0.1, 0.6, 0.3, 0.0)  # a new track: quiet, nominal, CA, manoeuvre modes
+IMM_INITIAL = (0.1, 0.3, 0.6, 0.0)  # a new track: quiet, nominal, CA, manoeuvre modes
 # the manoeuvre modes: (kind, white noise std per axis: m/s^2 for cv, m/s^3 for ca)
 IMM_MANOEUVRE = (("cv", 10.0), ("cv", 70.0))
 IMM_ONSET = 30000.0  # s: 1 / the rate of entering the manoeuvre modes (docs/accuracy.md)
