@@ -34,6 +34,8 @@ def test_radar3d_lockstep_accuracy_and_frames(service_factory):
     svc.feed("radar3d", "--runs", str(runs), "--truth", "--seed", "7")
     # the feed's closing clock message (t = 200) releases every frame before t = 200
     assert frames.wait_for(frames_done(199 + 29 / 30))
+    # every measurement's tracks/ message (another key than frame: not ordered with it)
+    assert tracks.wait_for(lambda smp: len(smp) >= runs * 200)
     est, tru = by_key(tracks), by_key(truth)
     assert len(tru) == runs * 200
     sq = np.zeros((200, runs))
