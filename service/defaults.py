@@ -68,14 +68,13 @@ NOISE = (SR, SAZ, SEL, SIGMA)
 
 # ---------------------------------------------------------------- stated noise checked
 # (tracking.noise_check, docs/protocol.md §4.3): a sensor whose positions jitter by more
-# than RATIO x its stated sigma + FLOOR with a mean NIS per axis above NIS_HIGH is
-# reported (and its measurements used with the sigma measured); one stating more than
-# RATIO x the measured + FLOOR with a NIS below NIS_LOW is reported too
+# than RATIO x its stated sigma + FLOOR is reported (and its measurements used with the
+# sigma measured); one stating more than RATIO x the measured + FLOOR with a NIS below
+# NIS_LOW is reported too
 NOISE_WINDOW = 300  # position residuals (one per axis) and NIS values kept per sensor
 NOISE_MIN_COUNT = 30  # residuals before a sensor is judged
 NOISE_RATIO = 3.0
 NOISE_FLOOR = 1.0  # m
-NOISE_NIS_HIGH = 3.0
 NOISE_NIS_LOW = 0.3
 NOISE_EVERY = 10.0  # s of wall time: at most one errors/<sensor> report per sensor
 

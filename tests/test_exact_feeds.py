@@ -16,11 +16,15 @@ import pytest
 from zenoh_track.clients import evaluate_heldout as held
 
 pytestmark = pytest.mark.slow
+AIRCRAFT = 500
 
 
 @pytest.fixture(scope="module")
 def feed() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    ts, pos, _ = held.generate(aircraft=20, runs=1, seed=0, duration=120.0)
+    # 500 aircraft in each pass: the noise check's window fills within one pass, after
+    # the IMM has taken the jitter for manoeuvres (a check that also asked for a high
+    # NIS never reported such a sensor: 1.05 x linear's RMS; 20 aircraft did not show it)
+    ts, pos, _ = held.generate(aircraft=AIRCRAFT, runs=1, seed=0, duration=120.0)
     return ts, pos, held.linear(ts, pos)
 
 
@@ -32,16 +36,16 @@ def errors(pred: np.ndarray, pos: np.ndarray, ts: np.ndarray, t0: float, t1: flo
     return np.linalg.norm(pred[:, sel] - pos[:, sel], axis=-1).ravel()
 
 
-@pytest.mark.parametrize(("sigma", "rms_ratio"), [(0.0, 0.9), (None, 0.85)])
-def test_jittered_positions_stated_exact_stay_stable(feed, sigma, rms_ratio):
+@pytest.mark.parametrize("sigma", [0.0, None])
+def test_jittered_positions_stated_exact_stay_stable(feed, sigma):
     ts, pos, lin = feed
     got = held.run_service(ts, pos, sigma, [])
     e, e_lin = errors(got, pos, ts, 10.0, 121.0), errors(lin, pos, ts, 10.0, 121.0)
-    assert np.isfinite(e).all() and len(e) == 20 * 55  # every held-out instant drawn
+    assert np.isfinite(e).all() and len(e) == AIRCRAFT * 55  # every held-out instant drawn
     rms, rms_lin = np.sqrt(np.mean(e ** 2)), np.sqrt(np.mean(e_lin ** 2))
-    # measured (`track-eval heldout --runs 1 --aircraft 20 --duration 120`): sigma 0
-    # 0.825 x linear's RMS, 0.802 x its 95th percentile; sigma absent 0.780 and 0.777; the
-    # piecewise model 5.8 x and 0.97 x
+    # the target (issue 33): 0.8 x linear's RMS. Measured (`track-eval heldout --runs 1
+    # --aircraft 500 --duration 120`): sigma 0 and absent 0.74 x; the piecewise model 5.8 x
+    rms_ratio = 0.8
     assert rms <= rms_ratio * rms_lin
     assert np.percentile(e, 95) <= np.percentile(e_lin, 95)
     # stable: the last 40 s no worse against linear extrapolation than the whole

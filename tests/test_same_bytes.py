@@ -1,13 +1,20 @@
-"""Behaviour to the bit: a lockstep service publishes the same `tracks/`, `frame` and
-`errors/` bytes for the same inputs, run after run and change after change.
+"""Behaviour kept: a lockstep service publishes the same `tracks/`, `frame` and `errors/`
+messages for the same inputs, run after run and change after change.
 
 Four runs through real processes on loopback (a labelled feed, a batched `scan/` feed, an
 unlabelled crossing on `plots/`, a multisensor run), each into a fresh lockstep service;
 every output sample is kept per key in the order it arrived (one publisher per key keeps
 its order) and the keys are taken in sorted order, so the digest does not depend on how
 the samples of different keys interleaved. `errors/` bodies carry the wall time of the
-rejection (`t_wall`), which is left out of the digest; everything else is hashed byte for
-byte. The digests are in tests/data/same_bytes.json.
+rejection (`t_wall`), which is left out. Every message is decoded: everything in it that
+is not a float (keys, ids, statuses, counts, lengths, the order of the messages) is hashed
+exactly, and its floats (float64 bins included) are kept as one weighted sum per message,
+compared to 1e-9. Not to the bit: the compiled kernels and NumPy may round the last bit
+differently on another CPU or library version (the same inputs gave other bytes on
+another machine), which says nothing about the service. Any change of behaviour, a track
+more or less, another association, a filter moved by more than a nanometre in a
+kilometre, fails it. The references are in tests/data/same_bytes.json (hashes) and
+tests/data/same_bytes.npz (the sums).
 
 A change that alters the tracker's output on purpose (a new default filter, a fix) makes
 this test fail; regenerate the digests then, and say why in the commit:
@@ -23,6 +30,7 @@ import threading
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
 
@@ -30,6 +38,7 @@ from zenoh_track.wire import f64_bin, pack, unpack
 
 pytestmark = pytest.mark.slow
 DIGESTS = Path(__file__).parent / "data" / "same_bytes.json"
+SUMS = DIGESTS.with_suffix(".npz")
 BLOCK = zenoh.CongestionControl.BLOCK
 OUTPUTS = ("track/tracks/**", "track/frame", "track/errors/**")
 
@@ -65,18 +74,40 @@ class Outputs:
         with self.cond:
             return self.cond.wait_for(lambda: self.counts() == want, timeout)
 
-    def digest(self) -> str:
-        h = hashlib.sha256()
+    def digest(self) -> tuple[str, np.ndarray]:
+        """The hash of every message's non-float content and one weighted sum of each
+        message's floats, in key order, then arrival order."""
+        h, sums = hashlib.sha256(), []
         with self.cond:
             for key in sorted(self.per_key):
                 for kind, payload in self.per_key[key]:
+                    body = unpack(payload) if payload else None
                     if key.split("/")[1] == "errors":
-                        body = unpack(payload)
                         del body["t_wall"]  # the wall time of the rejection
-                        payload = pack(dict(sorted(body.items())))
-                    h.update(f"{key}\0{kind}\0{len(payload)}\0".encode())
-                    h.update(payload)
-        return h.hexdigest()
+                    floats: list[np.ndarray] = []
+                    h.update(f"{key}\0{kind}\0{shape(body, floats)}\0".encode())
+                    x = np.concatenate(floats) if floats else np.zeros(0)
+                    sums.append(float(np.dot(x, 1.0 + (np.arange(len(x)) % 7) / 7.0)))
+        return h.hexdigest(), np.array(sums)
+
+
+def shape(v: object, floats: list[np.ndarray], key: object = None) -> str:
+    """The value with each float replaced by `f` (and gathered into `floats`, a float64
+    bin as its array): an exact text of everything else."""
+    if isinstance(v, float):
+        floats.append(np.array([v]))
+        return "f"
+    if isinstance(v, bytes):  # the wire's bins: float64 but the frame's status bytes
+        if key == "status":
+            return v.hex()
+        floats.append(np.frombuffer(v, "<f8"))
+        return f"b{len(v)}"
+    if isinstance(v, dict):
+        return "{" + ",".join(f"{k!r}:{shape(v[k], floats, k)}"
+                              for k in sorted(v, key=str)) + "}"
+    if isinstance(v, list | tuple):
+        return "[" + ",".join(shape(x, floats, key) for x in v) + "]"
+    return repr(v)
 
 
 def status(s: zenoh.Session) -> dict:
@@ -114,7 +145,7 @@ RUNS = {
 
 
 def run(service_factory, feed: tuple[str, ...], bad, target: str | None, end: float
-        ) -> str:
+        ) -> tuple[str, np.ndarray]:
     svc, s = service_factory("--clock", "lockstep")
     out = Outputs(s)
     svc.feed(*feed)
@@ -130,14 +161,18 @@ def run(service_factory, feed: tuple[str, ...], bad, target: str | None, end: fl
 
 @pytest.mark.parametrize("name", list(RUNS))
 def test_same_bytes(name, service_factory, request):
-    digest = run(service_factory, *RUNS[name])
+    digest, sums = run(service_factory, *RUNS[name])
     known = json.loads(DIGESTS.read_text()) if DIGESTS.exists() else {}
+    known_sums = dict(np.load(SUMS)) if SUMS.exists() else {}
     if request.config.getoption("--update-digests"):
-        known[name] = digest
+        known[name], known_sums[name] = digest, sums
         DIGESTS.parent.mkdir(exist_ok=True)
         DIGESTS.write_text(json.dumps(dict(sorted(known.items())), indent=1) + "\n")
+        np.savez_compressed(SUMS, **known_sums)
         return
-    assert name in known, f"no digest for {name}: run with --update-digests"
-    assert digest == known[name], (
-        f"{name}: the service's output bytes changed; if on purpose, regenerate with "
-        "`python -m pytest tests/test_same_bytes.py --update-digests`")
+    again = "if on purpose, regenerate with `python -m pytest tests/test_same_bytes.py " \
+            "--update-digests`"
+    assert name in known and name in known_sums, f"no reference for {name}: {again}"
+    assert digest == known[name], f"{name}: the service's outputs changed; {again}"
+    np.testing.assert_allclose(sums, known_sums[name], rtol=1e-9, atol=1e-6,
+                               err_msg=f"{name}: the service's numbers changed; {again}")

@@ -14,10 +14,10 @@ Cartesian measurements (docs/accuracy.md, "Exact positions"; docs/protocol.md, Â
   (1 + sum of the squared Lagrange weights) sigma^2), robust to manoeuvres and jumps
   by taking the median (median of chi-square(1) = 0.455).
 
-A sensor whose measured jitter exceeds `ratio` x its stated sigma + `floor` while its NIS
-per axis exceeds `nis_high` is reported (`due`, at most once per `every` s of wall
-time, and in `status`) and, until it states better, its Cartesian measurements are
-used with the measured sigma (`adjust`): the track stays stable and smooths the jitter.
+A sensor whose measured jitter exceeds `ratio` x its stated sigma + `floor` is reported
+(`due`, at most once per `every` s of wall time, and in `status`) and, until it states
+better, its Cartesian measurements are used with the measured sigma (`adjust`): the
+track stays stable and smooths the jitter.
 A sensor whose stated sigma exceeds `ratio` x the measured one + `floor` with a NIS per
 axis below `nis_low` is reported in `status` only (too pessimistic: its tracks are merely
 slower than they could be), its measurements used as stated.
@@ -112,11 +112,11 @@ class NoiseCheck:
 
     def __init__(self, window: int = defaults.NOISE_WINDOW,
                  min_count: int = defaults.NOISE_MIN_COUNT, ratio: float = defaults.NOISE_RATIO,
-                 floor: float = defaults.NOISE_FLOOR, nis_high: float = defaults.NOISE_NIS_HIGH,
+                 floor: float = defaults.NOISE_FLOOR,
                  nis_low: float = defaults.NOISE_NIS_LOW, every: float = defaults.NOISE_EVERY
                  ) -> None:
         self.window, self.min_count, self.ratio, self.floor = window, min_count, ratio, floor
-        self.nis_high, self.nis_low, self.every = nis_high, nis_low, every
+        self.nis_low, self.every = nis_low, every
         self.sensors: dict[str, _Sensor] = {}
         # per layout (dimension): the last three Cartesian positions of each store row,
         # with the track id they belong to (a row is reused after a deletion)
@@ -242,10 +242,11 @@ class NoiseCheck:
         stated = float(np.median(np.fromiter(s.stated, float)))
         nis = float(np.mean(np.fromiter(s.nis, float)))
         report = NoiseReport(name, stated, measured, nis, len(s.res))
-        was = s.report is not None and s.report.too_small
-        # once reported too small, the measurements are used with the measured sigma and
-        # the NIS falls back toward 1: the measured jitter alone keeps the report
-        if measured > self.ratio * stated + self.floor and (was or nis > self.nis_high):
+        # too small: the jitter alone decides. The NIS cannot: an adaptive filter (the
+        # IMM's manoeuvre modes) takes jitter for manoeuvres and widens its prediction
+        # until the NIS is about 1 (docs/accuracy.md, "Exact positions"), and once the
+        # measured sigma is used the NIS falls back toward 1 anyway
+        if measured > self.ratio * stated + self.floor:
             return report
         if stated > self.ratio * measured + self.floor and nis < self.nis_low:
             return report
