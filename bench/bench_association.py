@@ -4,7 +4,8 @@ same unlabelled scans.
     python bench/bench_association.py [--runs R] [--scans S] [--targets N] [--clutter C]
                                       [--quick] [--scale] [--c 100]
 
-Scenario (`zenoh_track.clients.plotgen.crossing`): N = 20 targets on straight lines (100-250 m/s)
+Scenario (`zenoh_track.clients.feeds.plotgen.crossing`): N = 20 targets on straight lines (100-250
+m/s)
 crossing within 200 m of the origin around the middle scan, Pd 0.9, Poisson clutter of
 mean 20 per scan uniform over the surveillance square (the smallest one holding every
 trajectory; the true clutter density is printed), 2-D Cartesian detections with 25 m
@@ -28,7 +29,8 @@ recorded scans.
   which only finishes a small scenario: it runs on its own table (4 targets, 20 scans).
 
 Per tracker: GOSPA (García-Fernández, Rahmathullah & Svensson, FUSION 2017; c printed,
-p = 2, alpha = 2, `zenoh_track.clients.gospa`) averaged over scans and runs with its parts
+p = 2, alpha = 2, `zenoh_track.clients.evaluation.gospa`) averaged over scans and runs with its
+parts
 (localisation, missed, false, in m^2 as Stone Soup's GOSPAMetric gives them), identity
 switches, track breaks and false tracks (never within c of a truth) per run, mean time
 to confirm a truth, confirmed tracks at the end, and the wall time per scan
@@ -58,9 +60,9 @@ from scipy.stats import chi2
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
 from zenoh_track import defaults  # noqa: E402
-from zenoh_track.clients import plotgen  # noqa: E402
-from zenoh_track.clients.gospa import Evaluation, evaluate  # noqa: E402
-from zenoh_track.clients.progress import bar  # noqa: E402
+from zenoh_track.clients.evaluation.gospa import Evaluation, evaluate  # noqa: E402
+from zenoh_track.clients.evaluation.progress import bar  # noqa: E402
+from zenoh_track.clients.feeds import plotgen  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.tracking.batches import StepOutcome, Unlabelled  # noqa: E402
 from zenoh_track.tracking.plot_association import SensorModels  # noqa: E402

@@ -8,7 +8,7 @@ For each N and each display mode this starts, as separate processes on 127.0.0.1
 port, multicast scouting off):
 
     python -m zenoh_track --clock realtime --filter cv -l tcp/127.0.0.1:PORT [--no-display-keys]
-    python -m zenoh_track.clients.feed swarm --targets N --realtime --duration D \
+    python -m zenoh_track.clients.feeds.feed swarm --targets N --realtime --duration D \
         -e tcp/127.0.0.1:PORT
 
 (N targets, one radar measurement each per second, reported by sector as the beam turns)
@@ -76,8 +76,8 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout
 
+from zenoh_track.clients.evaluation.progress import bar  # noqa: E402
 from zenoh_track.clients.procs import stop  # noqa: E402
-from zenoh_track.clients.progress import bar  # noqa: E402
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker  # noqa: E402
 
 CLK = os.sysconf("SC_CLK_TCK")
@@ -333,7 +333,8 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     svc_cmd = [sys.executable, "-m", "zenoh_track", "--clock", "realtime", "-l", endpoint,
                "--ns", ns, *service_flags(args, display)]
-    feed_cmd = [sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(n),
+    feed_cmd = [sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",
+                str(n),
                 "--realtime", "--duration", str(duration), "-e", endpoint, "--ns", ns,
                 "--sectors", str(args.sectors)] + (["--batched"] if args.batched else [])
     svc = feed = session = obs = sampler = poller = None

@@ -51,7 +51,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
-from zenoh_track.clients.progress import bar  # noqa: E402
+from zenoh_track.clients.evaluation.progress import bar  # noqa: E402
 from zenoh_track.estimation import filters, kalman, models  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.measurements import MeasurementBatch  # noqa: E402

@@ -100,7 +100,7 @@ def run(clock: str, targets: int, joins: int) -> dict[str, list[float | None]]:
         s = zenoh.open(peer_config(endpoint))
         args = ["--duration", "3"] if clock == "lockstep" else ["--duration", "3600",
                                                                  "--realtime"]
-        feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feed", "swarm",
+        feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm",
                                  "--targets",
                                  str(targets), *args, "-e", endpoint, "--ns", keys.ns],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -34,7 +34,7 @@ import zenoh
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from zenoh_track.clients.procs import stop  # noqa: E402
-from zenoh_track.clients.recording import Recording  # noqa: E402
+from zenoh_track.clients.record.recording import Recording  # noqa: E402
 from zenoh_track.wire import Keys, free_port, peer_config, unpack, wait_for_tracker  # noqa: E402
 
 PY = sys.executable
@@ -69,7 +69,8 @@ class Service:
 
 
 def recorder(svc: Service, path: str, *keyexprs: str) -> subprocess.Popen:
-    proc = subprocess.Popen([PY, "-m", "zenoh_track.clients.record", "-o", path, "--mode", "client",
+    proc = subprocess.Popen([PY, "-m", "zenoh_track.clients.record.record", "-o", path, "--mode",
+                            "client",
                              "-e", svc.endpoint, "--ns", svc.ns, "--idle", "20", "--quiet",
                              *keyexprs], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
@@ -92,7 +93,7 @@ def finish(proc: subprocess.Popen) -> tuple[int, int, str]:
 
 def feed(svc: Service, args: argparse.Namespace) -> tuple[int, float]:
     start = time.monotonic()
-    out = subprocess.run([PY, "-m", "zenoh_track.clients.feed", "swarm", "--targets",
+    out = subprocess.run([PY, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",
                           str(args.targets),
                           "--duration", str(args.duration), "-e", svc.endpoint,
                           "--ns", svc.ns, "--receipt-timeout", "7200"],
@@ -168,7 +169,8 @@ def main(argv: list[str] | None = None) -> None:
     try:
         rec2 = recorder(svc2, second, "replay/tracks/**")
         t0 = time.monotonic()
-        out = subprocess.run([PY, "-m", "zenoh_track.clients.replay", first, "--feed", "--remap",
+        out = subprocess.run([PY, "-m", "zenoh_track.clients.feeds.replay", first, "--feed",
+                             "--remap",
                               "track=replay", "--fast", "-e", svc2.endpoint,
                               "--receipt-timeout", "7200"],
                              stdout=subprocess.PIPE, text=True, timeout=7200)

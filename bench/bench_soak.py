@@ -183,7 +183,8 @@ def run(minutes: float, targets: int, outage: float = 3.0, slow_ms: float = 2.0,
         obs = Observer(obs_s, keys)
         slow = SlowSubscriber(slow_s, keys, slow_ms)
         feed = subprocess.Popen(
-            [sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(targets),
+            [sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",
+             str(targets),
              "--duration", str(duration + 60), "--realtime", "-c",
              str(DEPLOY / "client.json5"), "-e", endpoint, "--ns", keys.ns],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

@@ -18,7 +18,8 @@ Sources of the `<ns>/frame` key at 30 Hz:
 - `frames`: this process publishes frames in the contract's format (N tracks on straight
   lines, all three statuses) from a Zenoh peer on loopback: the page alone is measured;
 - `service`: `python -m zenoh_track --clock realtime --filter cv --no-display-keys` fed by
-  `python -m zenoh_track.clients.feed swarm --targets N --realtime` (or `--feed`): the whole chain,
+  `python -m zenoh_track.clients.feeds.feed swarm --targets N --realtime` (or `--feed`): the whole
+  chain,
   sharing the cores with the service (0.6 of a core at 10,000 targets,
   docs/performance.md).
 
@@ -182,10 +183,10 @@ def run(n: int, source: str, args: argparse.Namespace, playwright) -> dict:
                                            *args.service.split(), "--no-display-keys",
                                            "--instance", "bench-web", "-l", endpoint]))
             procs.append(subprocess.Popen(
-                [PY, "-m", "zenoh_track.clients.feed", *args.feed.format(n=n).split(), "-e",
+                [PY, "-m", "zenoh_track.clients.feeds.feed", *args.feed.format(n=n).split(), "-e",
                  endpoint],
                 stdout=subprocess.DEVNULL))
-        procs.append(subprocess.Popen([PY, "-m", "zenoh_track.clients.web", "-e", endpoint,
+        procs.append(subprocess.Popen([PY, "-m", "zenoh_track.clients.web.web", "-e", endpoint,
                                        "--port",
                                        str(port)], stderr=subprocess.DEVNULL))
         wait_http(f"http://127.0.0.1:{port}/api/health")

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from imm_design import measurement, tracker, variant  # noqa: E402
 
-from zenoh_track.clients import scenarios  # noqa: E402
+from zenoh_track.clients.feeds import scenarios  # noqa: E402
 from zenoh_track.estimation import models  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import IMM, ModeSet  # noqa: E402

@@ -19,7 +19,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from zenoh_track.clients import metrics, scenarios  # noqa: E402
+from zenoh_track.clients.evaluation import metrics  # noqa: E402
+from zenoh_track.clients.feeds import scenarios  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import IMM, ModeSet, standard_modes  # noqa: E402
 from zenoh_track.tracking.batches import Labelled  # noqa: E402

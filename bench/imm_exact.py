@@ -39,7 +39,8 @@ from imm_consistency import nees  # noqa: E402
 from imm_design import measurement, tracker  # noqa: E402
 
 from zenoh_track import defaults  # noqa: E402
-from zenoh_track.clients import metrics, scenarios  # noqa: E402
+from zenoh_track.clients.evaluation import metrics  # noqa: E402
+from zenoh_track.clients.feeds import scenarios  # noqa: E402
 from zenoh_track.estimation import models  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import IMM, ModeSet  # noqa: E402

@@ -20,8 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import imm_design as design  # noqa: E402
 import manoeuvres as bench  # noqa: E402
 
-from zenoh_track.clients import manoeuvre_score as ms  # noqa: E402
-from zenoh_track.clients.manoeuvres import Manoeuvres  # noqa: E402
+from zenoh_track.clients.evaluation import manoeuvre_score as ms  # noqa: E402
+from zenoh_track.clients.feeds.manoeuvres import Manoeuvres  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import ModeSet  # noqa: E402
 

@@ -27,8 +27,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from zenoh_track import defaults  # noqa: E402
-from zenoh_track.clients import manoeuvre_score as ms  # noqa: E402
-from zenoh_track.clients.manoeuvres import Manoeuvres  # noqa: E402
+from zenoh_track.clients.evaluation import manoeuvre_score as ms  # noqa: E402
+from zenoh_track.clients.feeds.manoeuvres import Manoeuvres  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import ModeSet  # noqa: E402
 from zenoh_track.tracking.batches import Labelled, Unlabelled  # noqa: E402

@@ -8,7 +8,8 @@ measures an earlier commit from a worktree:
 
     git worktree add /tmp/base 4bdd515 && (cd /tmp/base && python <this file>)
 
-A swarm of N targets in one scan a second (`zenoh_track.clients.scenarios.swarm`, --sectors 1), each
+A swarm of N targets in one scan a second (`zenoh_track.clients.feeds.scenarios.swarm`, --sectors
+1), each
 scan as a `scan/<sensor>` payload checked into records (`parse_scan`), made columns again
 and applied by `Tracker.step` with the default filter; turns 0-1 warm up, turn 2 is
 measured. Beside it, the filter core (`filters.cmkf_step`, CV) on as many rows in the
@@ -29,7 +30,7 @@ import numpy as np
 sys.path.insert(0, os.getcwd())
 
 from zenoh_track import defaults  # noqa: E402
-from zenoh_track.clients import scenarios  # noqa: E402
+from zenoh_track.clients.feeds import scenarios  # noqa: E402
 from zenoh_track.estimation.filters import cmkf_step  # noqa: E402
 from zenoh_track.estimation.measurements import MeasurementBatch  # noqa: E402
 from zenoh_track.tracking.batches import Labelled  # noqa: E402

@@ -30,7 +30,7 @@ def measure(root: Path, kind: str, reps: int) -> tuple[float, str]:
     import bench_association as ba  # of that checkout
     import numpy as np
 
-    from zenoh_track.clients import plotgen
+    from zenoh_track.clients.feeds import plotgen
 
     # a checkout before Tracker.step took typed batches stepped a list of Outcome records
     apply = getattr(ba, "apply_scan", None) or (

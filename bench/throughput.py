@@ -72,7 +72,8 @@ def one(cmd: list[str], n: int, scans: int, batched: bool, log: Any) -> dict[str
             raise RuntimeError(f"{cmd} did not come up: {stop(proc)[-500:]}")
         replies = Replies(session, keys)
         time.sleep(0.5)
-        feed = [sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(n),
+        feed = [sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",
+                str(n),
                 "--duration", str(scans - 1), "--sectors", "1", "-e", endpoint, "--ns", ns]
         t0 = time.monotonic()
         done = subprocess.run(feed + (["--batched"] if batched else []), cwd=ROOT,
@@ -235,7 +236,7 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
     sustain: measurements per second with 30 frames per second."""
     from zenoh_track import defaults
     from zenoh_track.adapter.encode import pack_frame
-    from zenoh_track.clients import scenarios
+    from zenoh_track.clients.feeds import scenarios
     from zenoh_track.estimation.filters import cmkf_step
     from zenoh_track.estimation.measurements import MeasurementBatch
     from zenoh_track.tracking.batches import Labelled
@@ -361,7 +362,8 @@ def scaleout(args: argparse.Namespace, log: Any) -> None:
                 raise RuntimeError("shards did not come up")
             replies = Replies(session, keys)
             time.sleep(0.5)
-            subprocess.run([py, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(n),
+            subprocess.run([py, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",
+                           str(n),
                             "--duration", str(scans - 1), "--sectors", "1", "--mode", "client",
                             "-e", endpoint, "--ns", ns, "--trackers", str(shards)],
                            cwd=ROOT, capture_output=True, text=True, timeout=600)

@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from .lib import (
+    from zenoh_track.clients.lib import (
         TLS,
         Client,
         Feed,
@@ -27,7 +27,7 @@ __all__ = ["TLS", "Client", "Feed", "Frame", "Picture", "Rejected", "ServiceProc
 
 def __getattr__(name: str) -> Any:
     if name in __all__:
-        from . import lib
+        from zenoh_track.clients import lib
 
         return getattr(lib, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -15,9 +15,8 @@ import subprocess
 import sys
 import webbrowser
 
+from zenoh_track.clients.procs import stop_all
 from zenoh_track.wire import free_port
-
-from .procs import stop_all
 
 # s: the most the service may take to come up: its first start on a machine compiles the
 # filter kernels (docs/operations.md), longer than the feed's own wait on a busy machine
@@ -26,7 +25,7 @@ START_WAIT = 600.0
 
 def _alive(service: subprocess.Popen, endpoint: str) -> bool:
     """Wait for the service's liveliness token while it runs (at most START_WAIT s)."""
-    from .lib import connect
+    from zenoh_track.clients.lib import connect
 
     with connect(endpoint) as client:
         for _ in range(int(START_WAIT)):
@@ -71,12 +70,13 @@ def main(argv: list[str] | None = None) -> None:
     feed_args = {"swarm": ["--targets", str(args.targets), "--duration", str(args.duration)],
                  "crossing": [], "multisensor": ["--radars", "3"]}.get(
                      args.scenario, ["--runs", str(args.runs)])
-    feed = subprocess.Popen([py, "-m", "zenoh_track.clients.feed", args.scenario, "--realtime",
+    feed = subprocess.Popen([py, "-m", "zenoh_track.clients.feeds.feed", args.scenario,
+                            "--realtime",
                              "-e", endpoint, *feed_args], stdout=subprocess.DEVNULL)
     web = None
     try:
         if args.web:
-            web = subprocess.Popen([py, "-m", "zenoh_track.clients.web", "-e", endpoint,
+            web = subprocess.Popen([py, "-m", "zenoh_track.clients.web.web", "-e", endpoint,
                                     "--port", str(args.port)])
             url = f"http://127.0.0.1:{args.port}/"
             print(f"track-demo: the live map is on {url} (Ctrl-C stops the demo)", flush=True)
@@ -85,7 +85,8 @@ def main(argv: list[str] | None = None) -> None:
                 webbrowser.open(url)
             web.wait()
         else:
-            subprocess.run([py, "-m", "zenoh_track.clients.display", "-e", endpoint], check=False)
+            subprocess.run([py, "-m", "zenoh_track.clients.display.display", "-e", endpoint],
+                           check=False)
     except KeyboardInterrupt:
         pass
     finally:  # every child stopped at once, within one 10 s bound

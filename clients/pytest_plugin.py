@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import pytest
 
 if TYPE_CHECKING:
-    from .lib import Client, Feed, Frame, Picture, ServiceProcess
+    from zenoh_track.clients.lib import Client, Feed, Frame, Picture, ServiceProcess
 
 STARTED = pytest.StashKey[list["ServiceProcess"]]()
 Scope = Literal["session", "package", "module", "class", "function"]
@@ -43,7 +43,7 @@ def unique_ns() -> str:
 def start(node: pytest.Item | pytest.Collector | None, *args: str, ns: str | None = None,
           clock: str | None = "lockstep", wait: float = WAIT) -> ServiceProcess:
     """A ServiceProcess of these options, alive (or the test fails with its log)."""
-    from .lib import ServiceProcess
+    from zenoh_track.clients.lib import ServiceProcess
 
     svc = ServiceProcess(*args, ns=ns or unique_ns(), clock=clock)
     if node is not None:
@@ -61,7 +61,7 @@ def pytest_runtest_makereport(item: pytest.Item,
                               call: pytest.CallInfo[None]) -> Generator[None, Any, Any]:
     report = yield
     if report.failed:
-        from .lib import ServiceProcess
+        from zenoh_track.clients.lib import ServiceProcess
 
         started: list[ServiceProcess] = item.stash.get(STARTED, [])
         used = list(started)
@@ -173,7 +173,7 @@ def client(service_fixture: str, scope: Scope = "function") -> Any:
     @pytest.fixture(scope=scope)
     def fixture(request: pytest.FixtureRequest) -> Iterator[Client]:
         svc: ServiceProcess = request.getfixturevalue(service_fixture)
-        from .lib import connect
+        from zenoh_track.clients.lib import connect
 
         with connect(svc.endpoint, ns=svc.ns, wait=WAIT) as c:
             yield c

@@ -11,7 +11,7 @@ import pytest
 from reference.record import track
 
 from zenoh_track import defaults
-from zenoh_track.clients import scenarios
+from zenoh_track.clients.feeds import scenarios
 from zenoh_track.estimation.batch import einsum
 from zenoh_track.estimation.catalog import FilterSpec
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig

@@ -24,7 +24,7 @@ from conftest import Collector
 
 from zenoh_track import __main__ as service_cli
 from zenoh_track.clients import ServiceProcess
-from zenoh_track.clients import feed as feed_cli
+from zenoh_track.clients.feeds import feed as feed_cli
 from zenoh_track.clients.procs import stop
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker
 
@@ -260,7 +260,8 @@ def test_loopback_mirror_tracks_every_target_once():
         frames = Collector(session, keys.frame)
         assert wait_for_tracker(session, keys, len(SHARDS), timeout=20), "shards not up"
         feed = services["feed"]
-        subprocess.run([sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets",
+        subprocess.run([sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm",
+                       "--targets",
                         str(n_targets), "--duration", str(duration), "--trackers", "2",
                         "-c", str(host_path(feed, config_arg(feed["command"]))),
                         "-e", endpoint, "--ns", ns],

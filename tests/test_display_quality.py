@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from conftest import Collector
 
-from zenoh_track.clients import evaluate as track_eval
+from zenoh_track.clients.evaluation import evaluate as track_eval
 
 pytestmark = pytest.mark.slow
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from zenoh_track.clients import evaluate as track_eval
-from zenoh_track.clients import metrics
+from zenoh_track.clients.evaluation import evaluate as track_eval
+from zenoh_track.clients.evaluation import metrics
 
 pytestmark = pytest.mark.slow
 

@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-from zenoh_track.clients import evaluate as track_eval
+from zenoh_track.clients.evaluation import evaluate as track_eval
 
 pytestmark = pytest.mark.slow
 

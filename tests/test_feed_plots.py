@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import Collector
 
-from zenoh_track.clients import feed, feed_plots, plotgen, scenarios
+from zenoh_track.clients.feeds import feed, feed_plots, plotgen, scenarios
 from zenoh_track.wire import MSGPACK_ENCODING, Keys, unpack
 
 

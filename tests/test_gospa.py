@@ -1,4 +1,5 @@
-"""zenoh_track.clients.gospa: GOSPA (alpha = 2) on hand-worked cases, against brute force and
+"""zenoh_track.clients.evaluation.gospa: GOSPA (alpha = 2) on hand-worked cases, against brute
+force and
 against Stone Soup's `GOSPAMetric` on random sets; the track-level counts of `evaluate`."""
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from zenoh_track.clients.gospa import evaluate, gospa
+from zenoh_track.clients.evaluation.gospa import evaluate, gospa
 
 E = np.zeros((0, 2))
 

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 import zenoh
 
-from zenoh_track.clients import evaluate as track_eval
-from zenoh_track.clients.guidance import Interceptor, Law, earliest_reach, intercept_time
-from zenoh_track.clients.intercept import Interceptors
-from zenoh_track.clients.intercept_report import Truth
+from zenoh_track.clients.evaluation import evaluate as track_eval
+from zenoh_track.clients.feeds.scenarios import ManeuverC
+from zenoh_track.clients.intercept.guidance import Interceptor, Law, earliest_reach, intercept_time
+from zenoh_track.clients.intercept.intercept import Interceptors
+from zenoh_track.clients.intercept.intercept_report import Truth
 from zenoh_track.clients.procs import stop
-from zenoh_track.clients.scenarios import ManeuverC
 
 START, SPEED, CAPTURE, RATE = np.array([7000.0, 6000.0]), 20.0, 2.55, 30.0
 TARGET = ManeuverC()
@@ -158,7 +158,7 @@ def service_filters() -> set[str]:
 # (service arguments, allowed mean capture time over the physical limit). Measured with
 # 5 runs, seed 0: the default filter (IMM since 0c9ac8e; CV before: 645 s, +7.6 %)
 # 646 s (+7.8 %): its velocity lags the slow turn, so the collision course aims short;
-# the IMM at scenario C's low process noise (zenoh_track.clients.evaluate.SERVICE_ARGS)
+# the IMM at scenario C's low process noise (zenoh_track.clients.evaluation.evaluate.SERVICE_ARGS)
 # 618 s (+3.1 %).
 CASES = [pytest.param([], 0.10, id="default-filter"),
          pytest.param(["--filter", "imm", *track_eval.SERVICE_ARGS["maneuver"]], 0.05,
@@ -206,7 +206,8 @@ def test_intercept_through_service(service_factory, service_filters, service_arg
     pursuit = Interceptors(Law(guidance="pure"), name="pursuit").attach(
         s, svc.keys, like="maneuver-", truth=True, publish=False)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "zenoh_track.clients.intercept", "-e", svc.endpoint, "--ns", svc.ns,
+        [sys.executable, "-m", "zenoh_track.clients.intercept.intercept", "-e", svc.endpoint,
+         "--ns", svc.ns,
          "--targets-like", "maneuver-", "--guidance", "intercept", "--truth", "--json",
          "--instance", "itest"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -49,7 +49,7 @@ def test_a_late_joiner_gets_the_latest_instant_at_once(service_factory):
         late.close()
 
     # track-display started now shows every track of the paused picture
-    shown = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.display", "-e",
+    shown = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.display.display", "-e",
                               svc.endpoint,
                               "--ns", svc.ns, "--hz", "10"], stdout=subprocess.PIPE,
                              text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})

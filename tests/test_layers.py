@@ -114,8 +114,8 @@ def test_the_rules_catch_a_wrong_import(tmp_path: Path) -> None:
         _, (_, allowed) = rule_for(below + ".x")  # type: ignore[misc]
         assert not under("zenoh_track.adapter.worker", allowed), below
     _, (_, adapter) = rule_for("zenoh_track.adapter.worker")  # type: ignore[misc]
-    assert under("zenoh_track.tracking.tracker", adapter) and not under("zenoh_track.clients.feed",
-                                                                        adapter)
+    assert under("zenoh_track.tracking.tracker", adapter)
+    assert not under("zenoh_track.clients.feeds.feed", adapter)
 
 
 def test_the_adapter_is_its_own_package() -> None:
@@ -162,4 +162,16 @@ def test_the_old_import_names_are_gone() -> None:
                 old.append(f"{path.relative_to(ROOT)}: {imp}")
     assert not old, old
     assert not set(PACKAGE_DIR) & set(sys.modules), "a second copy under the folders' names"
-    assert module_name(ROOT / "clients" / "feed.py") == "zenoh_track.clients.feed"
+    assert module_name(ROOT / "clients" / "feeds" / "feed.py") == "zenoh_track.clients.feeds.feed"
+
+
+def test_clients_are_families() -> None:
+    """clients/ holds one sub-package per client family (feeds, display, web, record,
+    evaluation, intercept, the library): at its top only the demo, the process helpers and
+    the pytest plugin, never another flat module; and every family is installed."""
+    top = {p.stem for p in (ROOT / "clients").glob("*.py")}
+    assert top == {"__init__", "demo", "procs", "pytest_plugin", "pytest_enable"}, top
+    families = {p.parent.name for p in (ROOT / "clients").glob("*/__init__.py")}
+    text = (ROOT / "pyproject.toml").read_text()
+    assert families >= {"feeds", "display", "web", "record", "evaluation", "intercept", "lib"}
+    assert all(f'"zenoh_track.clients.{f}"' in text for f in families), families

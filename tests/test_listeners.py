@@ -47,7 +47,7 @@ class Encodings:
 def test_display_keys_only_for_the_tracks_someone_listens_to(service_factory):
     svc, s = service_factory("--clock", "realtime")
     frames = Encodings(s, "track/frame")
-    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feed", "swarm",
+    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm",
                              "--targets", "20",
                              "--duration", "30", "--realtime", "-e", svc.endpoint],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

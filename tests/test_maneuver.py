@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zenoh_track.clients import evaluate as track_eval
+from zenoh_track.clients.evaluation import evaluate as track_eval
 
 pytestmark = pytest.mark.slow
 

@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from zenoh_track.clients import evaluate as track_eval
-from zenoh_track.clients import manoeuvre_score as ms
-from zenoh_track.clients.manoeuvres import CLASSES, G, Manoeuvres
+from zenoh_track.clients.evaluation import evaluate as track_eval
+from zenoh_track.clients.evaluation import manoeuvre_score as ms
+from zenoh_track.clients.feeds.manoeuvres import CLASSES, G, Manoeuvres
 from zenoh_track.estimation.measurements import MeasurementBatch
 from zenoh_track.tracking import gating
 from zenoh_track.tracking.batches import Unlabelled

@@ -1,4 +1,5 @@
-"""clients/metrics.py: PCRB, polar Jacobian, chi2 intervals, NEES, RMSE windows, scenario B."""
+"""clients/evaluation/metrics.py: PCRB, polar Jacobian, chi2 intervals, NEES, RMSE windows,
+scenario B."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from zenoh_track.clients.metrics import (
+from zenoh_track.clients.evaluation.metrics import (
     chi2_cdf,
     chi2_interval,
     chi2_ppf_wh,

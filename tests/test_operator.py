@@ -38,7 +38,7 @@ def test_router_not_reached_after_retries():
     one_line(*run("--mode", "client", "-e", endpoint, "--connect-timeout", "1.5"),
              f"cannot reach {endpoint} after 1.5 s of retries")
     one_line(*run("radar3d", "--mode", "client", "-e", endpoint, "--connect-timeout", "1",
-                  module="zenoh_track.clients.feed"), "track-feed: cannot reach", endpoint)
+                  module="zenoh_track.clients.feeds.feed"), "track-feed: cannot reach", endpoint)
 
 
 def test_unreadable_files(tmp_path):

@@ -1,4 +1,4 @@
-"""zenoh_track.clients.plotgen: unlabelled-scan scenarios are deterministic, have the shapes,
+"""zenoh_track.clients.feeds.plotgen: unlabelled-scan scenarios are deterministic, have the shapes,
 detection probability, clutter rate and noise asked for, their polar detections agree with the
 truth, and their payloads read back through `zenoh_track.wire.parse_plots` unchanged."""
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from reference.record import track_scan
 
-from zenoh_track.clients import plotgen
+from zenoh_track.clients.feeds import plotgen
 from zenoh_track.wire import parse_plots
 
 NOISE = (1.0, 1.0, 1.0, 1.0)  # parse_plots' fallback noise: the payloads must override it

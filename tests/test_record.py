@@ -15,10 +15,10 @@ from collections import Counter, defaultdict
 import pytest
 from conftest import Collector, ServiceProc, client_session
 
-from zenoh_track.clients.record import distinct
-from zenoh_track.clients.recording import Recording, RecordingWriter, payload_time_ns
-from zenoh_track.clients.replay import remapper
-from zenoh_track.clients.scene import SCHEMA_NAME, TOPIC, _heading
+from zenoh_track.clients.display.scene import SCHEMA_NAME, TOPIC, _heading
+from zenoh_track.clients.feeds.replay import remapper
+from zenoh_track.clients.record.record import distinct
+from zenoh_track.clients.record.recording import Recording, RecordingWriter, payload_time_ns
 from zenoh_track.wire import (
     MSGPACK_ENCODING,
     PROTOCOL_VERSION,
@@ -148,7 +148,8 @@ class RecorderProc:
     def __init__(self, endpoint: str, path: str, *keyexprs: str, ns: str = "track",
                  until: tuple[str, str] = ("--idle", "3")) -> None:
         self.path = path
-        cmd = [sys.executable, "-m", "zenoh_track.clients.record", "-o", path, "--mode", "client",
+        cmd = [sys.executable, "-m", "zenoh_track.clients.record.record", "-o", path, "--mode",
+               "client",
                "-e", endpoint, "--ns", ns, *until, *keyexprs]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True)
@@ -205,7 +206,8 @@ def test_replayed_feed_gives_byte_identical_tracks(tmp_path):
         with client_session(svc2.endpoint) as s2:
             assert wait_for_tracker(s2, svc2.keys, 1, timeout=60)
         rec2 = RecorderProc(svc2.endpoint, second, "replay/tracks/**", ns="replay")
-        out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.replay", first, "--feed",
+        out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.feeds.replay", first,
+                             "--feed",
                               "--remap", "track=replay", "--fast", "-e", svc2.endpoint],
                              capture_output=True, text=True, timeout=300)
         assert out.returncode == 0, out.stderr
@@ -239,7 +241,7 @@ def test_whole_session_replay_is_paced_and_remapped(tmp_path, service_factory):
     assert len(frames) > 30 and span > 1.0
     got = Collector(s, "again/frame")
     start = time.monotonic()
-    out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.replay", path, "--remap",
+    out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.feeds.replay", path, "--remap",
                           "track=again", "--speed", "2", "-e", svc.endpoint],
                          capture_output=True, text=True, timeout=60)
     took = time.monotonic() - start
@@ -252,7 +254,7 @@ def test_whole_session_replay_is_paced_and_remapped(tmp_path, service_factory):
 def test_replay_refuses_a_file_that_is_not_a_recording(tmp_path):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"not an mcap file")
-    out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.replay", str(bad),
+    out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.feeds.replay", str(bad),
                           "--trackers", "0"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode != 0 and "cannot read" in out.stderr
@@ -261,7 +263,7 @@ def test_replay_refuses_a_file_that_is_not_a_recording(tmp_path):
 
 def test_plot_draws_the_confirmed_tracks_and_the_rates(tmp_path):
     """--plot: paths from the frames, never-confirmed tracks counted and left out."""
-    from zenoh_track.clients.recording_plot import paths, rates
+    from zenoh_track.clients.record.recording_plot import paths, rates
 
     path = tmp_path / "r.mcap"
     with open(path, "wb") as out:
@@ -281,7 +283,8 @@ def test_plot_draws_the_confirmed_tracks_and_the_rates(tmp_path):
     assert tentative == {"clutter"}
     assert per_kind["meas"].sum() == 40 and per_kind["frame"].sum() == 40
     png = tmp_path / "r.png"
-    out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.replay", str(path), "--plot",
+    out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.feeds.replay", str(path),
+                         "--plot",
                           str(png)], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

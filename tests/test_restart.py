@@ -53,7 +53,8 @@ def test_restart_brings_every_track_back_before_any_measurement(tmp_path):
         frames = Stamped(session, keys.frame)
         display = Stamped(session, keys.space("display"))
         assert wait_for_tracker(session, keys, 1, timeout=30)
-        subprocess.run([sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets",
+        subprocess.run([sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm",
+                       "--targets",
                         str(TARGETS), "--duration", "3", "--realtime", "-c",
                         str(DEPLOY / "client.json5"), "-e", endpoint, "--ns", keys.ns],
                        capture_output=True, timeout=60, check=True, env=ENV)

@@ -46,7 +46,8 @@ def test_router_restart_resumes_tracking_with_every_track_kept():
         display = Stamped(session, keys.space("display"))
         assert wait_for_tracker(session, keys, 1, timeout=30), "service not up"
         procs.append(subprocess.Popen(
-            [sys.executable, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(TARGETS),
+            [sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",
+             str(TARGETS),
              "--duration", "60", "--realtime", "-c", str(DEPLOY / "client.json5"),
              "-e", endpoint, "--ns", keys.ns],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV))

@@ -22,7 +22,7 @@ from routers import ENV, Stamped
 from secure_kit import KEYS, program
 
 from zenoh_track.clients.procs import stop
-from zenoh_track.clients.recording import Recording
+from zenoh_track.clients.record.recording import Recording
 from zenoh_track.wire import pack, unpack
 
 pytestmark = pytest.mark.slow

@@ -14,8 +14,8 @@ import time
 import pytest
 from conftest import Collector
 
-from zenoh_track.clients.display import handle
-from zenoh_track.clients.display_model import Frame, Health, Table, fmt_t
+from zenoh_track.clients.display.display import handle
+from zenoh_track.clients.display.display_model import Frame, Health, Table, fmt_t
 from zenoh_track.clients.procs import stop
 from zenoh_track.wire import f64_bin, pack
 
@@ -143,7 +143,7 @@ def bad_measurements(session, n: int) -> None:
 @pytest.mark.slow
 def test_once_prints_the_sorted_filtered_page_and_the_health(service_factory):
     svc, s = service_factory("--clock", "realtime")
-    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feed", "swarm",
+    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm",
                              "--targets", "20",
                              "--duration", "60", "--realtime", "-e", svc.endpoint],
                             stdout=subprocess.DEVNULL)
@@ -151,7 +151,8 @@ def test_once_prints_the_sorted_filtered_page_and_the_health(service_factory):
         frames = Collector(s, "track/frame")
         assert frames.wait_for(lambda ss: any(len(b[2]["ids"]) == 20 for b in ss), 60)
         bad_measurements(s, 3)
-        out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.display", "--once", "-e",
+        out = subprocess.run([sys.executable, "-m", "zenoh_track.clients.display.display",
+                             "--once", "-e",
                               svc.endpoint, "--sort", "speed", "--reverse", "--rows", "6",
                               "--filter", "swarm-0001"],
                              capture_output=True, text=True, timeout=60)
@@ -213,11 +214,12 @@ class Terminal:
 @pytest.mark.slow
 def test_keys_in_a_terminal(service_factory):
     svc, s = service_factory("--clock", "realtime")
-    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feed", "swarm",
+    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm",
                              "--targets", "12",
                              "--duration", "60", "--realtime", "-e", svc.endpoint],
                             stdout=subprocess.DEVNULL)
-    term = Terminal([sys.executable, "-m", "zenoh_track.clients.display", "-e", svc.endpoint])
+    term = Terminal([sys.executable, "-m", "zenoh_track.clients.display.display", "-e",
+                    svc.endpoint])
     try:
         assert term.wait_for(r"tracks=12 .*swarm-00011", 60), term.seen[-2000:]
         term.type("/00003\r")  # filter by id

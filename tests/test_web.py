@@ -22,8 +22,8 @@ import pytest
 import zenoh
 
 from zenoh_track.clients.procs import stop
-from zenoh_track.clients.web import WINDOW, parse_origin
-from zenoh_track.clients.web_frames import UNKNOWN_STATUS, FrameHub, read_message
+from zenoh_track.clients.web.web import WINDOW, parse_origin
+from zenoh_track.clients.web.web_frames import UNKNOWN_STATUS, FrameHub, read_message
 from zenoh_track.wire import STATUSES, Keys, free_port, pack, unpack
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
@@ -87,13 +87,13 @@ def test_origin_option():
 
 # ------------------------------------------------------------------ the server
 class WebProc:
-    """`python -m zenoh_track.clients.web` on a free port, connected to `endpoint`."""
+    """`python -m zenoh_track.clients.web.web` on a free port, connected to `endpoint`."""
 
     def __init__(self, endpoint: str, *extra: str) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "zenoh_track.clients.web", "-e", endpoint, "--port",
+            [sys.executable, "-m", "zenoh_track.clients.web.web", "-e", endpoint, "--port",
              str(self.port),
              *extra], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 30
@@ -305,7 +305,7 @@ def test_page_keeps_drawing_a_realtime_service(service_factory, browser, capsys)
     n = 1000
     svc, session = service_factory("--clock", "realtime", "--filter", "cv",
                                    "--no-display-keys")
-    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feed", "swarm",
+    feed = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm",
                              "--targets", str(n),
                              "--realtime", "--duration", "600", "-e", svc.endpoint],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

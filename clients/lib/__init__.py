@@ -2,12 +2,12 @@
 a `Feed` that publishes checked measurements, a `Picture` of every frame as NumPy
 columns (`Frame`). Imports only the wire contract, NumPy and Zenoh."""
 
-from ...wire import Rejected
-from .feed import Feed
-from .frames import Frame
-from .picture import Picture
-from .process import ServiceProcess
-from .session import TLS, Client, connect, session_config
+from zenoh_track.clients.lib.feed import Feed
+from zenoh_track.clients.lib.frames import Frame
+from zenoh_track.clients.lib.picture import Picture
+from zenoh_track.clients.lib.process import ServiceProcess
+from zenoh_track.clients.lib.session import TLS, Client, connect, session_config
+from zenoh_track.wire import Rejected
 
 __all__ = ["TLS", "Client", "Feed", "Frame", "Picture", "Rejected", "ServiceProcess",
            "connect", "session_config"]

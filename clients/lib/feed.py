@@ -13,10 +13,18 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
-from ...wire import MSGPACK_ENCODING, Rejected, pack, parse_full, parse_plots, parse_scan, unpack
+from zenoh_track.wire import (
+    MSGPACK_ENCODING,
+    Rejected,
+    pack,
+    parse_full,
+    parse_plots,
+    parse_scan,
+    unpack,
+)
 
 if TYPE_CHECKING:
-    from .session import Client
+    from zenoh_track.clients.lib.session import Client
 
 Values = float | Sequence[float] | npt.NDArray[np.floating[Any]]
 # the noise a check assumes where a message gives none (the check does not depend on it)

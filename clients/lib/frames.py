@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ...wire import STATUSES, decode_map
+from zenoh_track.wire import STATUSES, decode_map
 
 F64 = npt.NDArray[np.float64]
 NO_STATUS = len(STATUSES)  # the code of a track whose status the frame does not carry

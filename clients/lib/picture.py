@@ -10,10 +10,10 @@ from collections.abc import Callable, Iterator
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
-from .frames import Frame
+from zenoh_track.clients.lib.frames import Frame
 
 if TYPE_CHECKING:
-    from .session import Client
+    from zenoh_track.clients.lib.session import Client
 
 
 class Picture:

@@ -11,9 +11,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
 
-from ...wire import DEFAULT_NS, Keys, free_port
-from ..procs import stop
-from .session import Client, connect
+from zenoh_track.clients.lib.session import Client, connect
+from zenoh_track.clients.procs import stop
+from zenoh_track.wire import DEFAULT_NS, Keys, free_port
 
 
 class ServiceProcess:
@@ -76,7 +76,7 @@ class ServiceProcess:
     def feed(self, *args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
         """Run `track-feed ARGS` against it (its endpoint and namespace); raises
         CalledProcessError when the feed fails."""
-        cmd = [sys.executable, "-m", "zenoh_track.clients.feed", *args, "-e", self.endpoint,
+        cmd = [sys.executable, "-m", "zenoh_track.clients.feeds.feed", *args, "-e", self.endpoint,
                "--ns", self.ns]
         return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=True)
 

@@ -13,12 +13,20 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from ...wire import DEFAULT_NS, Keys, patient, stamping, unpack, wait_for_tracker, zenoh_config
-from ...wire.cli import zenoh_reason
+from zenoh_track.wire import (
+    DEFAULT_NS,
+    Keys,
+    patient,
+    stamping,
+    unpack,
+    wait_for_tracker,
+    zenoh_config,
+)
+from zenoh_track.wire.cli import zenoh_reason
 
 if TYPE_CHECKING:
-    from .feed import Feed
-    from .picture import Picture
+    from zenoh_track.clients.lib.feed import Feed
+    from zenoh_track.clients.lib.picture import Picture
 
 
 @dataclass(frozen=True)
@@ -72,7 +80,7 @@ class Client:
 
     def feed(self, sensor: str = "feed", check: bool = True) -> Feed:
         """A Feed publishing as sensor `sensor` (`check`: against the contract first)."""
-        from .feed import Feed
+        from zenoh_track.clients.lib.feed import Feed
 
         feed = Feed(self, sensor, check)
         self._opened.append(feed)
@@ -80,7 +88,7 @@ class Client:
 
     def picture(self, maxlen: int = 64) -> Picture:
         """A Picture of `frame`: at most `maxlen` frames queued for `next`/iteration."""
-        from .picture import Picture
+        from zenoh_track.clients.lib.picture import Picture
 
         pic = Picture(self, maxlen)
         self._opened.append(pic)

@@ -2,7 +2,8 @@
 
 `Law` holds the parameters of a run, `Interceptor` flies one interceptor at one displayed
 target, one display frame at a time (pure pursuit, proportional navigation or predicted
-intercept point; the laws are described in zenoh_track.clients.intercept); `intercept_time` and
+intercept point; the laws are described in zenoh_track.clients.intercept.intercept);
+`intercept_time` and
 `earliest_reach` are the collision-course and feasibility geometry.
 """
 

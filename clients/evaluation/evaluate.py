@@ -6,7 +6,7 @@ Monte Carlo run is a separate target, so all runs go through at once), collects
 RMSE per window or phase, the posterior Cramér-Rao bound and the ratio to it, average
 NEES and NIS with their 95 % chi-square intervals, and for display frames the RMS and
 maximum error and the largest visual jump. The unlabelled-scan scenarios `crossing` and
-`multisensor` are evaluated with GOSPA by clients/evaluate_plots.py.
+`multisensor` are evaluated with GOSPA by clients/evaluation/evaluate_plots.py.
 """
 
 from __future__ import annotations
@@ -20,17 +20,17 @@ from typing import Any
 
 import numpy as np
 
-from . import (
+from zenoh_track.clients.evaluation import (
     evaluate_defaults,
     evaluate_heldout,
     evaluate_manoeuvres,
     evaluate_plots,
     metrics,
-    scenarios,
 )
-from .collect import Collected, run_through_service
-from .intercept_report import summary_line
-from .progress import add_quiet_arg, bar
+from zenoh_track.clients.evaluation.collect import Collected, run_through_service
+from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
+from zenoh_track.clients.feeds import scenarios
+from zenoh_track.clients.intercept.intercept_report import summary_line
 
 START = {"display": 3.0, "radar3d": 20.0, "maneuver": 20.0}  # s: after initiation
 # service options per scenario: scenario C's target has no process noise, only two
@@ -303,18 +303,19 @@ def plot_display(collected: dict[str, Collected], outdir: str,
 
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["manoeuvres"]:  # its own options (clients/evaluate_manoeuvres.py)
+    if argv[:1] == ["manoeuvres"]:  # its own options (clients/evaluation/evaluate_manoeuvres.py)
         evaluate_manoeuvres.main(argv[1:])
         return
     p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
     p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *evaluate_plots.SCENARIOS,
                                         "defaults", "heldout", "manoeuvres"],
                    help="crossing, multisensor: unlabelled scans and GOSPA "
-                        "(clients/evaluate_plots.py); defaults: A, B and C with the "
+                        "(clients/evaluation/evaluate_plots.py); defaults: A, B and C with the "
                         "service's defaults beside the best filter of each "
-                        "(clients/evaluate_defaults.py); heldout: every other position of a "
+                        "(clients/evaluation/evaluate_defaults.py); heldout: every other "
+                        "position of a "
                         "1 Hz feed sent, the frame scored at the others "
-                        "(clients/evaluate_heldout.py); manoeuvres: track breaks, "
+                        "(clients/evaluation/evaluate_heldout.py); manoeuvres: track breaks, "
                         "held and RMSE/NEES per class of manoeuvre (its own options: "
                         "track-eval manoeuvres -h)")
     p.add_argument("--runs", type=int, default=None,

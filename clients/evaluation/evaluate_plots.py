@@ -2,15 +2,15 @@
 
 Each Monte Carlo run r (scenario seed `--seed` + r) starts a lockstep service with the
 tracker's default flags (plus `--associator`, `--filter`, `--service-arg`), publishes the
-scenario's scans with track-feed's code (clients/feed_plots.py) and collects the
+scenario's scans with track-feed's code (clients/feeds/feed_plots.py) and collects the
 `display/` messages at the scan instants: the service runs with `--rate` = scans per
 second, so that its display instants are the scan instants (the display rate does not
 touch the tracker), and `display/` carries each track's status. The estimates at a scan
 are the tracks shown `confirmed` or `coasting` (not `tentative`), at their position at
 the scan instant, after that scan's update (docs/protocol.md §6).
 
-Against the scan's truth (clients/plotgen.py, same seed): GOSPA (c = `--c`, p = 2,
-alpha = 2; clients/gospa.py) and its parts, averaged over the scans; per run, identity
+Against the scan's truth (clients/feeds/plotgen.py, same seed): GOSPA (c = `--c`, p = 2,
+alpha = 2; clients/evaluation/gospa.py) and its parts, averaged over the scans; per run, identity
 switches, track breaks, false confirmed tracks (never within c of a truth) and their
 lifetimes, and confirmed/false tracks at the last scan; per target, the time from its
 first detection to its first assignment to an established track, and the fraction of
@@ -30,9 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from . import feed, feed_plots, gospa, plotgen
-from .collect import Shown, run_plots_through_service
-from .progress import bar
+from zenoh_track.clients.evaluation import gospa
+from zenoh_track.clients.evaluation.collect import Shown, run_plots_through_service
+from zenoh_track.clients.evaluation.progress import bar
+from zenoh_track.clients.feeds import feed, feed_plots, plotgen
 
 SCENARIOS = feed_plots.SCENARIOS
 Rows = list[tuple[float, dict[str, np.ndarray], dict[str, np.ndarray]]]
@@ -211,7 +212,8 @@ def plot(scenario: str, sums: dict[str, dict[str, Any]], first: Run, label: str,
 
 
 def run(args: argparse.Namespace) -> None:
-    """`track-eval crossing|multisensor` with the parsed options of clients/evaluate.py."""
+    """`track-eval crossing|multisensor` with the parsed options of
+    clients/evaluation/evaluate.py."""
     if args.connect or args.intercept or args.display_variants:
         raise SystemExit("track-eval: -e, --intercept and --display-variants are for the "
                          "labelled scenarios")

@@ -27,15 +27,14 @@ from typing import Any
 import zenoh
 from aiohttp import WSMsgType, web
 
+from zenoh_track.clients.web.web_frames import FrameHub
+from zenoh_track.clients.web.web_link import Link
 from zenoh_track.wire import CHUNK, Keys, add_zenoh_args, fail, open_session
-
-from .web_frames import FrameHub
-from .web_link import Link
 
 WINDOW = 2  # frames in flight to one browser (unanswered)
 HEALTH_PERIOD = 1.0  # s between health messages
 TRAIL = 30.0  # s of history drawn behind each track
-STATIC = resources.files("zenoh_track.clients") / "web_static"
+STATIC = resources.files("zenoh_track.clients.web") / "web_static"
 
 
 def parse_origin(text: str) -> list[float]:

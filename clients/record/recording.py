@@ -9,7 +9,7 @@ order, log-time order and receive order agree) and publish_time = the Zenoh time
 the sample when it has one, else the payload's `t` (simulation seconds, as ns), else the
 receive time. A metadata record `zenoh-track` names the namespace, the protocol version,
 the package version and the key expressions recorded; `zenoh-track-end` the counts.
-The display channel (`/scene`, foxglove.SceneUpdate in JSON: clients/scene.py) is
+The display channel (`/scene`, foxglove.SceneUpdate in JSON: clients/display/scene.py) is
 derived from the `frame` samples.
 """
 
@@ -27,9 +27,8 @@ from mcap.reader import make_reader
 from mcap.well_known import SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
+from zenoh_track.clients.display import scene
 from zenoh_track.wire import MSGPACK_ENCODING, PROTOCOL_VERSION, Keys, unpack
-
-from . import scene
 
 META = "zenoh-track"
 META_END = "zenoh-track-end"

@@ -14,10 +14,9 @@ from collections import defaultdict
 
 import numpy as np
 
+from zenoh_track.clients.lib.frames import NO_STATUS, Frame
+from zenoh_track.clients.record.recording import Recording
 from zenoh_track.wire import unpack
-
-from .lib.frames import NO_STATUS, Frame
-from .recording import Recording
 
 MAX_LABELS = 30  # tracks labelled by id when there are at most this many
 

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .lib.frames import Frame
+from zenoh_track.clients.lib.frames import Frame
 
 # column name -> (title, justify); the sort keys are these names
 COLUMNS = {

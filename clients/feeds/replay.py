@@ -10,7 +10,7 @@ service behaves as `track-feed` does: it waits for the service's liveliness toke
 publishes with congestion control BLOCK (a busy service holds the replay back; nothing
 is dropped), and waits at the end until the service has confirmed receipt. A whole
 session (`tracks/`, `display/`, `frame` too) can be replayed for displays, with no
-service running. `--plot OUT.png` draws the recording instead (clients/recording_plot.py).
+service running. `--plot OUT.png` draws the recording instead (clients/record/recording_plot.py).
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ import time
 
 import zenoh
 
+from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
+from zenoh_track.clients.feeds.feed import delivered
+from zenoh_track.clients.record.recording import Channel, Recording
 from zenoh_track.wire import BLOCK_WAIT_US, Keys, add_zenoh_args, open_session, wait_for_tracker
-
-from .feed import delivered
-from .progress import add_quiet_arg, bar
-from .recording import Channel, Recording
 
 INPUTS = ("meas/**", "plots/**", "scan/**", "clock", "truth/**")  # a feed's keys under <ns>/
 
@@ -160,7 +159,7 @@ def main(argv: list[str] | None = None) -> None:
         if not channels:
             raise SystemExit("track-replay: nothing to replay (no recorded key matches)")
         if args.plot:
-            from .recording_plot import plot
+            from zenoh_track.clients.record.recording_plot import plot
 
             plot(args.file, args.plot, set(channels))
             print(f"track-replay: {args.plot} drawn from {args.file}", flush=True)

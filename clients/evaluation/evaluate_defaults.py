@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from . import evaluate
-from .collect import run_through_service
+from zenoh_track.clients.evaluation import evaluate
+from zenoh_track.clients.evaluation.collect import run_through_service
 
 BEST = {"display": "ca", "radar3d": "cv", "maneuver": "vdf"}
 # evaluation plumbing only (what the service publishes), not an estimation option

@@ -11,14 +11,14 @@ from typing import Any
 
 import numpy as np
 
-from .guidance import EPS_T, Interceptor, Law, earliest_reach
-from .scenarios import interpolate
+from zenoh_track.clients.feeds.scenarios import interpolate
+from zenoh_track.clients.intercept.guidance import EPS_T, Interceptor, Law, earliest_reach
 
 
 class Truth:
     """True states of one target at scan instants, interpolated with constant acceleration
     (the sample's `acc`, else the velocity difference to the next sample, else 0) by
-    zenoh_track.clients.scenarios.interpolate."""
+    zenoh_track.clients.feeds.scenarios.interpolate."""
 
     def __init__(self) -> None:
         self.t: list[float] = []

@@ -2,9 +2,9 @@
 
 Each Monte Carlo run r (seed `--seed` + r) starts a lockstep service (`--rate 1`, so
 that every scan instant, a whole second, is a display instant), publishes the
-`manoeuvres` scenario (clients/manoeuvres.py, with track-feed's code) and collects the
+`manoeuvres` scenario (clients/feeds/manoeuvres.py, with track-feed's code) and collects the
 `frame` at every scan instant (each track's position and status) and the `states`
-messages (each updated track's x and P). Scored by clients/manoeuvre_score.py: per
+messages (each updated track's x and P). Scored by clients/evaluation/manoeuvre_score.py: per
 class, the track breaks, the fraction of scans held after confirmation, and RMSE and
 NEES while manoeuvring and on straight legs.
 
@@ -27,11 +27,10 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from zenoh_track.clients.evaluation import manoeuvre_score as ms
+from zenoh_track.clients.evaluation.collect import lockstep_service
+from zenoh_track.clients.feeds import feed, feed_plots
 from zenoh_track.wire import Keys, peer_config, unpack, wait_for_tracker
-
-from . import feed, feed_plots
-from . import manoeuvre_score as ms
-from .collect import lockstep_service
 
 A_MAX = 7 * 9.80665  # m/s^2: the largest manoeuvre of the scenario
 SIGMA = 1.5e-3 * 36_000.0  # m: the radar's cross-range noise at the aircraft's distance

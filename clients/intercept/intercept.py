@@ -66,17 +66,7 @@ from typing import Any
 
 import zenoh
 
-from zenoh_track.wire import (
-    CHUNK,
-    MSGPACK_ENCODING,
-    Keys,
-    add_zenoh_args,
-    open_session,
-    pack,
-    unpack,
-)
-
-from .guidance import (
+from zenoh_track.clients.intercept.guidance import (
     DEFAULT_CAPTURE,
     DEFAULT_SPEED,
     DEFAULT_START,
@@ -86,7 +76,22 @@ from .guidance import (
     Interceptor,
     Law,
 )
-from .intercept_report import Truth, line, result_row, summarize, summary_line
+from zenoh_track.clients.intercept.intercept_report import (
+    Truth,
+    line,
+    result_row,
+    summarize,
+    summary_line,
+)
+from zenoh_track.wire import (
+    CHUNK,
+    MSGPACK_ENCODING,
+    Keys,
+    add_zenoh_args,
+    open_session,
+    pack,
+    unpack,
+)
 
 
 # ---------------------------------------------------------------- many interceptors
@@ -109,7 +114,7 @@ class Interceptors:
     waited past Zenoh's `wait_before_close` and the link was reset, losing frames).
     A slow interceptor therefore slows the lockstep service down instead of losing data.
     Typical in-process use, on the session that publishes the scenario (e.g.
-    zenoh_track.clients.evaluate.run_through_service's):
+    zenoh_track.clients.evaluation.evaluate.run_through_service's):
 
         ic = Interceptors(Law(guidance="intercept")).attach(session, keys,
                                                            like="maneuver-", truth=True)

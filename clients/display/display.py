@@ -35,9 +35,16 @@ from rich.live import Live
 from rich.table import Table as RichTable
 from rich.text import Text
 
+from zenoh_track.clients.display.display_model import (
+    COLUMNS,
+    SORTS,
+    Frame,
+    Health,
+    Table,
+    fmt_int,
+    fmt_t,
+)
 from zenoh_track.wire import Keys, add_zenoh_args, open_session, unpack
-
-from .display_model import COLUMNS, SORTS, Frame, Health, Table, fmt_int, fmt_t
 
 STATUS_STYLE = {"confirmed": "green", "tentative": "yellow", "coasting": "bright_black"}
 HELP = ("s sort · 1-0 column · r reverse · / filter · c clear · n/p page · g/G first/last "

@@ -20,7 +20,7 @@ import json
 import math
 from typing import Any
 
-from .lib.frames import Frame
+from zenoh_track.clients.lib.frames import Frame
 
 SCHEMA_NAME = "foxglove.SceneUpdate"
 TOPIC = "/scene"

@@ -2,7 +2,7 @@
 unlabelled scans of a data-association scenario.
 
 Measurements go to `<ns>/meas/<sensor>/<target>`, and the scans of `crossing`, `manoeuvres`,
-`multisensor` and `swarm --plots` (clients/feed_plots.py) to `<ns>/plots/<sensor>`, with
+`multisensor` and `swarm --plots` (clients/feeds/feed_plots.py) to `<ns>/plots/<sensor>`, with
 congestion control BLOCK (nothing is lost), as fast as possible or at the pace of
 simulation time (`--realtime`); the feed ends with a `<ns>/clock` message one scan after
 the last, then waits for every tracker to confirm receipt (a status query behind the
@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import zenoh
 
+from zenoh_track.clients.feeds import feed_plots, plotgen, scenarios
 from zenoh_track.wire import (
     BLOCK_WAIT_US,
     MSGPACK_ENCODING,
@@ -31,8 +32,6 @@ from zenoh_track.wire import (
     pack,
     wait_for_tracker,
 )
-
-from . import feed_plots, plotgen, scenarios
 
 # one scan: its time (shifted by --t0), its messages (truth first), measurements among them
 Batch = tuple[float, list[tuple[zenoh.KeyExpr, bytes]], int]

@@ -1,5 +1,5 @@
 """The unlabelled-scan scenarios of `track-feed` (`<ns>/plots/<sensor>`), built with
-`zenoh_track.clients.plotgen` from the feed's options.
+`zenoh_track.clients.feeds.plotgen` from the feed's options.
 
 - `crossing`: N straight flyers crossing near the origin, one Cartesian radar
   (`plotgen.crossing`).
@@ -7,7 +7,8 @@
   and scan phases (`plotgen.multisensor`; `--sigma` is their range noise, `--saz`
   their azimuth noise).
 - `manoeuvres`: aircraft flying straight, standard-rate, 4 g, 7 g S-turns and climbing
-  turns, one 3-D radar (`zenoh_track.clients.manoeuvres`); `--labelled` sends the same detections
+  turns, one 3-D radar (`zenoh_track.clients.feeds.manoeuvres`); `--labelled` sends the same
+  detections
   of the aircraft as labelled measurements (no clutter) instead.
 - `swarm --plots`: the targets of the labelled `swarm` scenario (same seed, same
   positions, speeds and headings), in the horizontal plane, scanned whole once per
@@ -23,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from . import manoeuvres, plotgen, scenarios
+from zenoh_track.clients.feeds import manoeuvres, plotgen, scenarios
 
 SCENARIOS = ("crossing", "multisensor")  # plots only; swarm is labelled unless --plots
 TARGETS = {"crossing": 20, "multisensor": 20, "swarm": 100}  # default --targets

@@ -3,7 +3,7 @@
 Pure NumPy (plus the standard library); no Zenoh and no service imports. States are
 [pos(d), vel(d)] with d = 3 (range, azimuth, elevation) or d = 2 (range, azimuth).
 Azimuth is a compass bearing from North, clockwise: x = r cos(el) sin(az),
-y = r cos(el) cos(az), z = r sin(el) (as in clients/scenarios.py).
+y = r cos(el) cos(az), z = r sin(el) (as in clients/feeds/scenarios.py).
 """
 
 from __future__ import annotations
@@ -237,8 +237,9 @@ def rmse_windows(sq_err: np.ndarray, edges: Sequence) -> list[float]:
 
 # ---------------------------------------------------------------- scenario B
 def scenario_b_truths(runs: int, seed: int) -> np.ndarray:
-    """Truth states (runs, scans, 6) of scenario B, from zenoh_track.clients.scenarios.radar3d."""
-    from zenoh_track.clients.scenarios import radar3d  # numpy-only module
+    """Truth states (runs, scans, 6) of scenario B, from
+    zenoh_track.clients.feeds.scenarios.radar3d."""
+    from zenoh_track.clients.feeds.scenarios import radar3d  # numpy-only module
 
     scans = [np.array([tr["pos"] + tr["vel"] for _, tr in truth])
              for _, _, truth in radar3d(runs=runs, seed=seed)]
@@ -254,7 +255,7 @@ def scenario_b_bound(runs: int, seed: int, init: str = "diffuse",
     i.e. the bound of two-point differencing with the process noise between them kept.
     init "two-point": J1 of `j1_two_point` at scan 1; scan 0 then has the position bound of
     the first measurement alone and an infinite velocity bound."""
-    from zenoh_track.clients.scenarios import RadarB
+    from zenoh_track.clients.feeds.scenarios import RadarB
 
     cfg = RadarB()
     truths = scenario_b_truths(runs, seed)

@@ -25,10 +25,9 @@ from typing import Any
 
 import zenoh
 
+from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
+from zenoh_track.clients.record.recording import RecordingWriter
 from zenoh_track.wire import Keys, add_zenoh_args, open_session, stamp_ns
-
-from .progress import add_quiet_arg, bar
-from .recording import RecordingWriter
 
 POLL = 0.2  # s: how often the writer looks at the stop conditions when no sample comes
 

@@ -222,7 +222,7 @@ class Manoeuvres:
 
     def labelled(self) -> Iterator[tuple[float, list[tuple[str, dict]], list[tuple[str, dict]]]]:
         """The same detections of the aircraft as labelled measurements (no clutter), in
-        the form of `zenoh_track.clients.scenarios` (t, [(target, measurement)], [(target,
+        the form of `zenoh_track.clients.feeds.scenarios` (t, [(target, measurement)], [(target,
                                                                                    truth)])."""
         names = [f.name for f in self.flights]
         for s in self:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from zenoh_track.clients.evaluation.collect import lockstep_service
 from zenoh_track.wire import (
     MSGPACK_ENCODING,
     Keys,
@@ -36,8 +37,6 @@ from zenoh_track.wire import (
     unpack,
     wait_for_tracker,
 )
-
-from .collect import lockstep_service
 
 SENSOR = "feed"
 WARMUP = 10.0  # s: scored from this long after a target's first position
@@ -97,7 +96,7 @@ def recorded(path: str) -> tuple[np.ndarray, np.ndarray, None]:
     """Times and positions of a recording's `meas/` messages with Cartesian `pos` at
     whole seconds (targets without a position at every second of the common span are
     left out)."""
-    from .recording import Recording  # noqa: PLC0415 (only for this feed)
+    from zenoh_track.clients.record.recording import Recording  # noqa: PLC0415 (only for this feed)
     by_target: dict[str, dict[float, list[float]]] = {}
     with open(path, "rb") as f:
         rec = Recording(f)

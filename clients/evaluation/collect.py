@@ -13,13 +13,12 @@ from typing import Any
 
 import zenoh
 
+from zenoh_track.clients.feeds import feed, feed_plots, scenarios
+from zenoh_track.clients.intercept.guidance import Law
+from zenoh_track.clients.intercept.intercept import Interceptors
+from zenoh_track.clients.lib import ServiceProcess
 from zenoh_track.wire import Keys, decode_frame, peer_config, unpack, wait_for_tracker
 from zenoh_track.wire.cli import open_or_exit
-
-from . import feed, feed_plots, scenarios
-from .guidance import Law
-from .intercept import Interceptors
-from .lib import ServiceProcess
 
 
 @dataclass

@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .lib.frames import NO_STATUS
-from .lib.frames import Frame as Columns
+from zenoh_track.clients.lib.frames import NO_STATUS
+from zenoh_track.clients.lib.frames import Frame as Columns
 
 MAGIC = b"TWF1"
 HEADER = struct.Struct("<4sIdIIII")  # 32 bytes

@@ -1,4 +1,4 @@
-"""Scoring of the `manoeuvres` scenario (clients/manoeuvres.py), shared by `track-eval
+"""Scoring of the `manoeuvres` scenario (clients/feeds/manoeuvres.py), shared by `track-eval
 manoeuvres` (through the service) and bench/manoeuvres.py (in-process and peers).
 
 A run's tracker output is, per scan instant t: the established (confirmed or coasting)
@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .manoeuvres import Manoeuvres
+from zenoh_track.clients.feeds.manoeuvres import Manoeuvres
 
 SETTLE = 20.0  # s after a manoeuvre before the flight counts as a straight leg
 START = 30.0  # s: no straight-leg figures before (initiation)

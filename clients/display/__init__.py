@@ -1,0 +1,1 @@
+"""The terminal display, `track-display`: the table and scene of the frames."""

@@ -1,0 +1,1 @@
+"""The interceptor, `track-intercept`: guidance on the display key space, and its report."""
