@@ -793,6 +793,10 @@ def main(argv: list[str] | None = None) -> None:
                    help="a subscriber of <ns>/tracks/** in another process "
                         "(bench/full_listener.py, as a recorder or a gateway): every message "
                         "counted, the missing ones and the latency reported")
+    p.add_argument("--scan-flood", type=int, nargs="*", default=None, metavar="N",
+                   help="instead of the sweep: 20 batched scans of N rows (default 10,000) "
+                        "put as fast as the service takes them: rows applied per second and "
+                        "frames per second meanwhile, --repeat times (bench/scan_flood.py)")
     p.add_argument("--sample", type=int, default=1000,
                    help="at most this many targets' tracks/ and meas/ keys subscribed")
     p.add_argument("--display-sample", type=int, default=10,
@@ -854,6 +858,11 @@ def main(argv: list[str] | None = None) -> None:
 
         pass_cost(args.pass_cost or [1, 16, 64, 128, 312, 1024], log,
                   full=args.full_listener)
+        return
+    if args.scan_flood is not None:
+        from scan_flood import scan_flood  # bench/scan_flood.py
+
+        scan_flood(args, log)
         return
     if args.scan_cost is not None:
         from throughput import scan_cost  # bench/throughput.py

@@ -330,6 +330,9 @@ class TrackService:
         """Taken rows wait in `pending`; the clock learns from them, and a frame due before
         one goes out before it (the rows cut where frames fall due)."""
         t = rows.batch.t
+        if self.clock.anytime and self.pending and \
+                sum(map(len, self.pending)) + len(t) > defaults.PASS_ROWS:
+            self._flush()  # realtime: a pass at most this long, then the frame due, if any
         self.clock.observe_all(t, walls)
         self._frames_before(float(t[0]))
         start = 0
