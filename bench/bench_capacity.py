@@ -363,8 +363,8 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
         if full:  # every tracks/ message, in a process of its own (bench/full_listener.py)
             listener = subprocess.Popen(
                 [sys.executable, str(ROOT / "bench" / "full_listener.py"), endpoint, ns,
-                 str(listen_out)], cwd=ROOT, env=env, stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE, text=True)
+                 str(listen_out)] + (["--callback"] if full == "callback" else []),
+                cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
             if listener.stdout.readline().strip() != "ready":  # type: ignore[union-attr]
                 raise RuntimeError("the full listener did not start")
             sampler.listener_pid = listener.pid
@@ -789,10 +789,12 @@ def main(argv: list[str] | None = None) -> None:
                         "at 10,000 tracks by stage (take, parse, bulk, filter, outputs), the "
                         "fixed and per-row parts (default K = 1 16 64 128 312 1024; "
                         "bench/pass_cost.py)")
-    p.add_argument("--full-listener", action="store_true",
+    p.add_argument("--full-listener", nargs="?", const="fifo", default=None,
+                   choices=("fifo", "callback"),
                    help="a subscriber of <ns>/tracks/** in another process "
                         "(bench/full_listener.py, as a recorder or a gateway): every message "
-                        "counted, the missing ones and the latency reported")
+                        "counted, the missing ones and the latency reported; its samples in "
+                        "a FIFO channel (default) or a Python callback on Zenoh's thread")
     p.add_argument("--scan-flood", type=int, nargs="*", default=None, metavar="N",
                    help="instead of the sweep: 20 batched scans of N rows (default 10,000) "
                         "put as fast as the service takes them: rows applied per second and "
