@@ -19,7 +19,7 @@ LISTENERS_REFRESH = 0.1  # s: how often a realtime service re-reads who subscrib
 # rows a realtime pass applies at most when more wait (batched scans put faster than they
 # are applied: a pass of each scan, not of all, and the frames due between them)
 PASS_ROWS = 16_384
-TRACKS_QUEUE = 50_000  # tracks/ messages a realtime service holds for slow subscribers, at most
+TRACKS_QUEUE = 20_000  # tracks/ messages a realtime service holds for slow subscribers, at most
 
 # ---------------------------------------------------------------- filters
 FILTER = "imm"  # imm, cv, ca, ekf, vdf
