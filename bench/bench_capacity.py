@@ -202,7 +202,7 @@ class Observer:
     """Subscribers and samplers of one run; everything stamped with time.time()."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, pattern: str, display: bool,
-                 display_pattern: str, batched: bool = False) -> None:
+                 display_pattern: str, batched: bool = False, tracks: bool = True) -> None:
         self.keys = keys
         self.frames: list[tuple[float, float, int]] = []  # (arrival, t, ids)
         self.meas: list[tuple[str, float, float]] = []  # (id, t, arrival)
@@ -210,9 +210,11 @@ class Observer:
         self.disp: list[tuple[str, float, float]] = []
         self.subs = [
             session.declare_subscriber(keys.frame, direct(self._on_frame)),
-            session.declare_subscriber(keys.tracks(pattern), direct(self._on(self.tracks))),
             session.declare_subscriber(keys.meas("*", pattern), direct(self._on(self.meas))),
         ]
+        if tracks:  # else the full listener's (another process) are paired instead
+            self.subs.append(session.declare_subscriber(keys.tracks(pattern),
+                                                        direct(self._on(self.tracks))))
         if batched:  # the sampled rows of each batched scan (scan/<sensor>)
             self.suffix = pattern.split("$*")[-1] if "$*" in pattern else ""
             self.subs.append(session.declare_subscriber(keys.scan("*"),
@@ -264,6 +266,7 @@ class Sampler(threading.Thread):
         super().__init__(daemon=True)
         self.pid, self.period = pid, period
         self.feed_pid: int | None = None
+        self.listener_pid: int | None = None
         self.rows: list[dict[str, Any]] = []
         self.halt = threading.Event()
 
@@ -279,6 +282,11 @@ class Sampler(threading.Thread):
                 if self.feed_pid:
                     try:
                         row["feed_cpu"] = cpu_seconds(self.feed_pid)
+                    except (FileNotFoundError, ProcessLookupError):
+                        pass
+                if self.listener_pid:
+                    try:
+                        row["listener_cpu"] = cpu_seconds(self.listener_pid)
                     except (FileNotFoundError, ProcessLookupError):
                         pass
                 self.rows.append(row)
@@ -337,7 +345,9 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
                 str(n),
                 "--realtime", "--duration", str(duration), "-e", endpoint, "--ns", ns,
                 "--sectors", str(args.sectors)] + (["--batched"] if args.batched else [])
-    svc = feed = session = obs = sampler = poller = None
+    svc = feed = session = obs = sampler = poller = listener = None
+    full = getattr(args, "full_listener", False)
+    listen_out = Path(tempfile.mkdtemp(prefix="full-listener-")) / "tracks.npz"
     svc_log = tempfile.TemporaryFile(mode="w+")
     feed_log = tempfile.TemporaryFile(mode="w+")
     res: dict[str, Any] = {"n": n, "mode": "display" if display else "frame",
@@ -348,8 +358,17 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
         session = session_open(endpoint)
         if not wait_for_tracker(session, keys, 1, timeout=30):
             raise RuntimeError("service did not come up")
-        obs = Observer(session, keys, pattern, display, dpattern, args.batched)
+        obs = Observer(session, keys, pattern, display, dpattern, args.batched,
+                       tracks=not full)
         sampler = Sampler(svc.pid, args.proc_period)
+        if full:  # every tracks/ message, in a process of its own (bench/full_listener.py)
+            listener = subprocess.Popen(
+                [sys.executable, str(ROOT / "bench" / "full_listener.py"), endpoint, ns,
+                 str(listen_out)] + (["--callback"] if full == "callback" else []),
+                cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+            if listener.stdout.readline().strip() != "ready":  # type: ignore[union-attr]
+                raise RuntimeError("the full listener did not start")
+            sampler.listener_pid = listener.pid
         sampler.start()
 
         def scan0() -> float | None:
@@ -375,10 +394,16 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
         sampler.halt.set()
         poller.join(timeout=15)
         sampler.join(timeout=5)
+        if listener is not None:
+            listener.communicate("stop\n", timeout=60)
+            got = np.load(listen_out)
+            obs.tracks = list(zip(got["ids"].tolist(), got["t"].tolist(),
+                                  got["arrival"].tolist(), strict=True))
+            res["listener_deletes"] = int(got["deletes"])
         feed_log.seek(0)
         res["feed_out"] = feed_log.read().strip()[-500:]
         res.update(analyse(n, display, obs, sampler, poller, duration, feed_end, warmup,
-                           n_sample))
+                           n_sample, full))
         res["loadavg_end"] = os.getloadavg()
     finally:
         if obs is not None:
@@ -388,7 +413,10 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
         if sampler is not None:
             sampler.halt.set()
         stop(feed, timeout=STOP_WAIT)
+        stop(listener, timeout=STOP_WAIT)
         stop(svc, timeout=STOP_WAIT)
+        listen_out.unlink(missing_ok=True)
+        listen_out.parent.rmdir()
         if session is not None:
             session.close()
         if svc is not None and svc.returncode not in (0, -15, None):
@@ -401,7 +429,8 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
 
 # ---------------------------------------------------------------- analysis
 def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: StatusPoller,
-            duration: float, feed_end: float, warmup: float, n_sample: int) -> dict[str, Any]:
+            duration: float, feed_end: float, warmup: float, n_sample: int,
+            full: bool = False) -> dict[str, Any]:
     r: dict[str, Any] = {}
     meas, tracks, frames = list(obs.meas), list(obs.tracks), list(obs.frames)
     if not meas:
@@ -484,6 +513,8 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
         r["frame_late_p50_ms"] = pct(late * 1e3, 50)
         r["frame_late_p99_ms"] = pct(late * 1e3, 99)
         r["frames_late_frac"] = float(np.mean(late > 1 / RATE))
+        # instants whose frame arrived within one period of it, of all the window's instants
+        r["frames_on_time_frac"] = len(np.unique(nn[late <= 1 / RATE])) / span
         r["frame_ids"] = int(np.median([k for _, _, k in fr]))
 
     # latency: tracks/ arrival - meas/ arrival of the same (id, t)
@@ -501,6 +532,13 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
     r["lat_p50_ms"] = pct(np.array(lat) * 1e3, 50)
     r["lat_p99_ms"] = pct(np.array(lat) * 1e3, 99)
     r["lat_max_ms"] = float(max(lat) * 1e3) if lat else float("nan")
+    if full:  # at the full listener: every tracks/ message of the run, and the sample's
+        sampled = {(i, round(t, 6)) for i, t, a in meas if lo <= a < hi}
+        got = {(i, round(t, 6)) for i, t, _ in tracks}
+        r["full_expected"] = len(sampled)
+        r["full_missing"] = len(sampled - got)
+        r["full_received"] = len(tracks)
+        r["full_unique"] = len(got)
 
     # display/ keys at the sampled subscriber
     if display:
@@ -532,9 +570,12 @@ def analyse(n: int, display: bool, obs: Observer, sampler: Sampler, poller: Stat
         r["machine_cores"] = os.cpu_count()
         if a["feed_cpu"] is not None and b["feed_cpu"] is not None:
             r["feed_cpu_pct"] = (b["feed_cpu"] - a["feed_cpu"]) / dt * 100
+        if "listener_cpu" in a and "listener_cpu" in b:
+            r["listener_cpu_pct"] = (b["listener_cpu"] - a["listener_cpu"]) / dt * 100
         # cores busy with anything else than the service, the feed and this process
         r["other_cores"] = max(0.0, (r["machine_busy_pct"] * r["machine_cores"] - r["cpu_pct"]
-                                     - r.get("feed_cpu_pct", 0) - r["observer_cpu_pct"]) / 100)
+                                     - r.get("feed_cpu_pct", 0) - r["observer_cpu_pct"]
+                                     - r.get("listener_cpu_pct", 0)) / 100)
         r["rss_mb"] = b["rss"]
         r["rss_max_mb"] = max(x["rss"] for x in rows)
     r["rss_series"] = [(round(x["wall"] - wall0, 1), round(x["rss"], 1)) for x in sampler.rows]
@@ -630,7 +671,23 @@ def table(results: list[dict[str, Any]]) -> str:
                      f"{fmt(r.get('observer_cpu_pct'), '.0f')}%; skipped instants after a "
                      f"long gap {r.get('skips_late', '-')}, after a normal one "
                      f"{r.get('skips_clock', '-')}{extra})")
+        if "full_expected" in r:
+            lines.append(full_line(r))
     return "\n".join(lines)
+
+
+def full_line(r: dict[str, Any]) -> str:
+    """What the full listener (another process, `tracks/**`) received, and the frames."""
+    nan = float("nan")
+    acc = (r.get("final_status") or {}).get("meas_accepted")
+    return (f"    full listener (tracks/**, another process): {r['full_received']} messages, "
+            f"{r['full_unique']} (id, t) of {fmt(acc, 'd')} measurements accepted in the "
+            f"run; of the window's sampled measurements {r['full_missing']} of "
+            f"{r['full_expected']} missing; lat p99 {fmt(r.get('lat_p99_ms'), '.0f')} ms "
+            f"max {fmt(r.get('lat_max_ms'), '.0f')} ms; frames on time "
+            f"{fmt(100 * r.get('frames_on_time_frac', nan), '.2f')} %, largest gap "
+            f"{fmt(r.get('interarrival_max_ms'), '.0f')} ms; listener CPU "
+            f"{fmt(r.get('listener_cpu_pct'), '.0f')}%")
 
 
 def memory_report(r: dict[str, Any], warmup: float, every: float = 10.0) -> str:
@@ -733,6 +790,16 @@ def main(argv: list[str] | None = None) -> None:
                         "at 10,000 tracks by stage (take, parse, bulk, filter, outputs), the "
                         "fixed and per-row parts (default K = 1 16 64 128 312 1024; "
                         "bench/pass_cost.py)")
+    p.add_argument("--full-listener", nargs="?", const="fifo", default=None,
+                   choices=("fifo", "callback"),
+                   help="a subscriber of <ns>/tracks/** in another process "
+                        "(bench/full_listener.py, as a recorder or a gateway): every message "
+                        "counted, the missing ones and the latency reported; its samples in "
+                        "a FIFO channel (default) or a Python callback on Zenoh's thread")
+    p.add_argument("--scan-flood", type=int, nargs="*", default=None, metavar="N",
+                   help="instead of the sweep: 20 batched scans of N rows (default 10,000) "
+                        "put as fast as the service takes them: rows applied per second and "
+                        "frames per second meanwhile, --repeat times (bench/scan_flood.py)")
     p.add_argument("--sample", type=int, default=1000,
                    help="at most this many targets' tracks/ and meas/ keys subscribed")
     p.add_argument("--display-sample", type=int, default=10,
@@ -792,7 +859,13 @@ def main(argv: list[str] | None = None) -> None:
     if args.pass_cost is not None:
         from pass_cost import pass_cost  # bench/pass_cost.py
 
-        pass_cost(args.pass_cost or [1, 16, 64, 128, 312, 1024], log)
+        pass_cost(args.pass_cost or [1, 16, 64, 128, 312, 1024], log,
+                  full=args.full_listener)
+        return
+    if args.scan_flood is not None:
+        from scan_flood import scan_flood  # bench/scan_flood.py
+
+        scan_flood(args, log)
         return
     if args.scan_cost is not None:
         from throughput import scan_cost  # bench/throughput.py

@@ -5,7 +5,8 @@ A `TrackService` (no flags: the default IMM, realtime clock) on a real Zenoh ses
 listens on loopback; a second session in this process puts the feed's messages
 (`<ns>/meas/radar1/swarm-NNNNNN`, the swarm feed's form: t, r, az, el, sr, saz, sel, seq)
 into the service's FIFO channel, and a consumer process subscribes to a sample of the
-`tracks/` ids (`tracks/swarm-$*0`, one in ten, as bench_capacity.py's latency sample).
+`tracks/` ids (`tracks/swarm-$*0`, one in ten, as bench_capacity.py's latency sample;
+with --full-listener every id's, `tracks/**`, as a recorder or a gateway).
 The service's worker thread is not started: this thread runs its steps, one pass per k
 messages once they have all arrived in the channel, and its thread CPU is split into
 
@@ -53,7 +54,8 @@ class Stopwatch:
         return timed
 
 
-def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) -> None:
+def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40,
+              full: bool = False) -> None:
     from zenoh_track.tracking.batches import Instant
     from zenoh_track.wire import Keys, free_port, pack, peer_config
     from zenoh_track.wire.session import admin_space
@@ -66,7 +68,8 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
     session = zenoh.open(admin_space(conf))  # as the service's: who listens to tracks/
     feeder = zenoh.open(peer_config(ep))
     keys = Keys("pc")
-    consumer = start_consumer(ep, keys.tracks("swarm-$*0"))
+    listened = keys.tracks("**" if full else "swarm-$*0")  # every track's, or a sample
+    consumer = start_consumer(ep, listened)
     arrived = [0]
     marker = session.declare_subscriber(keys.space("meas"), zenoh.handlers.Callback(
         lambda _: arrived.__setitem__(0, arrived[0] + 1), indirect=False))
@@ -150,7 +153,7 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40) 
             plain if isinstance(scan, Instant) else timed)(scan, *a, **k)  # frames: "rest"
         clock = time.thread_time
         log(f"worker CPU per pass of k single messages at {tracks} tracks (no flags: IMM, "
-            f"realtime; a consumer of tracks/swarm-$*0), median of {reps} passes, us:")
+            f"realtime; a consumer of {listened[3:]}), median of {reps} passes, us:")
         log(f"{'k':>6} " + " ".join(f"{s:>8}" for s in STAGES) + f" {'total':>8} "
             f"{'non-filt':>8} {'per row':>8}")
         medians: dict[int, dict[str, float]] = {}

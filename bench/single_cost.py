@@ -39,12 +39,24 @@ def start_consumer(ep: str, key: str) -> subprocess.Popen:
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
 
 
+def compiled() -> None:
+    """The compiled kernels loaded here, as a running service has them (the NumPy forms
+    serve only until they are: `estimation/jit.py`)."""
+    try:
+        from zenoh_track.estimation import imm_jit, jit
+        from zenoh_track.tracking import frame
+    except ImportError:  # a tree before jit.py: the kernels are compiled at import
+        return
+    jit.prepare([imm_jit, frame], wait=True)
+
+
 def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any:
     """A `TrackService` (no flags, realtime, its worker not started) on `session`, once
     the consumer is up and the service sees its subscription."""
     from zenoh_track.adapter import TrackService
     from zenoh_track.tracking.tracker import Tracker
 
+    compiled()
     consumer.stdout.readline()  # type: ignore[union-attr]
     svc = TrackService(session, keys, Tracker(), clock="realtime")
     end = time.monotonic() + 10
@@ -118,6 +130,7 @@ def step_cost(log: Any, tracks: int = 10_000, sizes: tuple[int, ...] = (1, 64, 3
     from zenoh_track.tracking.tracker import Tracker
     from zenoh_track.wire import Measurement
 
+    compiled()
     rng = np.random.default_rng(0)
     r, az = rng.uniform(5e3, 8e4, tracks), rng.uniform(-3, 3, tracks)
     ids = [f"swarm-{i:06d}" for i in range(tracks)]

@@ -36,6 +36,8 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from single_cost import compiled  # noqa: E402  # bench/single_cost.py
+
 from zenoh_track.clients.procs import stop  # noqa: E402
 from zenoh_track.wire import Keys, free_port, listen_config, peer_config, wait_for_tracker  # noqa: E402
 
@@ -154,6 +156,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
     log(f"{'':>8} {'no subscriber':^36} {'a subscriber of frame':^28}")
     log(f"{'N':>8} {'step':>7} {'snapshot':>9} {'publish':>8} {'total':>8} {'publish':>9} "
         f"{'total':>8} {'% of 33 ms':>10}")
+    compiled()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     session = zenoh.open(listen_config(endpoint))
     try:
@@ -248,6 +251,7 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
         "turn), CPU time of this process, turns 0-1 warm-up, turn 2 measured")
     log(f"{'N':>8} {'check':>7} {'apply':>7} {'core':>6} {'apply/core':>10} {'frame':>7} "
         f"{'meas/s/core':>12} {'records':>8} {'x':>5}")
+    compiled()
     for n in sizes:
         tracker, ref = Tracker(), Tracker()
         turns: list[list[bytes]] = [[], [], []]

@@ -16,6 +16,10 @@ BLEND = 0.0  # s: absorb a correction over this period (0: plain prediction)
 BLEND_SPEED = 0.0  # m/s: absorb a correction at this speed (0: no speed limit)
 LAG = 0.0  # s: display instants lag the clock, smoothed when bracketed
 LISTENERS_REFRESH = 0.1  # s: how often a realtime service re-reads who subscribes display/, tracks/
+# rows a realtime pass applies at most when more wait (batched scans put faster than they
+# are applied: a pass of each scan, not of all, and the frames due between them)
+PASS_ROWS = 16_384
+TRACKS_QUEUE = 20_000  # tracks/ messages a realtime service holds for slow subscribers, at most
 
 # ---------------------------------------------------------------- filters
 FILTER = "imm"  # imm, cv, ca, ekf, vdf

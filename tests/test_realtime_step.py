@@ -173,3 +173,34 @@ def test_the_worker_freezes_the_long_lived_objects_out_of_the_collectors_scans()
     finally:
         gc.unfreeze()
         session.close()
+
+
+def test_batched_scans_taken_together_are_applied_a_pass_each_beyond_the_pass_bound(
+        monkeypatch):
+    from zenoh_track import defaults
+    from zenoh_track.adapter.ingest import Scan
+    from zenoh_track.wire import f64_bin
+
+    monkeypatch.setattr(defaults, "PASS_ROWS", 50)
+    session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
+    try:
+        keys = Keys("rt")
+        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        passes: list[int] = []
+        rows = svc.tracking.rows
+        svc.tracking.rows = lambda r, *a: (passes.append(len(r)), rows(r, *a))[1]
+
+        def scan(t: float, n: int) -> Scan:
+            return Scan(keys.scan("r1"), pack({
+                "t": t, "ids": [f"x{i}" for i in range(n)],
+                "r": f64_bin([5000.0 + i for i in range(n)]),
+                "az": f64_bin([0.001 * i for i in range(n)]), "el": f64_bin([0.01] * n)}),
+                time.time())
+
+        t = time.time()
+        svc._process([scan(t, 40), scan(t + 0.2, 40), scan(t + 0.4, 5)])
+        assert passes == [40, 45]  # 80 > 50 rows: the first scan alone, then the rest
+        assert svc.count.meas_accepted == 85 and len(svc.tracker) == 40
+        svc.out.close()
+    finally:
+        session.close()

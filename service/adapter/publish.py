@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from dataclasses import dataclass, field
 
@@ -26,6 +25,9 @@ from ..tracking.store import States
 from ..wire import CHUNK, MSGPACK_ENCODING, Keys, pack, reason_code
 from .encode import pack_displays, pack_frame, pack_states, pack_tracks
 from .listeners import Listeners
+from .senders import FrameSender, TrackSender
+
+__all__ = ["Counters", "FrameSender", "Publisher"]
 
 MSGPACK = zenoh.Encoding(MSGPACK_ENCODING)
 
@@ -50,49 +52,6 @@ class Counters:
 
 
 
-class FrameSender:
-    """Puts realtime frames from a thread of its own, so the worker does not wait while
-    Zenoh copies a large frame out (7 MB at 100,000 tracks; the put releases the GIL).
-    A frame still waiting when the next one comes is replaced by it and counted in
-    `replaced` (what congestion control DROP does with a stale frame)."""
-
-    def __init__(self, pub: zenoh.Publisher) -> None:
-        self.pub = pub
-        self.cond = threading.Condition()
-        self.pending: bytes | None = None
-        self.closed = False
-        self.replaced = 0
-        self.thread = threading.Thread(target=self._run, name="frame-sender", daemon=True)
-        self.thread.start()
-
-    def put(self, body: bytes) -> None:
-        with self.cond:
-            if self.pending is not None:
-                self.replaced += 1
-            self.pending = body
-            self.cond.notify()
-
-    def _run(self) -> None:
-        while True:
-            with self.cond:
-                while self.pending is None and not self.closed:
-                    self.cond.wait()
-                if self.pending is None:
-                    return  # closed, and everything handed over put
-                body, self.pending = self.pending, None
-            try:
-                self.pub.put(body)
-            except Exception:  # a closed session: nothing more to send
-                log.exception("frame put failed")
-
-    def close(self) -> None:
-        """Put the frame still waiting, then stop."""
-        with self.cond:
-            self.closed = True
-            self.cond.notify()
-        self.thread.join(timeout=5)
-
-
 class Publisher:
     """Everything the service puts. `anytime` (frames on the wall clock, `Clock.anytime`):
     display keys may drop under congestion (a stale frame is worthless) and frames go out
@@ -110,8 +69,10 @@ class Publisher:
         self.block = cc.BLOCK
         self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc,
                                                    encoding=MSGPACK)
-        # realtime frames go out from a thread of their own; lockstep ones in order, here
+        # realtime frames and tracks/ go out from threads of their own (the worker never
+        # waits on a slow subscriber); lockstep ones in order, here
         self.sender = FrameSender(self.pub_frame) if anytime else None
+        self.track_sender = TrackSender(session, MSGPACK) if anytime else None
         self.pub_states = session.declare_publisher(keys.states, congestion_control=self.block,
                                                     encoding=MSGPACK)
         # who listens is read again every `refresh` s; at every step when frames follow the
@@ -167,6 +128,8 @@ class Publisher:
     def close(self) -> None:
         if self.sender is not None:
             self.sender.close()
+        if self.track_sender is not None:
+            self.track_sender.close()
         self.display_listeners.close()
         self.track_listeners.close()
 
@@ -223,8 +186,11 @@ class Publisher:
                 st = st.select(pick)
             bodies = pack_tracks(st.t, st.ids, st.pos, st.vel, st.x, st.p, st.models, st.nis,
                                  st.updates)
-            for track_id, body in zip(st.ids, bodies, strict=True):
-                put(keys(track_id)[1], body, congestion_control=block, encoding=MSGPACK)
+            if self.track_sender is not None:  # put by its thread, in order
+                self.track_sender.put([keys(i)[1] for i in st.ids], bodies)
+            else:
+                for track_id, body in zip(st.ids, bodies, strict=True):
+                    put(keys(track_id)[1], body, congestion_control=block, encoding=MSGPACK)
             self.count.tracks_puts += len(bodies)
 
     def _keys(self, track_id: str) -> tuple[zenoh.KeyExpr, zenoh.KeyExpr]:
@@ -290,7 +256,14 @@ class Publisher:
         """Announce deleted tracks: a Zenoh delete on each of their keys."""
         if not ids:
             return
-        for track_id in ids:
-            for key in self.track_keys.pop(track_id, None) or ():
-                self.session.delete(key, congestion_control=self.block)  # never dropped
+        block, sender = self.block, self.track_sender
+        gone = [k for k in map(self.track_keys.pop, ids, [None] * len(ids)) if k is not None]
+        if sender is None:
+            for keys in gone:
+                for key in keys:
+                    self.session.delete(key, congestion_control=block)  # never dropped
+        else:
+            for display_key, _ in gone:  # in order with the display/ puts, here
+                self.session.delete(display_key, congestion_control=block)
+            sender.delete([tracks_key for _, tracks_key in gone])  # after the states before
         self.count.tracks_deleted += len(ids)

@@ -11,6 +11,8 @@ of `Tracking`.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import gc
 import logging
 import math
@@ -46,6 +48,22 @@ POLL = 0.001  # s: an idle worker looks in the measurement channels this often
 # hold a frame up). Objects are still freed by reference counting; only cycles of frozen
 # objects would never be (the service makes none that outlive a step).
 FREEZE_EVERY = 5.0
+
+
+def _malloc_trim() -> Any:
+    """glibc's `malloc_trim` (None elsewhere). The tracks/ sender and Zenoh's threads
+    allocate and free in arenas of their own, which glibc does not give back to the system
+    by itself: the service's RSS crept up by ~1 MB a minute at 10,000 targets with a
+    `tracks/**` subscriber (docs/performance.md, issue 26); trimmed with the freeze, flat."""
+    try:
+        trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return None
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    return trim
+
+
+TRIM = _malloc_trim()
 
 
 class TrackService:
@@ -129,6 +147,8 @@ class TrackService:
                     self.state.tick(self)
                 if time.monotonic() >= self.next_freeze and self.ingest.idle():
                     gc.freeze()
+                    if TRIM is not None:
+                        TRIM(0)
                     self.next_freeze = time.monotonic() + FREEZE_EVERY
             except Exception:  # keep serving: one bad batch must not stop the service
                 log.exception("worker failed on a batch of %d inputs", len(batch))
@@ -330,6 +350,9 @@ class TrackService:
         """Taken rows wait in `pending`; the clock learns from them, and a frame due before
         one goes out before it (the rows cut where frames fall due)."""
         t = rows.batch.t
+        if self.clock.anytime and self.pending and \
+                sum(map(len, self.pending)) + len(t) > defaults.PASS_ROWS:
+            self._flush()  # realtime: a pass at most this long, then the frame due, if any
         self.clock.observe_all(t, walls)
         self._frames_before(float(t[0]))
         start = 0
