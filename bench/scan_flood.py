@@ -85,7 +85,7 @@ def flood_one(n: int, scans: int, full: bool, log: Any) -> dict[str, Any]:
         poller = threading.Thread(target=poll, daemon=True)
         poller.start()
         time.sleep(1.0)
-        feed = [py, "-m", "zenoh_track.clients.feed", "swarm", "--targets", str(n),
+        feed = [py, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets", str(n),
                 "--duration", str(scans - 1), "--sectors", "1", "--batched", "-e", ep,
                 "--ns", ns]
         subprocess.run(feed, cwd=ROOT, capture_output=True, text=True, timeout=600)
