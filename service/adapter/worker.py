@@ -54,7 +54,8 @@ def _malloc_trim() -> Any:
     """glibc's `malloc_trim` (None elsewhere). The tracks/ sender and Zenoh's threads
     allocate and free in arenas of their own, which glibc does not give back to the system
     by itself: the service's RSS crept up by ~1 MB a minute at 10,000 targets with a
-    `tracks/**` subscriber (docs/performance.md, issue 26); trimmed with the freeze, flat."""
+    `tracks/**` subscriber; trimmed with the freeze, it stayed within 301-318 MB over 10
+    minutes (docs/performance.md, issue 26)."""
     try:
         trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
     except (OSError, AttributeError):
