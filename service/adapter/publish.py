@@ -25,7 +25,7 @@ from ..tracking.store import States
 from ..wire import CHUNK, MSGPACK_ENCODING, Keys, pack, reason_code
 from .encode import pack_displays, pack_frame, pack_states, pack_tracks
 from .listeners import Listeners
-from .senders import FrameSender, TrackSender
+from .senders import FrameSender, InlineTrackSender, TrackSender
 
 __all__ = ["Counters", "FrameSender", "Publisher"]
 
@@ -72,7 +72,8 @@ class Publisher:
         # realtime frames and tracks/ go out from threads of their own (the worker never
         # waits on a slow subscriber); lockstep ones in order, here
         self.sender = FrameSender(self.pub_frame) if anytime else None
-        self.track_sender = TrackSender(session, MSGPACK) if anytime else None
+        self.track_sender = TrackSender(session, MSGPACK) if anytime else \
+            InlineTrackSender(session, MSGPACK)
         self.pub_states = session.declare_publisher(keys.states, congestion_control=self.block,
                                                     encoding=MSGPACK)
         # who listens is read again every `refresh` s; at every step when frames follow the
@@ -128,8 +129,7 @@ class Publisher:
     def close(self) -> None:
         if self.sender is not None:
             self.sender.close()
-        if self.track_sender is not None:
-            self.track_sender.close()
+        self.track_sender.close()
         self.display_listeners.close()
         self.track_listeners.close()
 
@@ -177,7 +177,7 @@ class Publisher:
         listeners = self.track_listeners
         if listeners.none:
             return  # nobody listens to tracks/: nothing to encode
-        put, keys, block = self.session.put, self._keys, self.block
+        keys = self._keys
         for st in blocks:
             if not listeners.everything:
                 pick = [i for i, k in enumerate(st.ids) if listeners.wants(k)]
@@ -186,11 +186,7 @@ class Publisher:
                 st = st.select(pick)
             bodies = pack_tracks(st.t, st.ids, st.pos, st.vel, st.x, st.p, st.models, st.nis,
                                  st.updates)
-            if self.track_sender is not None:  # put by its thread, in order
-                self.track_sender.put([keys(i)[1] for i in st.ids], bodies)
-            else:
-                for track_id, body in zip(st.ids, bodies, strict=True):
-                    put(keys(track_id)[1], body, congestion_control=block, encoding=MSGPACK)
+            self.track_sender.put([keys(i)[1] for i in st.ids], bodies)  # in order
             self.count.tracks_puts += len(bodies)
 
     def _keys(self, track_id: str) -> tuple[zenoh.KeyExpr, zenoh.KeyExpr]:
@@ -256,14 +252,8 @@ class Publisher:
         """Announce deleted tracks: a Zenoh delete on each of their keys."""
         if not ids:
             return
-        block, sender = self.block, self.track_sender
         gone = [k for k in map(self.track_keys.pop, ids, [None] * len(ids)) if k is not None]
-        if sender is None:
-            for keys in gone:
-                for key in keys:
-                    self.session.delete(key, congestion_control=block)  # never dropped
-        else:
-            for display_key, _ in gone:  # in order with the display/ puts, here
-                self.session.delete(display_key, congestion_control=block)
-            sender.delete([tracks_key for _, tracks_key in gone])  # after the states before
+        for display_key, _ in gone:  # in order with the display/ puts, here; never dropped
+            self.session.delete(display_key, congestion_control=self.block)
+        self.track_sender.delete([tracks_key for _, tracks_key in gone])  # after the states
         self.count.tracks_deleted += len(ids)

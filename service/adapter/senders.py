@@ -147,3 +147,27 @@ class TrackSender:
             self.closed = True
             self.cond.notify_all()
         self.thread.join(timeout=timeout)
+
+
+class InlineTrackSender:
+    """`TrackSender`'s puts and deletions made at once, on the caller's thread: a lockstep
+    service's outputs, in line with everything else it puts (a function of its inputs)."""
+
+    def __init__(self, session: zenoh.Session, encoding: zenoh.Encoding) -> None:
+        self.session, self.encoding = session, encoding
+
+    def put(self, keys: list[Any], bodies: list[bytes]) -> None:
+        block, enc, put = zenoh.CongestionControl.BLOCK, self.encoding, self.session.put
+        for k, b in zip(keys, bodies, strict=True):
+            put(k, b, congestion_control=block, encoding=enc)
+
+    def delete(self, keys: list[Any]) -> None:
+        block, delete = zenoh.CongestionControl.BLOCK, self.session.delete
+        for k in keys:
+            delete(k, congestion_control=block)
+
+    def idle(self) -> bool:
+        return True
+
+    def close(self) -> None:
+        """Nothing waits."""
