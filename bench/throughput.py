@@ -36,6 +36,7 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from scan_flood import kernels  # noqa: E402  # bench/scan_flood.py
 from single_cost import compiled  # noqa: E402  # bench/single_cost.py
 
 from zenoh_track.clients.procs import stop  # noqa: E402
@@ -72,6 +73,9 @@ def one(cmd: list[str], n: int, scans: int, batched: bool, log: Any) -> dict[str
     try:
         if not wait_for_tracker(session, keys, 1, timeout=60):
             raise RuntimeError(f"{cmd} did not come up: {stop(proc)[-500:]}")
+        end = time.monotonic() + 120  # the compiled kernels loaded: the steady speed
+        while time.monotonic() < end and kernels(session, keys) == "compiling":
+            time.sleep(0.1)
         replies = Replies(session, keys)
         time.sleep(0.5)
         feed = [sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",

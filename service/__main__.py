@@ -47,7 +47,8 @@ def tracker_config(args: argparse.Namespace) -> TrackerConfig:
                          display=DisplayConfig(rate=args.rate, blend=args.blend,
                                                blend_speed=args.blend_speed, lag=args.lag),
                          associator=args.associator, sensors=sensors,
-                         gate_probability=args.gate, max_speed=args.max_speed,
+                         gate_probability=args.gate, second_look=args.second_look,
+                         max_speed=args.max_speed,
                          confirm_m=m, confirm_n=n, confirm_score=args.confirm_score,
                          delete_misses=args.delete_misses, delete_sigma=args.delete_sigma)
 
@@ -157,6 +158,10 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--gate", type=float, default=defaults.GATE_PROBABILITY,
                    metavar="PROBABILITY", help="chi-square gate probability "
                                                "(default %(default)s)")
+    g.add_argument("--second-look", type=float, default=defaults.SECOND_LOOK,
+                   metavar="LN_RATIO", help="a confirmed track whose detection beats a miss "
+                   "by less than this log-likelihood ratio keeps its miss branch, and the "
+                   "next scan chooses (0: off; default %(default)s)")
     g.add_argument("--max-speed", type=float, default=defaults.MAX_SPEED,
                    help="m/s: fastest target; a new track's velocity prior has std a third "
                         "of it per axis (default %(default)s)")

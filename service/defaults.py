@@ -54,6 +54,9 @@ ASSOCIATOR = "gnn"  # gnn or jpda
 GATE_PROBABILITY = 0.999  # chi-square gate: a true detection falls outside it 1 in 1,000
 PD = 0.9  # detection probability of a sensor
 CLUTTER_DENSITY = None  # false detections per m^2 (2-D) or m^3 (3-D); None: estimated
+# a confirmed track whose detection beats a miss by less than this log-likelihood ratio
+# keeps its miss branch one scan (tracking.second_look; docs/accuracy.md); 0: never
+SECOND_LOOK = 3.0
 JPDA_MAX_EVENTS = 5000  # joint events enumerated per cluster; more: cheap JPDA
 MAX_SPEED = 340.0  # m/s: a new track's velocity prior has std MAX_SPEED / 3 per axis
 CONFIRM_M, CONFIRM_N = 3, 5  # confirmed once detected in 3 of its last 5 scans ...

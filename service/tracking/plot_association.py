@@ -39,6 +39,7 @@ from ..wire import TIME_TOL
 from .batches import Detections, Unlabelled
 from .gating import Gating, convert, gate, gate_threshold, restrict, singles, split
 from .hypotheses import Hypotheses, Seen, WeightedUpdate
+from .second_look import SecondLook
 from .store import TrackStore
 
 UNLIKELY = 1e12  # cost of a pair outside the gate in an assignment matrix
@@ -114,6 +115,8 @@ class _ScanAssociator:
         self.q, self.sensors = q, sensors or SensorModels()
         self.predict = None  # the filter's gate prediction (`gating.gate`), if it has one
         self.gate_probability = gate_probability
+        # doubtful assignments of confirmed tracks, kept a scan (the tracker sets it)
+        self.second_look = SecondLook(defaults.SECOND_LOOK)
 
     def split(self, scan: Unlabelled) -> list[tuple[list[int], Detections]]:
         """The scan's detections one dimension at a time (2-D and 3-D detections in one
@@ -137,10 +140,20 @@ class _ScanAssociator:
         ungated = n - np.count_nonzero(np.bincount(every.dj, minlength=n))
         lam = self.sensors.density(part.sensor, z, ungated)
         pd = self.sensors.model(part.sensor).pd
-        scores(every, pd, lam)  # once for both stages
+        score, miss = scores(every, pd, lam)  # once for both stages
+
+        def gate_rows(some: np.ndarray) -> tuple[Gating, np.ndarray]:
+            g = gate(arrays, some, z, r, t, self.q, gamma, self.predict)
+            return g, scores(g, pd, lam)[0]
+
+        if self.second_look.decide(arrays, every, t, score, miss, gate_rows):
+            every = gate_rows(rows)[0]  # a track put back on its miss branch
         confirmed = arrays.confirmed[rows]
         g = restrict(every, confirmed)
         free = self.resolve(g, np.arange(n), pd, lam, hyp)
+        seen = hyp.seen[-1]  # the confirmed tracks': a doubtful detection gets a second look
+        self.second_look.note(arrays, seen.rows[seen.detected],
+                              seen.gain[seen.detected] - miss, t)
         free = gnn(restrict(every, ~confirmed, free), free, pd, lam, hyp)
         if len(free):
             hyp.unassociated = free.tolist()

@@ -32,6 +32,7 @@ from .life import LIFE_COLUMNS, MofNDeleter, update_life
 from .noise_check import NoiseCheck
 from .plot_association import GNNAssociator, JPDAAssociator, SensorModels
 from .protocols import Associator, Deleter, Initiator, Updater
+from .second_look import SecondLook
 from .store import States, TrackArrays, TrackStore
 
 NON_FINITE = "update gave a non-finite state"
@@ -54,6 +55,7 @@ class TrackerConfig:
     associator: str = defaults.ASSOCIATOR  # a key of SCAN_ASSOCIATORS: "gnn" or "jpda"
     sensors: SensorModels = field(default_factory=SensorModels)
     gate_probability: float = defaults.GATE_PROBABILITY
+    second_look: float = defaults.SECOND_LOOK  # ln ratio below which a scan waits a scan
     max_speed: float = defaults.MAX_SPEED  # m/s: a new track's velocity std is a third
     confirm_m: int = defaults.CONFIRM_M
     confirm_n: int = defaults.CONFIRM_N
@@ -103,6 +105,8 @@ class Tracker:
             built.q, c.sensors, c.gate_probability)
         # the filter's own gate (the IMM's widest mode), if it has one
         self.scan_associator.predict = self.updater.gate_prediction
+        # a confirmed track's doubtful detection waits one scan (`second_look`)
+        self.scan_associator.second_look = SecondLook(c.second_look)
         self.initiator: Initiator = SinglePointInitiator(c.init_speed, c.init_accel)
         self.deleter: Deleter = CompositeDeleter(
             UpdateTimeDeleter(c.delete_after),
