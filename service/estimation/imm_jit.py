@@ -15,6 +15,9 @@ Numba: the kernels are imported when first used.
 
 from __future__ import annotations
 
+import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,6 +30,9 @@ if TYPE_CHECKING:
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 BLOCK = 16  # rows per block (imm_kernel.BLOCK; tests/test_imm_jit.py checks they agree)
+# rows per core from which a pass is split over the cores (each row's update is its own:
+# the same bits; below, a thread's hand-off costs more than it saves)
+PARALLEL_ROWS = 2048
 __all__ = ["BLOCK", "applies", "design", "step", "warm"]
 
 
@@ -46,17 +52,40 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
     k, n = len(rows), arrays.n
     xn, pn = np.empty((k, n)), np.empty((k, n, n))
     nis, ok = np.empty(k), np.empty(k, dtype=np.bool_)
-    if k:
-        from .imm_kernel import update_rows as _rows
+    if not k:
+        return xn, pn, nis, ok
+    from .imm_kernel import update_rows as _rows
 
-        tau, dest, kinds, qs = design(imm)
-        _rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
-              np.ascontiguousarray(rows, dtype=np.int64),
-              np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,))),
-              tau, dest, kinds, qs, np.ascontiguousarray(batch.polar),
-              np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
-              np.ascontiguousarray(batch.origin.T), xn, pn, nis, ok)
+    design_ = design(imm)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,)))
+    cols = (batch.polar[:, None], batch.values, batch.sigmas, batch.origin)  # row-major
+
+    def part(lo: int, hi: int) -> None:  # rows lo:hi; the kernel releases the GIL
+        polar, values, sigmas, origin = (np.ascontiguousarray(c[lo:hi].T) for c in cols)
+        _rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob, rows[lo:hi], dt[lo:hi],
+              *design_, polar[0], values, sigmas, origin, xn[lo:hi], pn[lo:hi], nis[lo:hi],
+              ok[lo:hi])
+
+    cut = np.linspace(0, k, min(_cores(), k // PARALLEL_ROWS + 1) + 1).astype(int).tolist()
+    others = [_pool().submit(part, lo, hi) for lo, hi in zip(cut[1:-1], cut[2:], strict=True)]
+    part(cut[0], cut[1])
+    for done in others:
+        done.result()
     return xn, pn, nis, ok
+
+
+@functools.cache
+def _cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+        os.cpu_count() or 1
+
+
+@functools.cache
+def _pool() -> ThreadPoolExecutor:
+    """Threads for the parts of a large pass beyond the caller's own."""
+    return ThreadPoolExecutor(max(1, _cores() - 1), thread_name_prefix="imm")
 
 
 _DESIGNS: dict[int, tuple] = {}
