@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
@@ -32,7 +33,8 @@ Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 BLOCK = 16  # rows per block (imm_kernel.BLOCK; tests/test_imm_jit.py checks they agree)
 # rows per core from which a pass is split over the cores (each row's update is its own:
 # the same bits; below, a thread's hand-off costs more than it saves)
-PARALLEL_ROWS = 2048
+PARALLEL_ROWS = 256
+NICE = 10  # the part threads' nice value above the process's
 __all__ = ["BLOCK", "applies", "design", "step", "warm"]
 
 
@@ -85,7 +87,17 @@ def _cores() -> int:
 @functools.cache
 def _pool() -> ThreadPoolExecutor:
     """Threads for the parts of a large pass beyond the caller's own."""
-    return ThreadPoolExecutor(max(1, _cores() - 1), thread_name_prefix="imm")
+    return ThreadPoolExecutor(max(1, _cores() - 1), thread_name_prefix="imm",
+                              initializer=_yielding)
+
+
+def _yielding() -> None:
+    """A part's thread yields its core to the frames, Zenoh and the other processes when
+    the cores are contended (a higher nice value, Linux: per thread)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
+    except (AttributeError, OSError):  # elsewhere: as the process
+        pass
 
 
 _DESIGNS: dict[int, tuple] = {}
