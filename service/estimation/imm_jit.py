@@ -4,7 +4,9 @@ finiteness mask to 1e-9 of each row's largest entry), without the fixed cost of 
 NumPy calls a pass. The rows are taken `BLOCK` at a time from the track store into
 batch-last work arrays, updated by the kernels of `imm_kernel` (the formulas and their
 sources are there) and written back in place; the loop releases the GIL (`nogil`), so
-the frame sender and Zenoh's threads run beside it.
+the frame sender and Zenoh's threads run beside it, and a pass of more than
+`PARALLEL_ROWS` rows a core is split over the cores (each row's update is its own: the
+same bits).
 
 Compiled once per machine and cached (`cache=True`: beside the kernels, or in the
 user's cache directory where that is not writable); `warm` compiles or loads it. The
