@@ -38,7 +38,8 @@ def test_pack_tracks_decodes_to_the_same_maps_as_pack():
     nis, updates = rng.random(n), np.array([1, 2, 70000])
     imm = ModeProbabilities(["quiet", "cv", "ca"], np.array(  # the IMM's: one map layout
         [[0.5, 0.25, 0.25], [1e-300, 1.0, 0.0], [0.1, 0.2, 0.7]]))
-    for models in (["cv", {"cv": 0.7, "ct+": 0.3}, "ca"], imm):
+    same = ["a-1", "b-2", "c_3"]  # ids of one length: each body one slice of the rows
+    for ids, models in ((ids, ["cv", {"cv": 0.7, "ct+": 0.3}, "ca"]), (ids, imm), (same, imm)):
         got = pack_tracks(t, ids, pos, vel, x, p, models, nis, updates)
         for i in range(n):
             want = {"t": float(t[i]), "id": ids[i], "pos": pos[i].tolist(),
