@@ -75,7 +75,7 @@ def pack_rows(columns: Sequence[Column], tails: Sequence[bytes],
     row's `tails` (packed key-value pairs, `tail_entries` of them).
 
     The rows are written into one (N, body) byte array: the template, the tails when all
-    are as long (track ids of one width: each body is then one slice), and each run of
+    are as long (track ids of one width: each body is then one row's bytes), and each run of
     evenly spaced numbers of a column by one strided big-endian view (a few NumPy calls a
     column, not one per number)."""
     n = len(tails)
@@ -95,9 +95,9 @@ def pack_rows(columns: Sequence[Column], tails: Sequence[bytes],
         src = col[:, first:first + count] if col.ndim == 2 else col[:, None]
         np.ndarray((n, count), dtype=">i8" if integer else ">f8", buffer=raw, offset=offset,
                    strides=(width, stride))[...] = src
-    buf = raw.tobytes()
     if whole:
-        return [buf[i:i + width] for i in range(0, n * width, width)]
+        return [row.tobytes() for row in raw]
+    buf = raw.tobytes()
     return [buf[i:i + size] + t for i, t in zip(range(0, n * size, size), tails, strict=True)]
 
 
