@@ -7,7 +7,9 @@ as fast as it can (`track-feed swarm --duration D`, no --realtime, each second's
 measurements in one burst: --sectors 1), and this process subscribing `<ns>/tracks/**`
 (so that the service puts every reply: it puts `tracks/<id>` only for subscribers) and
 counting the replies in a callback. Rate = replies / (last - first arrival); every
-measurement must be answered. The contenders run one after the other in the same run,
+measurement must be answered. `CPU us`: the contender's process CPU (all its threads,
+from /proc) per message from the feed's start to the last reply: on this CPU-bound
+2-core machine the ratio follows it. The contenders run one after the other in the same run,
 and the ratio to the echo floor is printed. With --batched the feed sends scans
 (`scan/<sensor>`, one per second of 10,000 rows), which the echo does not read: the
 batched line is the service alone.
