@@ -7,7 +7,9 @@ as fast as it can (`track-feed swarm --duration D`, no --realtime, each second's
 measurements in one burst: --sectors 1), and this process subscribing `<ns>/tracks/**`
 (so that the service puts every reply: it puts `tracks/<id>` only for subscribers) and
 counting the replies in a callback. Rate = replies / (last - first arrival); every
-measurement must be answered. The contenders run one after the other in the same run,
+measurement must be answered. `CPU us`: the contender's process CPU (all its threads,
+from /proc) per message from the feed's start to the last reply: on this CPU-bound
+2-core machine the ratio follows it. The contenders run one after the other in the same run,
 and the ratio to the echo floor is printed. With --batched the feed sends scans
 (`scan/<sensor>`, one per second of 10,000 rows), which the echo does not read: the
 batched line is the service alone.
@@ -22,6 +24,7 @@ frames.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import subprocess
 import sys
@@ -62,6 +65,17 @@ class Replies:
             self.last = now
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """CPU time (user + system, every thread) of a process so far; None without Linux's
+    /proc."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def one(cmd: list[str], n: int, scans: int, batched: bool, log: Any) -> dict[str, Any]:
     """Start `cmd` (a tracker on ENDPOINT/NS), flood it, count its replies."""
     ns = f"thr{os.getpid()}{time.monotonic_ns() % 100000}"
@@ -81,7 +95,7 @@ def one(cmd: list[str], n: int, scans: int, batched: bool, log: Any) -> dict[str
         feed = [sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",
                 str(n),
                 "--duration", str(scans - 1), "--sectors", "1", "-e", endpoint, "--ns", ns]
-        t0 = time.monotonic()
+        t0, cpu0 = time.monotonic(), cpu_seconds(proc.pid)
         done = subprocess.run(feed + (["--batched"] if batched else []), cwd=ROOT,
                               capture_output=True, text=True, timeout=600)
         sent_s = time.monotonic() - t0
@@ -90,8 +104,10 @@ def one(cmd: list[str], n: int, scans: int, batched: bool, log: Any) -> dict[str
         while replies.n < want and time.monotonic() < end:
             time.sleep(0.05)
         span = (replies.last or 0) - (replies.first or 0)
+        cpu1 = cpu_seconds(proc.pid)  # the flood's CPU: from the feed's start to the last reply
+        cpu = (cpu1 - cpu0) / want * 1e6 if cpu0 is not None and cpu1 is not None else math.nan
         return {"answered": replies.n, "sent": want, "rate": replies.n / span if span else 0,
-                "feed_s": sent_s, "feed_rc": done.returncode}
+                "feed_s": sent_s, "feed_rc": done.returncode, "cpu_us": cpu}
     finally:
         session.close()
         stop(proc)
@@ -111,18 +127,24 @@ def throughput(args: argparse.Namespace, log: Any) -> None:
     log(f"throughput: swarm of {n} targets, {scans} scans of {n} as fast as the feed can "
         f"(--sectors 1); replies on tracks/** counted here"
         + (f"; the contenders in turn {reps} times, medians" if reps > 1 else ""))
-    log(f"{'contender':<44} {'answered':>9} {'of':>9} {'per s':>8} {'x echo':>7}"
-        + ("  rates of each round" if reps > 1 else ""))
+    log(f"{'contender':<44} {'answered':>9} {'of':>9} {'per s':>8} {'x echo':>7} "
+        f"{'CPU us':>6}" + ("  rates of each round (x echo)" if reps > 1 else ""))
     rounds = [[one(cmd, n, scans, batched, log) for _, cmd, batched in runs]
               for _ in range(reps)]  # in turn: a change of the machine's load hits all
     floor = float(np.median([rs[0]["rate"] for rs in rounds]))
     for k, (name, _, _) in enumerate(runs):
         rates = [rs[k]["rate"] for rs in rounds]
         rate = float(np.median(rates))
+        cpu = float(np.median([rs[k]["cpu_us"] for rs in rounds]))
         answered = min(rs[k]["answered"] for rs in rounds)
         log(f"{name:<44} {answered:>9} {rounds[0][k]['sent']:>9} {rate:>8.0f} "
-            f"{rate / floor:>7.2f}" + ("  " + " ".join(f"{x:.0f}" for x in rates)
-                                        if reps > 1 else ""))
+            f"{rate / floor:>7.2f} {cpu:>6.1f}"
+            + ("  " + " ".join(f"{x:.0f} ({x / rs[0]['rate']:.2f})"
+                               for x, rs in zip(rates, rounds, strict=True))
+               if reps > 1 else ""))
+    log("  CPU us: the contender's process CPU (every thread) per message from the feed's "
+        "start to the last reply (median of the rounds); (x echo): each round's rate "
+        "against that round's echo")
 
 
 FRAME_WATCHER = """

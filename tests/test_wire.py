@@ -34,11 +34,13 @@ def test_pack_tracks_decodes_to_the_same_maps_as_pack():
     n, k = 3, 6
     t, x, p = rng.random(n) * 100, rng.normal(size=(n, k)), rng.normal(size=(n, k * k))
     pos, vel = x[:, :3], x[:, 3:]
-    ids = ["a", "b-2", "c_3"]
+    mixed = ["a", "b-2", "c_3"]
     nis, updates = rng.random(n), np.array([1, 2, 70000])
     imm = ModeProbabilities(["quiet", "cv", "ca"], np.array(  # the IMM's: one map layout
         [[0.5, 0.25, 0.25], [1e-300, 1.0, 0.0], [0.1, 0.2, 0.7]]))
-    for models in (["cv", {"cv": 0.7, "ct+": 0.3}, "ca"], imm):
+    same = ["a-1", "b-2", "c_3"]  # ids of one length: each body one slice of the rows
+    for ids, models in ((mixed, ["cv", {"cv": 0.7, "ct+": 0.3}, "ca"]), (mixed, imm),
+                        (same, imm)):
         got = pack_tracks(t, ids, pos, vel, x, p, models, nis, updates)
         for i in range(n):
             want = {"t": float(t[i]), "id": ids[i], "pos": pos[i].tolist(),

@@ -20,9 +20,12 @@ from ..wire import pack
 Column = tuple[str, "np.ndarray | tuple[list[str], np.ndarray]"]
 
 
-def _layout(columns: Sequence[Column], entries: int) -> tuple[np.dtype, bytes]:
-    """The record type and the template of one row's body (kept per shape of columns:
-    rebuilding a record type of ~100 fields costs ~0.2 ms a call)."""
+Write = tuple[int, int, int, int, int, bool]  # column, first value, count, offset, stride, int
+
+
+def _layout(columns: Sequence[Column], entries: int) -> tuple[bytes, tuple[Write, ...]]:
+    """The template of one row's body and where each column's numbers go in it (kept per
+    shape of columns)."""
     shape = []
     for key, value in columns:
         fields, col = value if isinstance(value, tuple) else (None, value)
@@ -33,25 +36,32 @@ def _layout(columns: Sequence[Column], entries: int) -> tuple[np.dtype, bytes]:
 
 @lru_cache(maxsize=64)
 def _layout_of(shape: tuple[tuple[str, tuple[str, ...] | None, int | None, bool], ...],
-               entries: int) -> tuple[np.dtype, bytes]:
-    """`_layout` of columns (key, fields, width (None: a vector), integer)."""
-    names, formats, offsets, template = [], [], [], pack_map_header(entries)
-    for key, fields, width, integer in shape:
+               entries: int) -> tuple[bytes, tuple[Write, ...]]:
+    """`_layout` of columns (key, fields, width (None: a vector), integer): the template
+    and the writes (column j's values first..first+count at offset, offset + stride, ...:
+    one strided write per run of values evenly spaced, as a vector's or an array's are)."""
+    template, writes = pack_map_header(entries), []
+    for j, (key, fields, width, integer) in enumerate(shape):
         template += pack(key)
         if fields is not None:  # a map of these fields, one number each
             template += pack_map_header(width)
         elif width is not None:
             template += bytes([0x90 | width]) if width < 16 else b"\xdc" + width.to_bytes(2, "big")
+        offsets = []
         for k in range(max(width or 0, 1)):
             if fields is not None:
                 template += pack(fields[k])
             template += (b"\xd3" if integer else b"\xcb") + bytes(8)
-            names.append(f"{key}.{k}")
-            formats.append(">i8" if integer else ">f8")
             offsets.append(len(template) - 8)
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets,
-                      "itemsize": len(template)})
-    return dtype, template
+        first = 0
+        while first < len(offsets):  # the runs of evenly spaced values
+            end = first + 1
+            stride = offsets[end] - offsets[first] if end < len(offsets) else 8
+            while end < len(offsets) and offsets[end] - offsets[end - 1] == stride:
+                end += 1
+            writes.append((j, first, end - first, offsets[first], stride, integer))
+            first = end
+    return template, tuple(writes)
 
 
 def pack_map_header(entries: int) -> bytes:
@@ -62,19 +72,33 @@ def pack_rows(columns: Sequence[Column], tails: Sequence[bytes],
               tail_entries: int) -> list[bytes]:
     """One MessagePack map per row: the numeric `columns` ((N,) or (N, k) arrays, or
     (k field names, (N, k) array) for a map of numbers, in this key order) then the
-    row's `tails` (packed key-value pairs, `tail_entries` of them)."""
+    row's `tails` (packed key-value pairs, `tail_entries` of them).
+
+    The rows are written into one (N, body) byte array: the template, the tails when all
+    are as long (track ids of one width: each body is then one row's bytes), and each run of
+    evenly spaced numbers of a column by one strided big-endian view (a few NumPy calls a
+    column, not one per number)."""
     n = len(tails)
     if not n:
         return []
-    dtype, template = _layout(columns, len(columns) + tail_entries)
-    raw = np.frombuffer(template * n, dtype=np.uint8).copy()
-    rec = raw.view(dtype)  # writes go through to raw; the markers between stay
-    for key, value in columns:
-        col = value[1] if isinstance(value, tuple) else value
-        for k in range(col.shape[1] if col.ndim == 2 else 1):
-            rec[f"{key}.{k}"] = col[:, k] if col.ndim == 2 else col
-    buf, size = raw.tobytes(), dtype.itemsize
-    return [buf[i:i + size] + tail for i, tail in zip(range(0, n * size, size), tails, strict=True)]
+    template, writes = _layout(columns, len(columns) + tail_entries)
+    size, tail = len(template), len(tails[0])
+    whole = all(len(t) == tail for t in tails)  # the tails go into the array too
+    width = size + tail if whole else size
+    raw = np.empty((n, width), dtype=np.uint8)
+    raw[:, :size] = np.frombuffer(template, dtype=np.uint8)
+    if whole and tail:
+        raw[:, size:] = np.frombuffer(b"".join(tails), dtype=np.uint8).reshape(n, tail)
+    cols = [value[1] if isinstance(value, tuple) else value for _, value in columns]
+    for j, first, count, offset, stride, integer in writes:
+        col = cols[j]
+        src = col[:, first:first + count] if col.ndim == 2 else col[:, None]
+        np.ndarray((n, count), dtype=">i8" if integer else ">f8", buffer=raw, offset=offset,
+                   strides=(width, stride))[...] = src
+    if whole:
+        return [row.tobytes() for row in raw]
+    buf = raw.tobytes()
+    return [buf[i:i + size] + t for i, t in zip(range(0, n * size, size), tails, strict=True)]
 
 
 class PackedStrings:

@@ -177,7 +177,7 @@ class Publisher:
         listeners = self.track_listeners
         if listeners.none:
             return  # nobody listens to tracks/: nothing to encode
-        keys = self._keys
+        known, keys = self.track_keys, self._keys
         for st in blocks:
             if not listeners.everything:
                 pick = [i for i, k in enumerate(st.ids) if listeners.wants(k)]
@@ -186,7 +186,8 @@ class Publisher:
                 st = st.select(pick)
             bodies = pack_tracks(st.t, st.ids, st.pos, st.vel, st.x, st.p, st.models, st.nis,
                                  st.updates)
-            self.track_sender.put([keys(i)[1] for i in st.ids], bodies)  # in order
+            self.track_sender.put([(known.get(i) or keys(i))[1] for i in st.ids],
+                                  bodies)  # in order
             self.count.tracks_puts += len(bodies)
 
     def _keys(self, track_id: str) -> tuple[zenoh.KeyExpr, zenoh.KeyExpr]:

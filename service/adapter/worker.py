@@ -98,6 +98,7 @@ class TrackService:
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> TrackService:
+        gc.set_threshold(*defaults.GC_THRESHOLDS)  # the process's: it runs this worker
         self.thread.start()
         return self
 
