@@ -78,26 +78,3 @@ def test_compiled_imm_is_the_textbook_imm(dim, count):
 def test_turn_modes_take_the_textbook_code():
     imm = FilterSpec("imm", imm_turn=2.0).build().updater
     assert not imm_jit.applies(imm)
-
-
-def test_a_large_pass_split_over_cores_gives_the_same_bits(monkeypatch):
-    """A pass of more than `PARALLEL_ROWS` rows a core runs in parts on the cores (the
-    kernel releases the GIL): every output and posterior bit-equal to one part."""
-    rng = np.random.default_rng(7)
-    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm")))
-    for t in range(4):
-        track(tracker, measurements(40, float(t), 3, rng))
-    arrays = tracker.store.layout(3)
-    rows = arrays.live()[0][::-1]
-    batch = MeasurementBatch.of(measurements(40, 4.5, 3, rng)[::-1], 3)
-    dt = batch.t - arrays.t[rows]
-    got = {}
-    for cores in (1, 3):
-        monkeypatch.setattr(imm_jit, "_cores", lambda cores=cores: cores)
-        monkeypatch.setattr(imm_jit, "PARALLEL_ROWS", 8)  # 40 rows: 3 parts, or 1
-        work = copy.deepcopy(arrays)
-        out = imm_jit.step(tracker.updater, work, rows, dt, batch)
-        got[cores] = (*out, work.mode_x[rows], work.mode_p[rows], work.mode_prob[rows])
-    assert got[1][3].all()
-    for one, split in zip(got[1], got[3], strict=True):
-        assert np.array_equal(one, split)

@@ -4,9 +4,7 @@ finiteness mask to 1e-9 of each row's largest entry), without the fixed cost of 
 NumPy calls a pass. The rows are taken `BLOCK` at a time from the track store into
 batch-last work arrays, updated by the kernels of `imm_kernel` (the formulas and their
 sources are there) and written back in place; the loop releases the GIL (`nogil`), so
-the frame sender and Zenoh's threads run beside it, and a pass of more than
-`PARALLEL_ROWS` rows a core is split over the cores (each row's update is its own: the
-same bits).
+the frame sender and Zenoh's threads run beside it.
 
 Compiled once per machine and cached (`cache=True`: beside the kernels, or in the
 user's cache directory where that is not writable); `warm` compiles or loads it. The
@@ -17,10 +15,6 @@ Numba: the kernels are imported when first used.
 
 from __future__ import annotations
 
-import functools
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,10 +27,6 @@ if TYPE_CHECKING:
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 BLOCK = 16  # rows per block (imm_kernel.BLOCK; tests/test_imm_jit.py checks they agree)
-# rows per core from which a pass is split over the cores (each row's update is its own:
-# the same bits; below, a thread's hand-off costs more than it saves)
-PARALLEL_ROWS = 256
-NICE = 10  # the part threads' nice value above the process's
 __all__ = ["BLOCK", "applies", "design", "step", "warm"]
 
 
@@ -56,50 +46,17 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
     k, n = len(rows), arrays.n
     xn, pn = np.empty((k, n)), np.empty((k, n, n))
     nis, ok = np.empty(k), np.empty(k, dtype=np.bool_)
-    if not k:
-        return xn, pn, nis, ok
-    from .imm_kernel import update_rows as _rows
+    if k:
+        from .imm_kernel import update_rows as _rows
 
-    design_ = design(imm)
-    rows = np.ascontiguousarray(rows, dtype=np.int64)
-    dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,)))
-    cols = (batch.polar[:, None], batch.values, batch.sigmas, batch.origin)  # row-major
-
-    def part(lo: int, hi: int) -> None:  # rows lo:hi; the kernel releases the GIL
-        polar, values, sigmas, origin = (np.ascontiguousarray(c[lo:hi].T) for c in cols)
-        _rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob, rows[lo:hi], dt[lo:hi],
-              *design_, polar[0], values, sigmas, origin, xn[lo:hi], pn[lo:hi], nis[lo:hi],
-              ok[lo:hi])
-
-    cut = np.linspace(0, k, min(_cores(), k // PARALLEL_ROWS + 1) + 1).astype(int).tolist()
-    others = [_pool().submit(part, lo, hi) for lo, hi in zip(cut[1:-1], cut[2:], strict=True)]
-    part(cut[0], cut[1])
-    for done in others:
-        done.result()
+        tau, dest, kinds, qs = design(imm)
+        _rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
+              np.ascontiguousarray(rows, dtype=np.int64),
+              np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,))),
+              tau, dest, kinds, qs, np.ascontiguousarray(batch.polar),
+              np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
+              np.ascontiguousarray(batch.origin.T), xn, pn, nis, ok)
     return xn, pn, nis, ok
-
-
-@functools.cache
-def _cores() -> int:
-    """The cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
-        os.cpu_count() or 1
-
-
-@functools.cache
-def _pool() -> ThreadPoolExecutor:
-    """Threads for the parts of a large pass beyond the caller's own."""
-    return ThreadPoolExecutor(max(1, _cores() - 1), thread_name_prefix="imm",
-                              initializer=_yielding)
-
-
-def _yielding() -> None:
-    """A part's thread yields its core to the frames, Zenoh and the other processes when
-    the cores are contended (a higher nice value, Linux: per thread)."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
-    except (AttributeError, OSError):  # elsewhere: as the process
-        pass
 
 
 _DESIGNS: dict[int, tuple] = {}
