@@ -39,7 +39,7 @@ def steady_malloc() -> None:
 def tracker_config(args: argparse.Namespace) -> TrackerConfig:
     """The tracker's configuration from the options."""
     spec = FilterSpec(args.filter, args.q, args.imm_ct_q, args.imm_turn, args.imm_sojourn,
-                      args.vdf_detect, args.vdf_settle)
+                      args.vdf_detect, args.vdf_settle, args.imm_onset)
     m, n = confirm_rule(args.confirm)
     sensors = sensor_models(args)
     return TrackerConfig(filter=spec, init_speed=args.init_speed, init_accel=args.init_accel,
@@ -96,6 +96,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--imm-sojourn", type=float, default=defaults.IMM_SOJOURN,
                    help="IMM: mean time in the quiet and in the nominal mode, s (staying "
                         "probability exp(-dt/sojourn); default %(default)s)")
+    p.add_argument("--imm-onset", type=float, default=defaults.IMM_ONSET, metavar="SECONDS",
+                   help="IMM: 1 / the rate of entering the manoeuvre modes, s; smaller "
+                        "reacts to a turn's first scans sooner and keeps the covariance "
+                        "honest while manoeuvring, at the price of noisier straight flight "
+                        "(docs/accuracy.md, 'Manoeuvres'; default %(default)s)")
     p.add_argument("--vdf-detect", type=float, default=defaults.VDF_DETECT,
                    help="VDF detection threshold")
     p.add_argument("--vdf-settle", type=float, default=defaults.VDF_SETTLE,

@@ -157,3 +157,18 @@ def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
     assert len(g.ti) == 1  # in the gate either way
     tracker.step(Unlabelled.of("r", t, [clutter]))
     assert (arrays.t[row] == t) == taken
+
+
+def test_imm_onset_option_sets_the_rate_of_entering_the_manoeuvre_modes():
+    """`--imm-onset` (docs/accuracy.md: a user who tracks fighters trades B's bars for
+    the manoeuvring NEES) builds the IMM of `ModeSet(onset=...)`; without it, the
+    default's."""
+    from zenoh_track.__main__ import parser, tracker_config
+    from zenoh_track.estimation.imm import ModeSet
+
+    def built(argv: list[str]):
+        return tracker_config(parser().parse_args(argv)).filter.build().updater
+
+    fast = built(["--imm-onset", "60"])
+    assert fast == ModeSet(onset=60.0).imm()
+    assert built([]) == ModeSet().imm() != fast

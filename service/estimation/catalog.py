@@ -47,6 +47,7 @@ class FilterSpec:
     imm_sojourn: float = defaults.IMM_SOJOURN
     vdf_detect: float = defaults.VDF_DETECT
     vdf_settle: float = defaults.VDF_SETTLE
+    imm_onset: float = defaults.IMM_ONSET  # s: 1 / the rate of entering the manoeuvre modes
 
     def build(self) -> Filter:
         """The filter of this name, with its noise and its measurement conversion."""
@@ -55,7 +56,7 @@ class FilterSpec:
         if self.name == "imm":
             q = defaults.Q_CV if self.q is None else self.q
             modes = ModeSet(q=q, sojourn=self.imm_sojourn, ct_q=self.imm_ct_q,
-                            turn_deg=self.imm_turn)
+                            turn_deg=self.imm_turn, onset=self.imm_onset)
             return Filter(modes.imm(), q, CMKFConversion)
         if self.name == "vdf":
             return Filter(VDF(detect=self.vdf_detect, settle=self.vdf_settle), 0.0,
