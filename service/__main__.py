@@ -36,6 +36,22 @@ def steady_malloc() -> None:
         pass
 
 
+def seconds(text: str) -> float:
+    """An option's time: a finite number of seconds above zero."""
+    value = float(text)
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: a number of seconds above 0")
+    return value
+
+
+def ln_ratio(text: str) -> float:
+    """An option's log-likelihood ratio: finite, at least 0."""
+    value = float(text)
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: a finite number of at least 0")
+    return value
+
+
 def tracker_config(args: argparse.Namespace) -> TrackerConfig:
     """The tracker's configuration from the options."""
     spec = FilterSpec(args.filter, args.q, args.imm_ct_q, args.imm_turn, args.imm_sojourn,
@@ -93,10 +109,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--imm-turn", type=float, default=defaults.IMM_TURN_DEG,
                    help="IMM: add coordinated-turn modes at +- this rate, deg/s (default 0: "
                         "none)")
-    p.add_argument("--imm-sojourn", type=float, default=defaults.IMM_SOJOURN,
+    p.add_argument("--imm-sojourn", type=seconds, default=defaults.IMM_SOJOURN,
                    help="IMM: mean time in the quiet and in the nominal mode, s (staying "
                         "probability exp(-dt/sojourn); default %(default)s)")
-    p.add_argument("--imm-onset", type=float, default=defaults.IMM_ONSET, metavar="SECONDS",
+    p.add_argument("--imm-onset", type=seconds, default=defaults.IMM_ONSET, metavar="SECONDS",
                    help="IMM: 1 / the rate of entering the manoeuvre modes, s; smaller "
                         "reacts to a turn's first scans sooner and keeps the covariance "
                         "honest while manoeuvring, at the price of noisier straight flight "
@@ -163,7 +179,7 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--gate", type=float, default=defaults.GATE_PROBABILITY,
                    metavar="PROBABILITY", help="chi-square gate probability "
                                                "(default %(default)s)")
-    g.add_argument("--second-look", type=float, default=defaults.SECOND_LOOK,
+    g.add_argument("--second-look", type=ln_ratio, default=defaults.SECOND_LOOK,
                    metavar="LN_RATIO", help="a confirmed track whose detection beats a miss "
                    "by less than this log-likelihood ratio keeps its miss branch, and the "
                    "next scan chooses (0: off; default %(default)s)")

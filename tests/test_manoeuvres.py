@@ -172,3 +172,8 @@ def test_imm_onset_option_sets_the_rate_of_entering_the_manoeuvre_modes():
     fast = built(["--imm-onset", "60"])
     assert fast == ModeSet(onset=60.0).imm()
     assert built([]) == ModeSet().imm() != fast
+    for bad in (["--imm-onset", "0"], ["--imm-onset", "-5"], ["--imm-sojourn", "inf"],
+                ["--second-look", "nan"]):  # a clear error (exit 2), not a traceback
+        with pytest.raises(SystemExit) as stop:
+            parser().parse_args(bad)
+        assert stop.value.code == 2
