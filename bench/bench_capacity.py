@@ -76,46 +76,14 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout
 
+from procstat import cpu_seconds, rss_mb, thread_cpu  # noqa: E402  # bench/procstat.py
+
 from zenoh_track.clients.evaluation.progress import bar  # noqa: E402
 from zenoh_track.clients.procs import stop  # noqa: E402
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker  # noqa: E402
 
-CLK = os.sysconf("SC_CLK_TCK")
 RATE = 30.0
 STOP_WAIT = 20.0  # s a process is given to exit on SIGTERM before it is killed
-
-
-# ---------------------------------------------------------------- /proc
-def _stat_fields(path: str) -> list[str]:
-    with open(path) as f:
-        text = f.read()
-    return text[text.rindex(")") + 2:].split()  # fields from `state` on (comm may hold spaces)
-
-
-def cpu_seconds(pid: int) -> float:
-    f = _stat_fields(f"/proc/{pid}/stat")
-    return (int(f[11]) + int(f[12])) / CLK  # utime + stime, all threads
-
-
-def thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
-    out = {}
-    for tid in os.listdir(f"/proc/{pid}/task"):
-        try:
-            with open(f"/proc/{pid}/task/{tid}/comm") as f:
-                comm = f.read().strip()
-            fl = _stat_fields(f"/proc/{pid}/task/{tid}/stat")
-            out[int(tid)] = (comm, (int(fl[11]) + int(fl[12])) / CLK)
-        except (FileNotFoundError, ProcessLookupError):
-            pass
-    return out
-
-
-def rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def machine_jiffies() -> tuple[int, int]:

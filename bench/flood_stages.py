@@ -89,16 +89,11 @@ def serve(argv: list[str]) -> None:
 
 def threads(pid: int, names: dict[str, str] | None = None) -> dict[str, float]:
     """CPU seconds of each thread of a process by name (Python's, else the OS's)."""
-    tck, got = os.sysconf("SC_CLK_TCK"), collections.Counter()
-    for tid in os.listdir(f"/proc/{pid}/task"):
-        try:
-            with open(f"/proc/{pid}/task/{tid}/stat") as f:
-                stat = f.read()
-        except FileNotFoundError:
-            continue
-        fields = stat.rsplit(")", 1)[1].split()
-        name = (names or {}).get(tid) or stat[stat.index("(") + 1:stat.rindex(")")]
-        got[name] += (int(fields[11]) + int(fields[12])) / tck
+    from procstat import thread_cpu  # bench/procstat.py
+
+    got: collections.Counter[str] = collections.Counter()
+    for tid, (comm, cpu) in thread_cpu(pid).items():
+        got[(names or {}).get(str(tid)) or comm] += cpu
     return dict(got)
 
 

@@ -39,6 +39,7 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+import procstat  # noqa: E402  # bench/procstat.py
 from scan_flood import kernels  # noqa: E402  # bench/scan_flood.py
 from single_cost import compiled  # noqa: E402  # bench/single_cost.py
 
@@ -69,9 +70,7 @@ def cpu_seconds(pid: int) -> float | None:
     """CPU time (user + system, every thread) of a process so far; None without Linux's
     /proc."""
     try:
-        with open(f"/proc/{pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return procstat.cpu_seconds(pid)
     except (OSError, ValueError, IndexError):
         return None
 

@@ -61,10 +61,10 @@ class SecondLook:
         if self.margin <= 0:
             return
         doubtful = margins < self.margin
+        kept = _kept(arrays)
         for row, m in zip(rows[doubtful].tolist(), margins[doubtful].tolist(), strict=True):
             self.doubts[arrays.dim, row] = Doubt(
-                arrays.ids[row], t, m,
-                {name: getattr(arrays, name)[row].copy() for name in _kept(arrays)})
+                arrays.ids[row], t, m, {name: getattr(arrays, name)[row].copy() for name in kept})
 
     def decide(self, arrays: TrackArrays, every: Gating, t: float, score: np.ndarray,
                miss: float, gate_rows: Callable[[np.ndarray], tuple[Gating, np.ndarray]]
