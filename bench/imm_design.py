@@ -40,7 +40,7 @@ CANDIDATES = {
     "default": lambda: ModeSet().imm(),
     "old": lambda: IMM(standard_modes(), 200.0, unbiased_mixing=False, mode_conversion=False),
     "zero-padding": lambda: variant(unbiased_mixing=False),
-    "mixture-R": lambda: variant(mode_conversion=False),
+    "mode-R": lambda: variant(mode_conversion=True),
     "even-start": lambda: variant(initial=None),
     "even-leave": lambda: variant(leave=None),
     "no-quiet": lambda: IMM((("cv", "cv", 1.0, 0.0), ("ca", "ca", 0.1, 0.0)), (3000.0, 10.0),

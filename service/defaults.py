@@ -42,6 +42,9 @@ IMM_INITIAL = (0.1, 0.3, 0.6, 0.0)  # a new track: quiet, nominal, CA, manoeuvre
 IMM_MANOEUVRE = (("cv", 10.0), ("cv", 70.0))
 IMM_ONSET = 30000.0  # s: 1 / the rate of entering the manoeuvre modes (docs/accuracy.md)
 IMM_TURN_SOJOURN = 5.0  # s: mean time in a manoeuvre mode
+# False: one converted-measurement R for every mode, averaged over the mixture of their
+# predictions (a third less CPU a row; A, B and C as with each mode's own, docs/accuracy.md)
+IMM_MODE_R = False
 IMM_GATE_WIDE = 0.02  # the least prior association gives the IMM's widest mode
 IMM_CT_Q = 3.0  # optional turn modes' noise as a multiple of the nominal mode's
 IMM_TURN_DEG = 0.0  # deg/s: > 0 adds coordinated-turn modes at +- this (0: none)

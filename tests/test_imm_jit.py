@@ -6,6 +6,7 @@ passes of any number of rows (blocks of `imm_jit.BLOCK`, the last one padded).""
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
@@ -41,12 +42,14 @@ def close(a: np.ndarray, b: np.ndarray, rel: float) -> bool:
     return bool((np.abs(a - b) <= rel * scale).all())
 
 
+@pytest.mark.parametrize("own_r", [False, True])  # one R for the modes, or each its own
 @pytest.mark.parametrize("count", [40, 1, imm_jit.BLOCK, imm_jit.BLOCK + 1])
 @pytest.mark.parametrize("dim", [3, 2])
-def test_compiled_imm_is_the_textbook_imm(dim, count):
+def test_compiled_imm_is_the_textbook_imm(dim, count, own_r):
     rng = np.random.default_rng(5)
     tracker = Tracker(TrackerConfig(filter=FilterSpec("imm")))
-    imm = tracker.updater
+    assert tracker.updater.mode_conversion is False  # the default shares R
+    imm = dataclasses.replace(tracker.updater, mode_conversion=own_r)
     assert imm_jit.applies(imm)
     for t in range(5):  # tracks with a history: modes apart, probabilities moved
         track(tracker, measurements(40, float(t), dim, rng))

@@ -98,9 +98,9 @@ class IMM:
     Mixing into a mode with an acceleration (CA) takes, for a mode without one, that
     mode's own acceleration estimate and covariance in place of the zero padding (the
     unbiased mixing of Granström, Willett & Bar-Shalom, IEEE TAES 51(4), 2015), so
-    quiet modes do not pull the manoeuvre mode's acceleration toward zero. Each mode's
-    converted measurement covariance is averaged over that mode's own prediction (the
-    model-conditioned R), and its likelihood uses it.
+    quiet modes do not pull the manoeuvre mode's acceleration toward zero. The converted
+    measurement's covariance R is averaged over the mixture of the modes' predictions and
+    shared by the modes (`mode_conversion`: each over its own prediction instead).
     """
 
     modes: Sequence[Mode] = field(default_factory=lambda: standard_modes())
@@ -108,7 +108,7 @@ class IMM:
     leave: Sequence[Sequence[float]] | None = None
     initial: Sequence[float] | None = None
     unbiased_mixing: bool = True  # False: zero padding (the ablation of docs/accuracy.md)
-    mode_conversion: bool = True  # False: one R, at the mixture's prediction (ablation)
+    mode_conversion: bool = defaults.IMM_MODE_R  # True: each mode's own R (ablation)
     gate_wide: float = defaults.IMM_GATE_WIDE  # association's prior of the widest mode
     order: int = 3
 

@@ -32,8 +32,8 @@ __all__ = ["BLOCK", "applies", "design", "step", "warm"]
 
 def applies(imm: IMM) -> bool:
     """Whether `step` computes this IMM's update: CV and CA modes in the order-3 state,
-    unbiased mixing, each mode's own R (the default's options)."""
-    return (imm.order == 3 and imm.unbiased_mixing and imm.mode_conversion
+    unbiased mixing (the default's options; R shared or each mode's own)."""
+    return (imm.order == 3 and imm.unbiased_mixing
             and all(kind in ("cv", "ca") for _, kind, _, _ in imm.modes))
 
 
@@ -53,7 +53,8 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
         _rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
               np.ascontiguousarray(rows, dtype=np.int64),
               np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,))),
-              tau, dest, kinds, qs, np.ascontiguousarray(batch.polar),
+              tau, dest, kinds, qs, not imm.mode_conversion,
+              np.ascontiguousarray(batch.polar),
               np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
               np.ascontiguousarray(batch.origin.T), xn, pn, nis, ok)
     return xn, pn, nis, ok
@@ -89,6 +90,6 @@ def warm() -> None:
         n, m = 3 * d, len(imm.modes)
         mode_x, mode_p = np.zeros((1, m, n)), np.tile(np.eye(n) * 100.0, (1, m, 1, 1))
         _rows(mode_x, mode_p, np.full((1, m), 1.0 / m), np.zeros(1, np.int64), np.ones(1),
-              *design(imm), np.ones(1, np.bool_), np.full((d, 1), 1e3),
+              *design(imm), not imm.mode_conversion, np.ones(1, np.bool_), np.full((d, 1), 1e3),
               np.full((d, 1), 0.01), np.zeros((3, 1)), np.empty((1, n)),
               np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))

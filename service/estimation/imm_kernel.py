@@ -39,10 +39,11 @@ _FACT = np.array([1, 1, 2, 6])  # k! for the process noise's denominators
 
 
 @njit(**JIT)
-def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, polar, values,
-                sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, polar,
+                values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
     """The update of every row, a block at a time (the last block padded with copies of
-    its last row, which are not written back)."""
+    its last row, which are not written back). `shared`: one R for every mode, averaged
+    over the mixture of the modes' predictions; else each mode's own."""
     m, n = mode_x.shape[1], mode_x.shape[2]
     d, b = n // 3, BLOCK
     mx, mp, mu = np.empty((m, n, b)), np.empty((m, n, n, b)), np.empty((m, b))
@@ -79,11 +80,18 @@ def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, polar
             s = n if kinds[j] == 1 else 2 * d  # a CV mode: position and velocity
             _mix(mx, mp, w, dest, kinds, j, s, d, xp[j], pp[j], dv)
             _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j], wk[0], wv)
-            noise(pol, sig, org, const, xp[j], pp[j], d, rr[j], mats, nvec)
+        _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
+        if shared:
+            noise(pol, sig, org, const, mean, spread, d, rr[0], mats, nvec)
+        for j in range(m):
+            if not shared:
+                noise(pol, sig, org, const, xp[j], pp[j], d, rr[j], mats, nvec)
+            elif j:
+                rr[j] = rr[0]
+            s = n if kinds[j] == 1 else 2 * d
             _update(xp[j], pp[j], s, d, z, rr[j], xu[j], pu[j], lik[j], fin[j], wk, w33, wv)
         _probabilities(c, lik, fin, mu, nb)
         _moments(xu, pu, mu, n, xo, po, dv)
-        _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
         _mixture_nis(mean, spread, rr, c, z, d, nis, lo, len(rows), w33, wv)
         for q in range(min(b, len(rows) - lo)):  # scatter
             i, row = lo + q, rows[lo + q]
