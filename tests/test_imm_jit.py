@@ -1,7 +1,7 @@
 """The IMM's compiled update (`estimation.imm_jit`) against the IMM's own textbook code
 (`IMM.update` with a conversion that is not a `CMKFConversion`, the path any other
 conversion takes): same posteriors, mode probabilities, NIS and finiteness mask, for
-passes of any number of rows (blocks of `imm_jit.BLOCK`, the last one padded)."""
+passes of any number of rows (blocks of `imm_jit.SMALL` or `imm_jit.BLOCK`, the last padded)."""
 
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def close(a: np.ndarray, b: np.ndarray, rel: float) -> bool:
 
 
 @pytest.mark.parametrize("own_r", [False, True])  # one R for the modes, or each its own
-@pytest.mark.parametrize("count", [40, 1, imm_jit.BLOCK, imm_jit.BLOCK + 1])
+@pytest.mark.parametrize("count", [40, 1, imm_jit.SMALL + 1, imm_jit.BLOCK, imm_jit.BLOCK + 1])
 @pytest.mark.parametrize("dim", [3, 2])
 def test_compiled_imm_is_the_textbook_imm(dim, count, own_r):
     rng = np.random.default_rng(5)

@@ -15,6 +15,7 @@ Numba: the kernels are imported when first used.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -26,8 +27,18 @@ if TYPE_CHECKING:
     from .imm import IMM
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-BLOCK = 16  # rows per block (imm_kernel.BLOCK; tests/test_imm_jit.py checks they agree)
-__all__ = ["BLOCK", "applies", "design", "step", "warm"]
+BLOCK = 32  # rows per block of a large pass (`imm_cost.py`: 2.3 us a row against 3.0 at
+# 16 and 2.5 at 64; imm_kernel.update_rows), SMALL of a pass of fewer rows (update_few)
+SMALL = 8
+__all__ = ["BLOCK", "SMALL", "applies", "design", "kernel", "step", "warm"]
+
+
+def kernel(k: int) -> Callable:
+    """The compiled update for a pass of k rows: the padding of the last block is
+    computed too, so a pass of fewer than `BLOCK` rows takes blocks of `SMALL`."""
+    from . import imm_kernel
+
+    return imm_kernel.update_rows if k >= BLOCK else imm_kernel.update_few
 
 
 def applies(imm: IMM) -> bool:
@@ -47,16 +58,14 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
     xn, pn = np.empty((k, n)), np.empty((k, n, n))
     nis, ok = np.empty(k), np.empty(k, dtype=np.bool_)
     if k:
-        from .imm_kernel import update_rows as _rows
-
         tau, dest, kinds, qs = design(imm)
-        _rows(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
-              np.ascontiguousarray(rows, dtype=np.int64),
-              np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,))),
-              tau, dest, kinds, qs, not imm.mode_conversion,
-              np.ascontiguousarray(batch.polar),
-              np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
-              np.ascontiguousarray(batch.origin.T), xn, pn, nis, ok)
+        kernel(k)(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
+                  np.ascontiguousarray(rows, dtype=np.int64),
+                  np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,))),
+                  tau, dest, kinds, qs, not imm.mode_conversion,
+                  np.ascontiguousarray(batch.polar),
+                  np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
+                  np.ascontiguousarray(batch.origin.T), xn, pn, nis, ok)
     return xn, pn, nis, ok
 
 
@@ -83,13 +92,14 @@ def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 def warm() -> None:
     """Compile the kernel (or load it from the cache) on a tiny problem."""
     from .imm import ModeSet
-    from .imm_kernel import update_rows as _rows
 
     imm = ModeSet().imm()
     for d in (2, 3):
         n, m = 3 * d, len(imm.modes)
         mode_x, mode_p = np.zeros((1, m, n)), np.tile(np.eye(n) * 100.0, (1, m, 1, 1))
-        _rows(mode_x, mode_p, np.full((1, m), 1.0 / m), np.zeros(1, np.int64), np.ones(1),
-              *design(imm), not imm.mode_conversion, np.ones(1, np.bool_), np.full((d, 1), 1e3),
-              np.full((d, 1), 0.01), np.zeros((3, 1)), np.empty((1, n)),
-              np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))
+        for size in (1, BLOCK):  # both kernels
+            kernel(size)(mode_x, mode_p, np.full((1, m), 1.0 / m), np.zeros(1, np.int64),
+                         np.ones(1), *design(imm), not imm.mode_conversion,
+                         np.ones(1, np.bool_), np.full((d, 1), 1e3), np.full((d, 1), 0.01),
+                         np.zeros((3, 1)), np.empty((1, n)), np.empty((1, n, n)), np.empty(1),
+                         np.empty(1, np.bool_))

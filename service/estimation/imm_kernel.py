@@ -24,7 +24,6 @@ from numba import njit
 from .kalman import S_FLOOR
 from .ucm import ROUNDING
 
-BLOCK = 16  # rows per block: the length of every innermost loop
 LOG_2PI = math.log(2.0 * math.pi)
 # reassociation and contraction (fused multiply-adds), not the flags that assume no NaN
 # or infinity: the finiteness checks must hold
@@ -41,11 +40,27 @@ _FACT = np.array([1, 1, 2, 6])  # k! for the process noise's denominators
 @njit(**JIT)
 def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, polar,
                 values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
-    """The update of every row, a block at a time (the last block padded with copies of
+    """The update of every row, 32 rows at a time (the last block padded with copies of
     its last row, which are not written back). `shared`: one R for every mode, averaged
     over the mixture of the modes' predictions; else each mode's own."""
+    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, 32, polar,
+          values, sigmas, origin, xn, pn, nis, ok)
+
+
+@njit(**JIT)
+def update_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, polar,
+               values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+    """`update_rows` 8 rows at a time: less padding for a pass of few rows."""
+    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, 8, polar,
+          values, sigmas, origin, xn, pn, nis, ok)
+
+
+@njit(**JIT, inline="always")
+def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, b, polar,
+          values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+    """The body of both, inlined so that the block length b is a constant of each."""
     m, n = mode_x.shape[1], mode_x.shape[2]
-    d, b = n // 3, BLOCK
+    d = n // 3
     mx, mp, mu = np.empty((m, n, b)), np.empty((m, n, n, b)), np.empty((m, b))
     h, pol = np.empty(b), np.empty(b, np.bool_)
     val, sig, org = np.empty((d, b)), np.empty((d, b)), np.empty((3, b))
