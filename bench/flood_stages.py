@@ -52,6 +52,7 @@ def serve(argv: list[str]) -> None:
 
     out = os.environ["FLOOD_STAGES_OUT"]
     cpu: collections.Counter = collections.Counter()
+    calls: collections.Counter = collections.Counter()  # of each stage
     clock = time.thread_time
     where = {"ingest": "adapter.ingest", "worker": "adapter.worker", "decode": "adapter.decode",
              "steps": "adapter.steps", "publish": "adapter.publish", "imm": "estimation.imm",
@@ -66,6 +67,7 @@ def serve(argv: list[str]) -> None:
                 return _real(*a, **k)
             finally:
                 cpu[_label] += clock() - c0
+                calls[_label] += 1
         setattr(owner, name, counted)
     started: dict[int, float] = {}
 
@@ -79,8 +81,8 @@ def serve(argv: list[str]) -> None:
     def snapshot(*_: Any) -> None:
         names = {str(t.native_id): t.name for t in threading.enumerate()}
         with open(out, "a") as f:
-            f.write(json.dumps({"stages": dict(cpu), "threads": threads(os.getpid(), names)})
-                    + "\n")
+            f.write(json.dumps({"stages": dict(cpu), "calls": dict(calls),
+                                "threads": threads(os.getpid(), names)}) + "\n")
     signal.signal(signal.SIGUSR1, snapshot)
     from zenoh_track.__main__ import main
     sys.argv[0] = "track-service"
@@ -148,12 +150,15 @@ def main() -> None:
         diff = {k: v - before[part].get(k, 0.0) for k, v in after[part].items()}
         total = sum(diff.values()) if part == "threads" else None
         print(f"{part}: CPU us per message" + (f" (all threads {total / n * 1e6:.1f})"
-                                                 if total is not None else ""))
+                                                 if total is not None else
+                                                 "; messages per call"))
         keys = sorted(diff, key=lambda k: -diff[k]) if part == "threads" else \
             [label for *_, label in STAGES] + sorted(k for k in diff if k.startswith("gc"))
         for k in keys:
             if diff.get(k, 0.0) / n * 1e6 >= 0.01:
-                print(f"  {k:<40} {diff[k] / n * 1e6:7.2f}")
+                calls = after.get("calls", {}).get(k, 0) - before.get("calls", {}).get(k, 0)
+                per = f"  {n / calls:9.1f}" if part == "stages" and calls else ""
+                print(f"  {k:<40} {diff[k] / n * 1e6:7.2f}{per}")
 
 
 if __name__ == "__main__":
