@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -81,3 +83,39 @@ def test_compiled_imm_is_the_textbook_imm(dim, count, own_r):
 def test_turn_modes_take_the_textbook_code():
     imm = FilterSpec("imm", imm_turn=2.0).build().updater
     assert not imm_jit.applies(imm)
+
+
+WARMED_ONLY = """
+import numpy as np
+from zenoh_track.estimation import imm_jit, imm_kernel, jit
+from zenoh_track.tracking import frame, frame_kernel
+from zenoh_track.tracking.batches import Labelled, Unlabelled
+from zenoh_track.tracking.tracker import Tracker
+from zenoh_track.wire import Measurement
+
+jit.load([imm_jit, frame])
+kernels = (imm_kernel.update_rows, imm_kernel.update_few, frame_kernel.draw)
+warmed = [list(k.signatures) for k in kernels]
+tracker, rng = Tracker(), np.random.default_rng(1)
+for t in range(6):
+    polar = [Measurement("r", f"p{i}", t, 3, True, (3e4 + 200.0 * t + i, 0.1 * i, 0.05),
+                         (20.0, 0.002, 0.002), (0.0, 0.0, 0.0), None) for i in range(40)]
+    flat = [Measurement("f", f"c{i}", t, 2, False, (1e3 * i + 150.0 * t, 5e3), (30.0,) * 2,
+                        (0.0, 0.0, 0.0), None) for i in range(3)]
+    tracker.step(Labelled.of(polar))
+    tracker.step(Labelled.of(flat))
+    tracker.step(Unlabelled.of("s", t + 0.5, [Measurement(
+        "s", "", t + 0.5, 3, True, (2e4 + 200.0 * t, -0.3, 0.02), (20.0, 0.002, 0.002),
+        (0.0, 0.0, 0.0), None)]))
+    tracker.snapshot(t + 0.7)
+print([len(w) == len(k.signatures) for w, k in zip(warmed, kernels)])
+"""
+
+
+def test_the_service_calls_only_the_warmed_kernels():
+    """The kernels' first calls in a service take the types `warm` compiled: another type
+    (a read-only array, say) would be compiled in the worker, tens of seconds on a
+    machine's first start, while no frame goes out."""
+    out = subprocess.run([sys.executable, "-c", WARMED_ONLY], capture_output=True, text=True,
+                         check=True, timeout=300)
+    assert out.stdout.split("\n")[-2] == "[True, True, True]", out.stdout + out.stderr

@@ -61,12 +61,20 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
         tau, dest, kinds, qs = design(imm)
         kernel(k)(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
                   np.ascontiguousarray(rows, dtype=np.int64),
-                  np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=float), (k,))),
+                  _writable(dt, k),
                   tau, dest, kinds, qs, not imm.mode_conversion,
                   np.ascontiguousarray(batch.polar),
                   np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
                   np.ascontiguousarray(batch.origin.T), xn, pn, nis, ok)
     return xn, pn, nis, ok
+
+
+def _writable(dt: np.ndarray | float, k: int) -> np.ndarray:
+    """dt as a new writable (k,) array: a read-only one (a broadcast) would be another
+    type to Numba, a specialisation `warm` did not make, compiled in the worker."""
+    out = np.empty(k)
+    out[:] = dt
+    return out
 
 
 _DESIGNS: dict[int, tuple] = {}
@@ -79,7 +87,7 @@ def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     got = _DESIGNS.get(id(imm))
     if got is None or got[0] is not imm:
         m = len(imm.modes)
-        tau = np.ascontiguousarray(np.broadcast_to(np.asarray(imm.sojourn, float), (m,)))
+        tau = _writable(np.asarray(imm.sojourn, float), m)
         dest = np.ones((m, m)) if imm.leave is None else np.array(imm.leave, dtype=float)
         dest[np.arange(m), np.arange(m)] = 0.0
         dest /= np.maximum(dest.sum(1, keepdims=True), 1e-300)
