@@ -6,7 +6,13 @@ soon as the token is seen: the backlog is the time from the first put to the las
 `tracks/` sample). A second tree (`--before PATH`, e.g. a `git worktree` of an earlier
 commit) is measured in the same run, alternately, for the ratio.
 
+`--through SECONDS`: a first start fed from its token on, a burst of `--burst` positions
+each second for SECONDS (long enough for the kernels' compile, ~25 s here, and their
+swap in): the backlog of every second's burst, its worst and when, so a stall of the
+worker at the swap shows.
+
     python bench/bench_start.py --runs 3 --before /tmp/before
+    python bench/bench_start.py --runs 1 --through 45
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import threading
 import time
 from pathlib import Path
 
+import msgpack
 import zenoh
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -90,6 +97,56 @@ def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
         stop(proc)
 
 
+def through(tree: Path, cache: str, burst: int, seconds: int) -> list[float]:
+    """A first start fed a burst a second for `seconds` from its token on: each burst's
+    backlog (s, its first put to its last `tracks/` sample; nan if it was not all back
+    within 30 s)."""
+    endpoint, here = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
+    env, cwd, name = how(tree, cache)
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps([here]))
+    session = zenoh.open(conf)
+    alive = threading.Event()
+    back: dict[int, int] = {}  # second -> tracks/ samples of its burst
+    last: dict[int, float] = {}
+
+    def on_tracks(sample: zenoh.Sample) -> None:
+        k = int(round(msgpack.unpackb(sample.payload.to_bytes())["t"]))
+        back[k] = back.get(k, 0) + 1
+        last[k] = time.perf_counter()
+
+    token = session.liveliness().declare_subscriber(
+        Keys("track").alive("**"), lambda s: alive.set(), history=True)
+    sub = session.declare_subscriber("track/tracks/**", on_tracks)
+    proc = subprocess.Popen([sys.executable, "-m", name, "-l", endpoint, "-e", here],
+                            env=env, cwd=cwd,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    first: dict[int, float] = {}
+    try:
+        if not alive.wait(300):
+            raise SystemExit(f"no liveliness: {stop(proc)[-2000:]}")
+        t0 = time.perf_counter()
+        for sec in range(seconds):
+            time.sleep(max(0.0, t0 + sec - time.perf_counter()))
+            first[sec] = time.perf_counter()
+            for k in range(burst):
+                session.put(f"track/meas/r1/b{k}", pack({
+                    "t": float(sec), "pos": [100.0 * k + 150.0 * sec, 50.0, 10.0],
+                    "sigma": 10.0}))
+        end = time.perf_counter() + 30
+        while back.get(seconds - 1, 0) < burst and time.perf_counter() < end:
+            time.sleep(0.05)
+        return [last[k] - first[k] if back.get(k, 0) >= burst else float("nan")
+                for k in range(seconds)]
+    finally:
+        sub.undeclare()
+        token.undeclare()
+        session.close()
+        stop(proc)
+
+
 def fill(tree: Path, cache: str) -> None:
     """Compile the kernels of `tree` into `cache` (a warm machine)."""
     env, cwd, name = how(tree, cache)
@@ -104,8 +161,22 @@ def main() -> None:
     p.add_argument("--runs", type=int, default=3)
     p.add_argument("--burst", type=int, default=1000)
     p.add_argument("--before", type=Path, help="an earlier tree, measured alternately")
+    p.add_argument("--through", type=int, default=0, metavar="SECONDS",
+                   help="a first start fed a burst a second for SECONDS instead")
     args = p.parse_args()
     trees = {"this": ROOT} | ({"before": args.before} if args.before else {})
+    if args.through:
+        for run in range(args.runs):
+            for name, tree in trees.items():
+                with tempfile.TemporaryDirectory() as cache:
+                    got = through(tree, cache, args.burst, args.through)
+                worst = max(range(len(got)), key=lambda k: got[k] if got[k] == got[k]
+                            else float("inf"))
+                print(f"run {run + 1}: {name}: {args.through} bursts of {args.burst} from "
+                      f"a first start: backlog median {statistics.median(got):.3f} s, "
+                      f"worst {got[worst]:.3f} s at second {worst}; per second: "
+                      + " ".join(f"{g:.2f}" for g in got), flush=True)
+        return
     rows: dict[str, dict[str, list[float]]] = {k: {"cold": [], "backlog": [], "warm": []}
                                                for k in trees}
     for run in range(args.runs):
