@@ -65,6 +65,9 @@ CLUTTER_DENSITY = None  # false detections per m^2 (2-D) or m^3 (3-D); None: est
 # a confirmed track whose detection beats a miss by less than this log-likelihood ratio
 # keeps its miss branch one scan (tracking.second_look; docs/accuracy.md); 0: never
 SECOND_LOOK = 3.0
+# m/s^2: a doubtful detection farther from the track's own prediction than an aircraft
+# could go at this acceleration (10 g) is not shown until the next scan confirms it
+SECOND_LOOK_REACH = 98.0
 JPDA_MAX_EVENTS = 5000  # joint events enumerated per cluster; more: cheap JPDA
 MAX_SPEED = 340.0  # m/s: a new track's velocity prior has std MAX_SPEED / 3 per axis
 CONFIRM_M, CONFIRM_N = 3, 5  # confirmed once detected in 3 of its last 5 scans ...

@@ -8,6 +8,7 @@ import numpy as np
 from reference.record import Outcome, scan_step
 
 from zenoh_track.tracking import gating
+from zenoh_track.tracking.batches import Unlabelled
 from zenoh_track.tracking.plot_association import SensorModels, miss_score
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 from zenoh_track.wire import Measurement
@@ -57,6 +58,12 @@ def doubtful_offset(tracker: Tracker, track: str, t: float) -> float:
     raise AssertionError("no doubtful offset found")
 
 
+def shown_at(tracker: Tracker, track: str, t: float) -> np.ndarray:
+    """Where the display draws the track at t (a frame's snapshot)."""
+    snap = tracker.snapshot(t)
+    return np.asarray(snap.pos[snap.ids.index(track)])
+
+
 def state(tracker: Tracker, track: str) -> tuple[np.ndarray, np.ndarray]:
     s = tracker.state(track)
     return np.array(s["pos"]), np.array(s["vel"])
@@ -74,7 +81,12 @@ def test_clutter_taken_in_a_missed_scan_is_undone_by_the_next():
         t1, t2 = t + PERIOD, t + 2 * PERIOD
         dy = doubtful_offset(tracker, track, t1)
         step(tracker, t1, [START + VEL * t1 + [dy, 0.0, 0.0]])
-        assert np.linalg.norm(state(tracker, track)[0] - (START + VEL * t1)) > 0.5 * dy
+        shown = shown_at(tracker, track, t1)
+        if margin:  # in doubt: shown and kept on its miss branch, coasting
+            assert tracker.state(track)["t"] == t
+            assert np.linalg.norm(shown - (START + VEL * t1)) < 0.1 * dy
+        else:  # committed at once: the jump shows
+            assert np.linalg.norm(shown - (START + VEL * t1)) > 0.5 * dy
         step(tracker, t2, [START + VEL * t2])
         pos, vel = state(tracker, track)
         results[margin] = (np.linalg.norm(pos - (START + VEL * t2)),
@@ -97,6 +109,30 @@ def test_a_turn_confirmed_by_the_next_scan_is_kept():
     step(tracker, t1, [p1])
     p2 = p1 + VEL * PERIOD + [3 * dy, 0.0, 0.0]  # the turn goes on
     step(tracker, t2, [p2])
+    p3 = p2 + VEL * PERIOD + [3 * dy, 0.0, 0.0]  # and on (p2 may be in doubt in turn)
+    step(tracker, t2 + PERIOD, [p3])
     assert tracker.scan_associator.second_look.reverted == 0
     assert sorted(tracker.store.where) == [track]
-    assert np.linalg.norm(state(tracker, track)[0] - p2) < 0.5 * dy
+    now = tracker.state(track)["t"]  # p2 taken, not missed; p3 taken or still in doubt
+    assert now in (t2, t2 + PERIOD)
+    assert np.linalg.norm(state(tracker, track)[0] - (p2 if now == t2 else p3)) < 0.5 * dy
+
+
+def test_a_deferred_update_puts_no_state_and_a_reachable_one_shows_at_once():
+    """Far beyond what an aircraft reaches in a scan, the doubtful update is neither shown
+    nor returned as a state (nothing for tracks/) until the next scan; with the reach
+    raised above it, the same update is shown and returned at once."""
+    for reach, shown_now in ((98.0, False), (1e9, True)):
+        tracker, track, t = settled(3.0)
+        tracker.scan_associator.second_look.reach = reach
+        t1 = t + PERIOD
+        dy = doubtful_offset(tracker, track, t1)
+        out = tracker.step(Unlabelled.of("r1", t1, [det(t1, START + VEL * t1 + [dy, 0.0, 0.0])]))
+        ids = [i for block in out.states for i in block.ids]
+        moved = np.linalg.norm(shown_at(tracker, track, t1) - (START + VEL * t1))
+        assert (track in ids) == shown_now and (moved > 0.5 * dy) == shown_now, reach
+        assert tracker.scan_associator.second_look.deferred == (not shown_now)
+        t2 = t1 + PERIOD  # the aircraft where it flies: the miss branch, either way
+        step(tracker, t2, [START + VEL * t2])
+        assert np.linalg.norm(state(tracker, track)[0] - (START + VEL * t2)) < 3 * SIGMA
+        assert tracker.scan_associator.second_look.reverted == 1

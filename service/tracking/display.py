@@ -287,6 +287,13 @@ class DisplayState:
         cols.prev_t[rows] = arrays.t[rows]
         cols.axis_cov[rows] = axis_cov
 
+    def forget(self, arrays: TrackArrays, rows: np.ndarray) -> None:
+        """Rows whose columns were put back (a branch of the second look): the frames
+        read them again from the store."""
+        frame = self.frames.get(arrays.dim)
+        if frame is not None:
+            frame.forget(rows)
+
     def _take(self, arrays: TrackArrays, rows: np.ndarray, x: np.ndarray,
               axis_cov: np.ndarray) -> None:
         """Rows about to take states x with these axis sums: the frames keep them."""

@@ -71,6 +71,13 @@ class FrameColumns:
         self.t[rows] = np.nan
         self.taken[rows] = True
 
+    def forget(self, rows: np.ndarray) -> None:
+        """Rows changed behind the display's back: all of them read again at the next
+        frame."""
+        rows = rows[rows < len(self.t)]
+        self.t[rows] = np.nan
+        self.taken[rows] = False
+
     def _entries(self, axis_cov: np.ndarray) -> np.ndarray:
         """(k, order * order) axis sums -> the distinct entries (n_entries, k) as kept."""
         a = axis_cov[:, self.entries].T

@@ -137,8 +137,12 @@ class _ScanAssociator:
         z, r = convert(batch)
         gamma = gate_threshold(self.gate_probability, dim)
         every = gate(arrays, rows, z, r, t, self.q, gamma, self.predict)
-        ungated = n - np.count_nonzero(np.bincount(every.dj, minlength=n))
-        lam = self.sensors.density(part.sensor, z, ungated)
+
+        def density(g: Gating) -> float:  # the sensor's clutter, from the detections ungated
+            ungated = n - np.count_nonzero(np.bincount(g.dj, minlength=n))
+            return self.sensors.density(part.sensor, z, ungated)
+
+        lam = density(every)
         pd = self.sensors.model(part.sensor).pd
         score, miss = scores(every, pd, lam)  # once for both stages
 
@@ -147,7 +151,8 @@ class _ScanAssociator:
             return g, scores(g, pd, lam)[0]
 
         if self.second_look.decide(arrays, every, t, score, miss, gate_rows):
-            every = gate_rows(rows)[0]  # a track put back on its miss branch
+            every = gate_rows(rows)[0]  # a track took its doubtful update after all
+            lam = density(every)
         confirmed = arrays.confirmed[rows]
         g = restrict(every, confirmed)
         free = self.resolve(g, np.arange(n), pd, lam, hyp)

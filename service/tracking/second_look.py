@@ -11,11 +11,16 @@ with an N-scan window). This is that window of one scan, for that one case:
 - When a confirmed track takes a detection whose score beats its missed-detection score
   by less than `margin` (ln of a likelihood ratio), its row before the update is kept:
   the miss branch (`note`).
+- Once updated (`settle`), a track whose update moved it farther from where its miss
+  branch predicts than an aircraft reaches at `reach` m/s^2 (0.5 reach dt^2) is not
+  committed to it: the updated row (the taken branch) is set aside and the row before is
+  put back, so the track is shown and published as if missed at that scan (no tracks/
+  state for that update; its frames coast) while the doubt lasts. A nearer one (a hard
+  turn's) is shown at once, its miss branch aside.
 - At the next scan part of its layout (any sensor, later in time), the two branches are
-  scored on that scan alone, each by its best gated detection (or a miss):
-  taken (the margin plus its best) against missed (its best). If the miss branch wins,
-  the row is put back as it was before the doubtful update, and the scan is associated
-  as usual from there (`decide`). Either way the doubt ends.
+  scored on that scan alone, each by its best gated detection (or a miss): taken (the
+  margin plus its best) against missed (its best). The better is put in the row, and
+  the scan is associated as usual from there (`decide`). Either way the doubt ends.
 
 The branches are compared track by track, before the joint assignment of the second
 scan (which then resolves any detection two tracks want). The track's life counters
@@ -29,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import defaults
 from ..wire import TIME_TOL
 from .gating import Gating
 from .life import LIFE_COLUMNS
@@ -37,22 +43,31 @@ from .store import TrackArrays
 
 @dataclass
 class Doubt:
-    """One confirmed track's miss branch: its row's columns before the doubtful update
-    at time `t`, and by how much taking the detection beat missing it."""
+    """One confirmed track's doubtful update at time `t`, by how much taking the
+    detection beat missing it; `row`: the columns of the branch not in the store's row
+    (`note`: the miss branch; `settle` may swap), `deferred`: whether that is the taken
+    branch, and `at`: the time of the row as `settle` left it."""
 
     track_id: str
     t: float
     margin: float
     row: dict[str, np.ndarray]
+    deferred: bool = False
+    at: float = float("nan")
 
 
 class SecondLook:
-    """The doubtful assignments of confirmed tracks, kept one scan (`note`, `decide`)."""
+    """The doubtful assignments of confirmed tracks, kept one scan (`note`, `settle`,
+    `decide`). `moved(arrays, rows)` is told of rows whose columns were put back here
+    (the display's cache of them is stale)."""
 
-    def __init__(self, margin: float) -> None:
-        self.margin = margin
-        self.doubts: dict[tuple[int, int], Doubt] = {}  # (layout's dim, row) -> doubt
-        self.reverted = 0  # tracks put back on their miss branch, since start
+    def __init__(self, margin: float, reach: float = defaults.SECOND_LOOK_REACH,
+                 moved: Callable[[TrackArrays, np.ndarray], None] | None = None) -> None:
+        self.margin, self.reach, self.moved = margin, reach, moved
+        self.noted: dict[tuple[int, int], Doubt] = {}  # (layout's dim, row) -> doubt
+        self.doubts: dict[tuple[int, int], Doubt] = {}  # settled, for the next scan
+        self.reverted = 0  # doubts decided for the miss branch, since start
+        self.deferred = 0  # doubtful updates not shown until the next scan, since start
 
     def note(self, arrays: TrackArrays, rows: np.ndarray, margins: np.ndarray,
              t: float) -> None:
@@ -63,37 +78,71 @@ class SecondLook:
         doubtful = margins < self.margin
         kept = _kept(arrays)
         for row, m in zip(rows[doubtful].tolist(), margins[doubtful].tolist(), strict=True):
-            self.doubts[arrays.dim, row] = Doubt(
+            self.noted[arrays.dim, row] = Doubt(
                 arrays.ids[row], t, m, {name: getattr(arrays, name)[row].copy() for name in kept})
+
+    def settle(self, arrays: TrackArrays, rows: np.ndarray) -> np.ndarray:
+        """Rows of `arrays` were just updated: of those noted as doubtful, the ones that
+        moved beyond reach set their taken branch aside and take their miss branch back
+        (the mask of those, over rows); the others keep their update."""
+        out = np.zeros(len(rows), dtype=bool)
+        if not self.noted:
+            return out
+        d_, o = arrays.dim, arrays.order
+        for i, row in enumerate(rows.tolist()):
+            d = self.noted.pop((d_, row), None)
+            if d is None or arrays.ids[row] != d.track_id:
+                continue
+            miss, dt = d.row["x"], d.t - float(d.row["t"])
+            pred = miss[:d_] + miss[d_:2 * d_] * dt
+            if o == 3:
+                pred = pred + 0.5 * miss[2 * d_:3 * d_] * dt * dt
+            if np.linalg.norm(arrays.x[row, :d_] - pred) > 0.5 * self.reach * dt * dt:
+                taken = {name: getattr(arrays, name)[row].copy() for name in d.row}
+                _put(arrays, np.array([row]), [d.row])
+                d.row, d.deferred = taken, True
+                out[i] = True
+            d.at = float(arrays.t[row])
+            self.doubts[d_, row] = d
+        self.deferred += int(out.sum())
+        if out.any() and self.moved is not None:
+            self.moved(arrays, rows[out])
+        return out
 
     def decide(self, arrays: TrackArrays, every: Gating, t: float, score: np.ndarray,
                miss: float, gate_rows: Callable[[np.ndarray], tuple[Gating, np.ndarray]]
                ) -> bool:
         """At a scan part of `arrays`' layout at `t` gated as `every` (pair scores `score`,
-        a miss `miss`): put back each doubted track whose miss branch scores better on it;
+        a miss `miss`): each doubted track takes the branch that scores better on it;
         `gate_rows(rows)` gates rows of the store against the same detections (the
-        gating and its pairs' scores). Whether any was put back (the scan must then be
-        gated again)."""
+        gating and its pairs' scores). Whether any changed (the scan must then be gated
+        again)."""
+        self.noted.clear()  # noted but never updated (a non-finite result): no doubt
         mine = [(key, d) for key, d in self.doubts.items() if key[0] == arrays.dim
                 and arrays.ids[key[1]] == d.track_id and t > d.t + TIME_TOL]
         if not mine:
             return False
         for key, _ in mine:
             del self.doubts[key]
-        # still as the doubtful update left them (no other update since, not rejected)
-        live = [(key[1], d) for key, d in mine if abs(arrays.t[key[1]] - d.t) <= TIME_TOL]
+        # still as settle left them (no other update since, not rejected)
+        live = [(key[1], d) for key, d in mine if abs(arrays.t[key[1]] - d.at) <= TIME_TOL]
         if not live:
             return False
         rows = np.array([row for row, _ in live], dtype=np.intp)
-        taken = _best(every, score, miss, rows)
+        deferred = np.array([d.deferred for _, d in live])
+        here = _best(every, score, miss, rows)  # the branch in the row
         now = {name: getattr(arrays, name)[rows].copy() for name in _kept(arrays)}
         _put(arrays, rows, [d.row for _, d in live])
-        missed = _best(*gate_rows(rows), miss, np.arange(len(rows)), local=True)
-        back = missed > taken + np.array([d.margin for _, d in live])
-        for name, values in now.items():  # the taken branch where it stays
-            getattr(arrays, name)[rows[~back]] = values[~back]
+        aside = _best(*gate_rows(rows), miss, np.arange(len(rows)), local=True)
+        taken, missed = np.where(deferred, aside, here), np.where(deferred, here, aside)
+        back = missed > taken + np.array([d.margin for _, d in live])  # the miss branch
+        swap = back != deferred  # the branch set aside is the better
+        for name, values in now.items():  # the row's own branch where it stays
+            getattr(arrays, name)[rows[~swap]] = values[~swap]
         self.reverted += int(back.sum())
-        return bool(back.any())
+        if self.moved is not None:
+            self.moved(arrays, rows)
+        return bool(swap.any())
 
 
 def _best(g: Gating, score: np.ndarray, miss: float, rows: np.ndarray,

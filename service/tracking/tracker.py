@@ -106,7 +106,7 @@ class Tracker:
         # the filter's own gate (the IMM's widest mode), if it has one
         self.scan_associator.predict = self.updater.gate_prediction
         # a confirmed track's doubtful detection waits one scan (`second_look`)
-        self.scan_associator.second_look = SecondLook(c.second_look)
+        self.scan_associator.second_look = SecondLook(c.second_look, moved=self._moved)
         self.initiator: Initiator = SinglePointInitiator(c.init_speed, c.init_accel)
         self.deleter: Deleter = CompositeDeleter(
             UpdateTimeDeleter(c.delete_after),
@@ -140,6 +140,7 @@ class Tracker:
             self._update(hyp, part.batch, sensors, bad, out, want, pause)
             for weighted in hyp.weighted:
                 good, x, p = self._update_weighted(weighted, part.t)
+                good, x, p = self._settle(weighted.arrays, good, x, p)
                 out.keep(self._block(weighted.arrays, good, x, p), weighted.arrays.ids, good,
                          want)
             self.count_detections(hyp)
@@ -184,7 +185,21 @@ class Tracker:
                 sensors if isinstance(sensors, str) else [sensors[i] for i in part])
             for j in np.flatnonzero(~ok).tolist():
                 bad[int(part[j])] = NON_FINITE
+            good, x, p = self._settle(arrays, good, x, p)
             out.keep(self._block(arrays, good, x, p), arrays.ids, good, want)
+
+    def _settle(self, arrays: TrackArrays, good: np.ndarray, x: np.ndarray, p: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rows just updated less those whose update is in doubt (`SecondLook.settle`:
+        back on their miss branch until the next scan), with their states."""
+        doubt = self.scan_associator.second_look.settle(arrays, good)
+        if not doubt.any():
+            return good, x, p
+        return good[~doubt], x[~doubt], p[~doubt]
+
+    def _moved(self, arrays: TrackArrays, rows: np.ndarray) -> None:
+        """Rows whose columns were put back behind the display's back: drawn afresh."""
+        self.display.forget(arrays, rows)
 
     def update(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch,
                sensors: str | list[str] = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
