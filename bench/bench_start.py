@@ -49,18 +49,31 @@ def how(tree: Path, cache: str) -> tuple[dict[str, str], str, str]:
     return {**env, "PYTHONPATH": str(tree)}, str(tree), name
 
 
-def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
-    """(seconds to the liveliness token, seconds from the burst's first put to its last
-    `tracks/` sample; nan without a burst)."""
-    endpoint, here = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
-    env, cwd, name = how(tree, cache)
-    # this session listens and the service connects to it: the token is seen as soon as
-    # it is declared (a session connecting to a service not yet listening would retry)
+def listening(here: str) -> zenoh.Session:
+    """A session listening on `here`: the service connects to it, so its token is seen
+    as soon as it is declared (a session connecting to a service not yet listening would
+    retry)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("listen/endpoints", json.dumps([here]))
-    session = zenoh.open(conf)
+    return zenoh.open(conf)
+
+
+def serve(tree: Path, cache: str, endpoint: str, here: str) -> subprocess.Popen:
+    """`tree`'s service with the kernel cache `cache`, listening on `endpoint` and
+    connecting to `here`."""
+    env, cwd, name = how(tree, cache)
+    return subprocess.Popen([sys.executable, "-m", name, "-l", endpoint, "-e", here],
+                            env=env, cwd=cwd,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
+    """(seconds to the liveliness token, seconds from the burst's first put to its last
+    `tracks/` sample; nan without a burst)."""
+    endpoint, here = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
+    session = listening(here)
     alive, done = threading.Event(), threading.Event()
     got = [0]
 
@@ -73,9 +86,7 @@ def start(tree: Path, cache: str, burst: int) -> tuple[float, float]:
         Keys("track").alive("**"), lambda s: alive.set(), history=True)
     sub = session.declare_subscriber("track/tracks/**", on_tracks)
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", name, "-l", endpoint, "-e", here],
-                            env=env, cwd=cwd,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = serve(tree, cache, endpoint, here)
     try:
         if not alive.wait(300):
             raise SystemExit(f"no liveliness: {stop(proc)[-2000:]}")
@@ -102,12 +113,7 @@ def through(tree: Path, cache: str, burst: int, seconds: int) -> list[float]:
     backlog (s, its first put to its last `tracks/` sample; nan if it was not all back
     within 30 s)."""
     endpoint, here = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
-    env, cwd, name = how(tree, cache)
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps([here]))
-    session = zenoh.open(conf)
+    session = listening(here)
     alive = threading.Event()
     back: dict[int, int] = {}  # second -> tracks/ samples of its burst
     last: dict[int, float] = {}
@@ -120,9 +126,7 @@ def through(tree: Path, cache: str, burst: int, seconds: int) -> list[float]:
     token = session.liveliness().declare_subscriber(
         Keys("track").alive("**"), lambda s: alive.set(), history=True)
     sub = session.declare_subscriber("track/tracks/**", on_tracks)
-    proc = subprocess.Popen([sys.executable, "-m", name, "-l", endpoint, "-e", here],
-                            env=env, cwd=cwd,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = serve(tree, cache, endpoint, here)
     first: dict[int, float] = {}
     try:
         if not alive.wait(300):
