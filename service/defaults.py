@@ -64,7 +64,7 @@ PD = 0.9  # detection probability of a sensor
 CLUTTER_DENSITY = None  # false detections per m^2 (2-D) or m^3 (3-D); None: estimated
 # a confirmed track whose detection beats a miss by less than this log-likelihood ratio
 # keeps its miss branch one scan (tracking.second_look; docs/accuracy.md); 0: never
-SECOND_LOOK = 3.0
+SECOND_LOOK = 4.0  # ln 55 (docs/accuracy.md, "A doubtful update beyond reach waits")
 # m/s^2: a doubtful detection farther from the track's own prediction than an aircraft
 # could go at this acceleration (10 g) is not shown until the next scan confirms it
 SECOND_LOOK_REACH = 98.0

@@ -97,7 +97,10 @@ class SecondLook:
             pred = miss[:d_] + miss[d_:2 * d_] * dt
             if o == 3:
                 pred = pred + 0.5 * miss[2 * d_:3 * d_] * dt * dt
-            if np.linalg.norm(arrays.x[row, :d_] - pred) > 0.5 * self.reach * dt * dt:
+            # beyond reach: farther than the acceleration takes it, plus 3 sigma of the
+            # updated position (the measurement's noise in it)
+            noise = 3.0 * np.sqrt(np.trace(arrays.p[row, :d_, :d_]))
+            if np.linalg.norm(arrays.x[row, :d_] - pred) > 0.5 * self.reach * dt * dt + noise:
                 taken = {name: getattr(arrays, name)[row].copy() for name in d.row}
                 _put(arrays, np.array([row]), [d.row])
                 d.row, d.deferred = taken, True
