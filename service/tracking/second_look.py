@@ -12,7 +12,8 @@ with an N-scan window). This is that window of one scan, for that one case:
   by less than `margin` (ln of a likelihood ratio), its row before the update is kept:
   the miss branch (`note`).
 - Once updated (`settle`), a track whose update moved it farther from where its miss
-  branch predicts than an aircraft reaches at `reach` m/s^2 (0.5 reach dt^2) is not
+  branch predicts than an aircraft reaches at `reach` m/s^2 (0.5 reach dt^2, plus 3
+  sigma of its updated position) is not
   committed to it: the updated row (the taken branch) is set aside and the row before is
   put back, so the track is shown and published as if missed at that scan (no tracks/
   state for that update; its frames coast) while the doubt lasts. A nearer one (a hard
