@@ -13,11 +13,11 @@ with an N-scan window). This is that window of one scan, for that one case:
   the miss branch (`note`).
 - Once updated (`settle`), a track whose update moved it farther from where its miss
   branch predicts than an aircraft reaches at `reach` m/s^2 (0.5 reach dt^2, plus 3
-  sigma of its updated position) is not
-  committed to it: the updated row (the taken branch) is set aside and the row before is
-  put back, so the track is shown and published as if missed at that scan (no tracks/
-  state for that update; its frames coast) while the doubt lasts. A nearer one (a hard
-  turn's) is shown at once, its miss branch aside.
+  sigma of its updated position) is not committed to it: the updated row (the taken
+  branch) is set aside and the row before is put back, so the track is shown and
+  published as if missed at that scan (no tracks/ state for that update; its frames
+  coast) while the doubt lasts. A nearer one (a hard turn's) is shown at once, its
+  miss branch aside.
 - At the next scan part of its layout (any sensor, later in time), the two branches are
   scored on that scan alone, each by its best gated detection (or a miss): taken (the
   margin plus its best) against missed (its best). The better is put in the row, and
