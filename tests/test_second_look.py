@@ -136,3 +136,21 @@ def test_a_deferred_update_puts_no_state_and_a_reachable_one_shows_at_once():
         step(tracker, t2, [START + VEL * t2])
         assert np.linalg.norm(state(tracker, track)[0] - (START + VEL * t2)) < 3 * SIGMA
         assert tracker.scan_associator.second_look.reverted == 1
+
+
+def test_a_doubt_of_a_track_deleted_meanwhile_is_dropped():
+    """A track in doubt that is deleted before the next scan of its dimension with a
+    detection (empty scans in between) leaves no doubt behind."""
+    tracker, track, t = settled(3.0)
+    t1 = t + PERIOD
+    dy = doubtful_offset(tracker, track, t1)
+    step(tracker, t1, [START + VEL * t1 + [dy, 0.0, 0.0]])
+    look = tracker.scan_associator.second_look
+    assert len(look.doubts) == 1
+    k = 2
+    while track in tracker.store.where:
+        tracker.step(Unlabelled.of("r1", t + k * PERIOD, []))
+        k += 1
+        assert k < 50
+    step(tracker, t + k * PERIOD, [START + [9e4, 0.0, 0.0]])  # far from anything
+    assert look.doubts == {}

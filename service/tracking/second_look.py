@@ -122,8 +122,11 @@ class SecondLook:
         gating and its pairs' scores). Whether any changed (the scan must then be gated
         again)."""
         self.noted.clear()  # noted but never updated (a non-finite result): no doubt
+        for key in [key for key, d in self.doubts.items() if key[0] == arrays.dim
+                    and arrays.ids[key[1]] != d.track_id]:
+            del self.doubts[key]  # the track was deleted meanwhile
         mine = [(key, d) for key, d in self.doubts.items() if key[0] == arrays.dim
-                and arrays.ids[key[1]] == d.track_id and t > d.t + TIME_TOL]
+                and t > d.t + TIME_TOL]
         if not mine:
             return False
         for key, _ in mine:
