@@ -49,6 +49,7 @@ class Queries:
             "scans_applied": c.scans_applied, "scans_held": len(self.admit),
             "rejected_by_reason": dict(c.by_reason),
             "sensor_noise": self.tracking.noise.status(),
+            "second_look": self.tracking.second_look(),
             "display_puts": c.display_puts, "tracks_puts": c.tracks_puts,
             "queue": self.ingest.waiting(),
         }

@@ -42,6 +42,11 @@ class Tracking:
         """Each sensor's stated noise against its measurements (reports, status)."""
         return self.tracker.noise
 
+    def second_look(self) -> dict[str, int]:
+        """How often the second look acted since start (status)."""
+        look = self.tracker.scan_associator.second_look
+        return {"deferred": look.deferred, "reverted": look.reverted}
+
     def delete(self, t: float) -> list[str]:
         return self.tracker.delete(t)
 
