@@ -5,6 +5,7 @@ scan, and the next scan chooses between taking it and having missed. The default
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from reference.record import Outcome, scan_step
 
 from zenoh_track.tracking import gating
@@ -29,9 +30,9 @@ def step(tracker: Tracker, t: float, positions) -> list[Outcome]:
     return outcomes
 
 
-def settled(margin: float) -> tuple[Tracker, str, float]:
+def settled(margin: float, density: float = DENSITY) -> tuple[Tracker, str, float]:
     """A confirmed track on a straight flight, 15 scans; its id and the last scan's time."""
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, DENSITY), second_look=margin))
+    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, density), second_look=margin))
     for k in range(15):
         step(tracker, k * PERIOD, [START + VEL * k * PERIOD])
     (track,) = tracker.store.where
@@ -154,3 +155,56 @@ def test_a_doubt_of_a_track_deleted_meanwhile_is_dropped():
         assert k < 50
     step(tracker, t + k * PERIOD, [START + [9e4, 0.0, 0.0]])  # far from anything
     assert look.doubts == {}
+
+
+@pytest.mark.parametrize("reach", [98.0, 0.0])
+def test_a_confident_detection_beyond_reach_is_weighed_by_the_next_scan(reach):
+    """With clutter 100 times sparser, the same far false detection beats a miss by more
+    than the margin: no doubt by its score. But it lies beyond an aircraft's reach of the
+    track's extrapolation, so its miss branch is kept all the same (its lead counted as a
+    doubt's at most), the update is shown at once, and the next scan, the aircraft where
+    it flies, puts the track back: one track. Without the reach (0), the jump is kept and
+    the aircraft starts a second track."""
+    tracker, track, t = settled(4.0, DENSITY / 100)
+    look = tracker.scan_associator.second_look
+    look.reach = reach
+    t1, t2 = t + PERIOD, t + 2 * PERIOD
+    dy = doubtful_offset(tracker, track, t1)
+    assert dy > 0.5 * 98.0 * PERIOD**2 + 3 * np.sqrt(3) * SIGMA  # beyond reach
+    step(tracker, t1, [START + VEL * t1 + [dy, 0.0, 0.0]])
+    assert look.deferred == 0  # shown at once
+    assert np.linalg.norm(shown_at(tracker, track, t1) - (START + VEL * t1)) > 0.5 * dy
+    step(tracker, t2, [START + VEL * t2])
+    err = np.linalg.norm(state(tracker, track)[0] - (START + VEL * t2))
+    if reach:
+        assert look.reverted == 1 and sorted(tracker.store.where) == [track]
+        assert err < 3 * SIGMA
+    else:
+        assert look.reverted == 0 and err > 0.5 * dy
+        step(tracker, t2 + PERIOD, [START + VEL * (t2 + PERIOD)])
+        assert len(tracker.store.where) == 2  # the aircraft's own new track: a break
+
+
+def test_a_turn_ending_in_a_missed_scan_keeps_its_track():
+    """The traced break of issue 30 at 4 s (docs/accuracy.md, "Far detections weighed
+    too"): a 4 g turn ends as a scan is missed, and the track takes a false detection
+    1.8 km off with confidence (its wide manoeuvre mode still allows the turn); the
+    aircraft's detections at the next scan put it back. Before, the aircraft started a
+    second track there and was not held at 2 of its 46 scans."""
+    from zenoh_track.clients.evaluation import manoeuvre_score as ms
+    from zenoh_track.clients.feeds.manoeuvres import Manoeuvres
+
+    sc = Manoeuvres(4.0, 0.9, 10.0, 2, 12)
+    tracker = Tracker()
+    shown = {}
+    for s in sc:
+        tracker.step(Unlabelled.of(s.sensor, s.t, [
+            Measurement(s.sensor, "", s.t, 3, True, tuple(d), (sc.sr, sc.sa, sc.sa),
+                        s.sensor_pos, None) for d in s.dets.tolist()]))
+        snap = tracker.snapshot(s.t)
+        shown[round(s.t, 6)] = {k: snap.pos[i].copy() for i, k in enumerate(snap.ids)
+                                if snap.status[i] != "tentative"}
+    (aircraft,) = [a for a in ms.score(sc, shown, dict.fromkeys(shown, {}), False)
+                   if a.name == "4g-0"]
+    assert aircraft.breaks == 0 and aircraft.held == aircraft.scans
+    assert tracker.scan_associator.second_look.reverted >= 1

@@ -157,8 +157,13 @@ class _ScanAssociator:
         g = restrict(every, confirmed)
         free = self.resolve(g, np.arange(n), pd, lam, hyp)
         seen = hyp.seen[-1]  # the confirmed tracks': a doubtful detection gets a second look
-        self.second_look.note(arrays, seen.rows[seen.detected],
-                              seen.gain[seen.detected] - miss, t)
+        taken = seen.rows[seen.detected]
+        far = None
+        if hyp.index and len(taken):  # where each took its detection (GNN's pairs)
+            at = dict(zip(hyp.rows[-1].tolist(), hyp.index[-1].tolist(), strict=True))
+            far = self.second_look.far(arrays, taken, z, r,
+                                       np.array([at.get(row, -1) for row in taken.tolist()]), t)
+        self.second_look.note(arrays, taken, seen.gain[seen.detected] - miss, t, far)
         free = gnn(restrict(every, ~confirmed, free), free, pd, lam, hyp)
         if len(free):
             hyp.unassociated = free.tolist()

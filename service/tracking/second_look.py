@@ -55,6 +55,7 @@ class Doubt:
     row: dict[str, np.ndarray]
     deferred: bool = False
     at: float = float("nan")
+    far: bool = False  # noted for its distance alone (no doubt by its score)
 
 
 class SecondLook:
@@ -70,17 +71,40 @@ class SecondLook:
         self.reverted = 0  # doubts decided for the miss branch, since start
         self.deferred = 0  # doubtful updates not shown until the next scan, since start
 
+    def far(self, arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray,
+            det: np.ndarray, t: float) -> np.ndarray:
+        """Of confirmed tracks `rows` taking detections `det` of a scan at `t` (its
+        converted points `z`, covariances `r`; -1: none): those whose detection lies
+        beyond an aircraft's reach of their own extrapolation (0.5 reach dt^2, plus 3
+        sigma of the measurement)."""
+        out = np.zeros(len(rows), dtype=bool)
+        ok = det >= 0
+        if self.margin <= 0 or self.reach <= 0 or not ok.any():
+            return out
+        rows, det = rows[ok], det[ok]
+        dt = t - arrays.t[rows]
+        pred = _extrapolated(arrays.x[rows].T, arrays.dim, arrays.order, dt).T
+        noise = 3.0 * np.sqrt(np.trace(r[det], axis1=1, axis2=2))
+        out[ok] = np.linalg.norm(z[det] - pred, axis=1) > 0.5 * self.reach * dt * dt + noise
+        return out
+
     def note(self, arrays: TrackArrays, rows: np.ndarray, margins: np.ndarray,
-             t: float) -> None:
+             t: float, far: np.ndarray | None = None) -> None:
         """Tracks `rows` take a detection at `t` that beats missing by `margins`: keep the
-        rows (before their update) of those below the margin."""
+        rows (before their update) of those below the margin, and of those `far`
+        (`SecondLook.far`)."""
         if self.margin <= 0:
             return
         doubtful = margins < self.margin
+        if far is not None:
+            doubtful |= far
         kept = _kept(arrays)
-        for row, m in zip(rows[doubtful].tolist(), margins[doubtful].tolist(), strict=True):
+        for i in np.flatnonzero(doubtful).tolist():
+            row = int(rows[i])
             self.noted[arrays.dim, row] = Doubt(
-                arrays.ids[row], t, m, {name: getattr(arrays, name)[row].copy() for name in kept})
+                arrays.ids[row], t, float(margins[i]),
+                {name: getattr(arrays, name)[row].copy() for name in kept},
+                far=bool(margins[i] >= self.margin))
 
     def settle(self, arrays: TrackArrays, rows: np.ndarray) -> np.ndarray:
         """Rows of `arrays` were just updated: of those noted as doubtful, the ones that
@@ -95,13 +119,18 @@ class SecondLook:
             if d is None or arrays.ids[row] != d.track_id:
                 continue
             miss, dt = d.row["x"], d.t - float(d.row["t"])
-            pred = miss[:d_] + miss[d_:2 * d_] * dt
-            if o == 3:
-                pred = pred + 0.5 * miss[2 * d_:3 * d_] * dt * dt
+            pred = _extrapolated(miss, d_, o, dt)
             # beyond reach: farther than the acceleration takes it, plus 3 sigma of the
             # updated position (the measurement's noise in it)
             noise = 3.0 * np.sqrt(np.trace(arrays.p[row, :d_, :d_]))
-            if np.linalg.norm(arrays.x[row, :d_] - pred) > 0.5 * self.reach * dt * dt + noise:
+            beyond = np.linalg.norm(arrays.x[row, :d_] - pred) > 0.5 * self.reach * dt * dt \
+                + noise
+            if d.far:  # no doubt by its score: weighed by the next scan only while beyond
+                if beyond:  # reach, shown meanwhile, its lead counted as a doubt's at most
+                    d.margin, d.at = self.margin, float(arrays.t[row])
+                    self.doubts[d_, row] = d
+                continue
+            if beyond:
                 taken = {name: getattr(arrays, name)[row].copy() for name in d.row}
                 _put(arrays, np.array([row]), [d.row])
                 d.row, d.deferred = taken, True
@@ -150,6 +179,13 @@ class SecondLook:
         if self.moved is not None:
             self.moved(arrays, rows)
         return bool(swap.any())
+
+
+def _extrapolated(x: np.ndarray, d: int, order: int, dt: float | np.ndarray) -> np.ndarray:
+    """A state's position `dt` later by its own motion (velocity, acceleration); states
+    as columns of x, one dt each, too."""
+    pred = x[:d] + x[d:2 * d] * dt
+    return pred + 0.5 * x[2 * d:3 * d] * dt * dt if order == 3 else pred
 
 
 def _best(g: Gating, score: np.ndarray, miss: float, rows: np.ndarray,
