@@ -42,6 +42,9 @@ IMM_INITIAL = (0.1, 0.3, 0.6, 0.0)  # a new track: quiet, nominal, CA, manoeuvre
 IMM_MANOEUVRE = (("cv", 10.0), ("cv", 70.0))
 IMM_ONSET = 30000.0  # s: 1 / the rate of entering the manoeuvre modes (docs/accuracy.md)
 IMM_TURN_SOJOURN = 5.0  # s: mean time in a manoeuvre mode
+# of a manoeuvre mode's exits, the share into the quiet mode (steady flight again; the
+# nominal mode takes 0.5 less this; docs/accuracy.md, "Straight legs after a manoeuvre")
+IMM_EXIT_QUIET = 0.05
 # False: one converted-measurement R for every mode, averaged over the mixture of their
 # predictions (a third less CPU a row; A, B and C as with each mode's own, docs/accuracy.md)
 IMM_MODE_R = False

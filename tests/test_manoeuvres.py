@@ -179,3 +179,22 @@ def test_imm_onset_option_sets_the_rate_of_entering_the_manoeuvre_modes():
         with pytest.raises(SystemExit) as stop:
             parser().parse_args(bad)
         assert stop.value.code == 2
+
+
+@pytest.mark.parametrize("exit_quiet", [0.0, 0.05, 0.2])
+def test_a_manoeuvre_mode_is_left_half_for_steady_flight(exit_quiet):
+    """A manoeuvre mode is left in `turn_sojourn` s: half of it for the quiet and nominal
+    modes (`exit_quiet` for the quiet one: an aircraft back on steady flight), the rest
+    for the CA and the other manoeuvre mode; the other modes' exits are unchanged."""
+    from zenoh_track.estimation.imm import ModeSet
+
+    imm = ModeSet(exit_quiet=exit_quiet).imm()
+    names = [m[0] for m in imm.modes]
+    leave = np.array(imm.leave)
+    for i in (names.index("cv10"), names.index("cv70")):
+        assert imm.sojourn[i] == pytest.approx(5.0)
+        assert leave[i, names.index("quiet")] == pytest.approx(exit_quiet)
+        assert leave[i, names.index("cv")] == pytest.approx(0.5 - exit_quiet)
+        assert leave[i].sum() == pytest.approx(1.0) and leave[i, i] == 0.0
+    base = np.array(ModeSet(exit_quiet=0.0).imm().leave)
+    np.testing.assert_array_equal(leave[:3], base[:3])

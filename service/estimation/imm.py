@@ -27,10 +27,10 @@ class ModeSet:
     other and the CA mode in `sojourn` s on average, the CA (and turn) modes in
     `manoeuvre_sojourn` s. Besides, every one of those modes enters the manoeuvre modes
     at the rate 1 / `onset` (shared evenly), and a manoeuvre mode is left in
-    `turn_sojourn` s, half for the nominal mode, the rest evenly for the CA and the other
-    manoeuvre modes. A new track starts with the probabilities `initial` (quiet, nominal,
-    CA and turns together, manoeuvre modes together). docs/accuracy.md gives the
-    reasons."""
+    `turn_sojourn` s, half for the nominal and quiet modes (`exit_quiet` of it for the
+    quiet one), the rest evenly for the CA and the other manoeuvre modes. A new track
+    starts with the probabilities `initial` (quiet, nominal, CA and turns together,
+    manoeuvre modes together). docs/accuracy.md gives the reasons."""
 
     q: float = defaults.Q_CV
     quiet_q: float = defaults.IMM_QUIET_Q
@@ -43,6 +43,7 @@ class ModeSet:
     manoeuvre: tuple[tuple[str, float], ...] = defaults.IMM_MANOEUVRE
     onset: float = defaults.IMM_ONSET
     turn_sojourn: float = defaults.IMM_TURN_SOJOURN
+    exit_quiet: float = defaults.IMM_EXIT_QUIET
 
     def imm(self) -> IMM:
         modes: list[Mode] = [("quiet", "cv", self.quiet_q, 0.0), ("cv", "cv", self.q, 0.0),
@@ -61,7 +62,8 @@ class ModeSet:
             rate[:b, b:] = 1.0 / self.onset / k
             for i in range(b, m):
                 rest = [2, *[j for j in range(b, m) if j != i]]
-                rate[i, 1] = 0.5 / self.turn_sojourn
+                rate[i, 0] = self.exit_quiet / self.turn_sojourn
+                rate[i, 1] = (0.5 - self.exit_quiet) / self.turn_sojourn
                 rate[i, rest] += 0.5 / self.turn_sojourn / len(rest)
         total = rate.sum(1)
         quiet, nominal, manoeuvre, *turns = (*self.initial, 0.0)[:4]
