@@ -160,9 +160,9 @@ class _ScanAssociator:
         taken = seen.rows[seen.detected]
         far = None
         if hyp.index and len(taken):  # where each took its detection (GNN's pairs)
-            at = dict(zip(hyp.rows[-1].tolist(), hyp.index[-1].tolist(), strict=True))
-            far = self.second_look.far(arrays, taken, z, r,
-                                       np.array([at.get(row, -1) for row in taken.tolist()]), t)
+            det = np.full(len(arrays.t), -1, dtype=np.intp)
+            det[hyp.rows[-1]] = hyp.index[-1]
+            far = self.second_look.far(arrays, taken, z, r, det[taken], t)
         self.second_look.note(arrays, taken, seen.gain[seen.detected] - miss, t, far)
         free = gnn(restrict(every, ~confirmed, free), free, pd, lam, hyp)
         if len(free):
