@@ -13,6 +13,7 @@ import time
 from collections import Counter, defaultdict
 
 import pytest
+import zenoh
 from conftest import Collector, ServiceProc, client_session
 
 from zenoh_track.clients.display.scene import SCHEMA_NAME, TOPIC, _heading
@@ -288,3 +289,26 @@ def test_plot_draws_the_confirmed_tracks_and_the_rates(tmp_path):
                           str(png)], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_replay_waits_until_its_keys_have_subscribers():
+    """A put made before Zenoh knows of a subscriber reaches nobody: the replay first
+    waits until each of its keys has one (matching status), and gives up after its
+    timeout on a key nobody subscribes."""
+    from zenoh_track.clients.feeds.replay import await_subscribers
+    from zenoh_track.wire import free_port, listen_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    listener = zenoh.open(listen_config(endpoint))
+    replayer = client_session(endpoint)
+    try:
+        keys = [zenoh.KeyExpr("again/frame"), zenoh.KeyExpr("again/tracks/a")]
+        sub = listener.declare_subscriber("again/**", lambda _: None)
+        assert await_subscribers(replayer, keys, 30.0) == 2
+        sub.undeclare()
+        start = time.monotonic()
+        assert await_subscribers(replayer, [zenoh.KeyExpr("nobody/here")], 0.3) == 0
+        assert time.monotonic() - start >= 0.3
+    finally:
+        replayer.close()
+        listener.close()

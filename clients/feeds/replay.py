@@ -10,13 +10,17 @@ service behaves as `track-feed` does: it waits for the service's liveliness toke
 publishes with congestion control BLOCK (a busy service holds the replay back; nothing
 is dropped), and waits at the end until the service has confirmed receipt. A whole
 session (`tracks/`, `display/`, `frame` too) can be replayed for displays, with no
-service running. `--plot OUT.png` draws the recording instead (clients/record/recording_plot.py).
+service running. Before the first put it waits (`--subscribers-timeout`, 2 s) until Zenoh
+knows a subscriber of every replayed key: a put made before the routing has learnt of a
+subscriber reaches nobody. `--plot OUT.png` draws the recording instead
+(clients/record/recording_plot.py).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 
 import zenoh
@@ -56,6 +60,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--receipt-timeout", type=float, default=BLOCK_WAIT_US / 1e6, metavar="S",
                    help="how long to wait at the end for the trackers to confirm receipt "
                         "(default %(default)g)")
+    p.add_argument("--subscribers-timeout", type=float, default=2.0, metavar="S",
+                   help="wait at most S s before the first put until a subscriber of every "
+                        "replayed key is known (default %(default)g; 0: do not wait)")
     add_quiet_arg(p)
     add_zenoh_args(p, ns=False)
     return p
@@ -106,6 +113,29 @@ def holds_inputs(channels: dict[int, Channel], ns: str | None) -> bool:
         return False
     kes = [zenoh.KeyExpr(f"{ns}/{k}") for k in INPUTS[:4]]
     return any(k.includes(zenoh.KeyExpr(ch.key)) for ch in channels.values() for k in kes)
+
+
+def await_subscribers(session: zenoh.Session, keys: list[zenoh.KeyExpr], timeout: float
+                      ) -> int:
+    """Wait at most `timeout` s until a subscriber of every key of `keys` is known to the
+    session (Zenoh's matching status); the number of keys that have one."""
+    if timeout <= 0 or not keys:
+        return 0
+    cond = threading.Condition()
+    pubs = [session.declare_publisher(k) for k in keys]
+    listeners = [p.declare_matching_listener(lambda _: _notify(cond)) for p in pubs]
+    try:
+        with cond:
+            cond.wait_for(lambda: all(p.matching_status.matching for p in pubs), timeout)
+        return sum(p.matching_status.matching for p in pubs)
+    finally:
+        for x in (*listeners, *pubs):
+            x.undeclare()
+
+
+def _notify(cond: threading.Condition) -> None:
+    with cond:
+        cond.notify_all()
 
 
 def replay(session: zenoh.Session, rec: Recording, channels: dict[int, Channel],
@@ -172,6 +202,8 @@ def main(argv: list[str] | None = None) -> None:
             if trackers and not wait_for_tracker(session, target, trackers):
                 sys.exit(f"track-replay: no tracker alive on '{target.ns}' after 30 s "
                          "(start track-service, or pass --trackers 0)")
+            keys = [zenoh.KeyExpr(k) for k in sorted({remap(ch.key) for ch in channels.values()})]
+            await_subscribers(session, keys, args.subscribers_timeout)
             start = time.monotonic()
             try:
                 n = replay(session, rec, channels, remap,
