@@ -10,7 +10,12 @@ with an N-scan window). This is that window of one scan, for that one case:
 
 - When a confirmed track takes a detection whose score beats its missed-detection score
   by less than `margin` (ln of a likelihood ratio), its row before the update is kept:
-  the miss branch (`note`).
+  the miss branch (`note`). So it is for a detection beyond an aircraft's reach of the
+  track's own extrapolation (`far`: 0.5 reach dt^2, plus 3 sigma of the measurement),
+  however well it scores: a wide manoeuvre mode's Gaussian tails overstate what an
+  aircraft does (a false detection 1.7 km off at 4 s beat a miss by ln 7.1 in the case
+  of docs/accuracy.md). Its update is shown at once, and kept aside only while it stays
+  beyond reach once made, its lead then counted as `margin` at most.
 - Once updated (`settle`), a track whose update moved it farther from where its miss
   branch predicts than an aircraft reaches at `reach` m/s^2 (0.5 reach dt^2, plus 3
   sigma of its updated position) is not committed to it: the updated row (the taken
