@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from .. import defaults
-from . import imm_jit, jit, kalman, models
+from . import imm_jit, jit, kalman, models, pda
 from .batch import einsum
 from .filters import Convert, Result, Rows, moments, predict
 from .ucm import CMKFConversion
@@ -200,6 +200,39 @@ class IMM:
                              np.stack([o[1] for o in outs], 1), c)
         rbar = einsum("nj,jnab->nab", c, np.stack(rs))
         _, _, nis, _ = kalman.update(xbar, pbar, z, rbar)
+        return x, p, nis, ok
+
+    def update_pda(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, w: Any) -> Result:
+        """`update` by weighted detections (`tracking.hypotheses.WeightedUpdate`: JPDA's
+        or PDA's): each mode updated by the PDA of its own prediction and weighed by its
+        own likelihood of the scan (`pda.pda_update`, the IMM-PDAF), so that a far
+        detection of small probability neither moves every mode to the widest one nor
+        gives the quiet ones the widest one's spread."""
+        mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
+        c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
+        preds = [predict(x0[:, j], p0[:, j], *models.motion(kind, dt, self.order, arrays.dim,
+                                                            q, omega))
+                 for j, (_, kind, q, omega) in enumerate(self.modes)]
+        xp, pp = np.stack([x for x, _ in preds], 1), np.stack([p for _, p in preds], 1)
+        t_count, m, n = xp.shape
+        ti = (w.ti[:, None] * m + np.arange(m)).ravel()  # pair k, mode j: row k * m + j
+        k = np.repeat(np.arange(len(w.ti)), m)
+        xu, pu, loglam, ok = pda.pda_update(xp.reshape(-1, n), pp.reshape(-1, n, n), ti,
+                                            w.pz[k], w.pr[k], w.beta[k], w.pd, w.lam)
+        xu, pu = xu.reshape(t_count, m, n), pu.reshape(t_count, m, n, n)
+        ok = ok.reshape(t_count, m).all(1)
+        logw = np.log(np.maximum(c, 1e-300)) + loglam.reshape(t_count, m)
+        with np.errstate(invalid="ignore"):
+            logw -= logw.max(1, keepdims=True)
+            mu_new = np.exp(logw)
+            mu_new /= mu_new.sum(1, keepdims=True)
+        ok &= np.isfinite(mu_new).all(1)
+        good = rows[ok]
+        arrays.mode_x[good], arrays.mode_p[good] = xu[ok], pu[ok]
+        arrays.mode_prob[good] = mu_new[ok]
+        x, p = moments(xu, pu, np.where(np.isfinite(mu_new), mu_new, 0.0))
+        xbar, pbar = moments(xp, pp, c)  # NIS: the mixture's prediction, the equivalent z
+        _, _, nis, _ = kalman.update(xbar, pbar, w.z, w.r)
         return x, p, nis, ok
 
     def gate_prediction(self, arrays: Any, rows: np.ndarray, t: float

@@ -17,7 +17,10 @@ class WeightedUpdate:
     """Tracks of one layout each updated by an equivalent measurement z (T, d) with
     covariance r (T, d, d) standing for several weighted detections (`plot_association.pda`),
     with the spread of those detections (T, n, n) added to the posterior covariance;
-    `mass`: each track's probability of having been detected."""
+    `mass`: each track's probability of having been detected. The detections themselves,
+    for a filter that updates by them (an IMM, mode by mode: `estimation.pda`): pair k of
+    track `ti[k]` (an index into rows), detection `pz[k]` with covariance `pr[k]` and
+    probability `beta[k]`; the sensor's `pd` and clutter density `lam`."""
 
     arrays: TrackArrays
     rows: np.ndarray
@@ -25,6 +28,12 @@ class WeightedUpdate:
     r: np.ndarray
     mass: np.ndarray
     spread: np.ndarray
+    ti: np.ndarray
+    pz: np.ndarray
+    pr: np.ndarray
+    beta: np.ndarray
+    pd: float
+    lam: float
 
 
 @dataclass

@@ -320,7 +320,7 @@ class JPDAAssociator(_ScanAssociator):
         beta[single] = ratio[single] / (ratio[single] + (1 - pd))
         for k in groups:
             beta[k] = self._marginals(g.ti[k], g.dj[k], ratio[k], 1 - pd)
-        update, mass = pda(g, beta)
+        update, mass = pda(g, beta, pd, lam)
         if len(update.rows):
             hyp.weighted.append(update)
         # M of N counts a track as seen when it was more likely detected than not; the
@@ -358,7 +358,8 @@ class JPDAAssociator(_ScanAssociator):
         return mass / total if total > 0 else mass
 
 
-def pda(g: Gating, beta: np.ndarray) -> tuple[WeightedUpdate, np.ndarray]:
+def pda(g: Gating, beta: np.ndarray, pd: float, lam: float
+        ) -> tuple[WeightedUpdate, np.ndarray]:
     """The PDA update of every gated track as one equivalent measurement: with
     b = sum_j beta_j and beta_0 = 1 - b, the combined innovation nu = sum_j beta_j nu_j
     equals the update of a Kalman filter by z~ = H x + nu / b with covariance
@@ -384,5 +385,8 @@ def pda(g: Gating, beta: np.ndarray) -> tuple[WeightedUpdate, np.ndarray]:
     gain = np.linalg.solve(s, g.cross).transpose(0, 2, 1)  # K = P H' S^-1 (n, d)
     spread_d = second - nu[:, :, None] * nu[:, None, :]
     spread = gain @ spread_d @ gain.transpose(0, 2, 1)
+    kept = some[g.ti]  # the pairs of the tracks updated, their tracks renumbered
+    ti = (np.cumsum(some) - 1)[g.ti[kept]]
     return WeightedUpdate(g.arrays, g.rows[some], z[some], r_mean[some], b[some],
-                          spread[some]), b
+                          spread[some], ti, g.z[g.dj[kept]], g.r[g.dj[kept]], beta[kept],
+                          pd, lam), b

@@ -242,10 +242,14 @@ class Tracker:
         updated, their new states and covariances."""
         arrays, rows = w.arrays, w.rows
         times = np.full(len(rows), t)
-        xn, pn, nis, ok = self.updater.update(arrays, rows, times - arrays.t[rows],
-                                              EquivalentConversion(w.z, w.r, w.mass))
-        pn = pn + w.spread
-        self.updater.inflate(arrays, rows[ok], w.spread[ok])
+        by_pda = getattr(self.updater, "update_pda", None)  # mode by mode (an IMM)
+        if by_pda is not None:
+            xn, pn, nis, ok = by_pda(arrays, rows, times - arrays.t[rows], w)
+        else:
+            xn, pn, nis, ok = self.updater.update(arrays, rows, times - arrays.t[rows],
+                                                  EquivalentConversion(w.z, w.r, w.mass))
+            pn = pn + w.spread
+            self.updater.inflate(arrays, rows[ok], w.spread[ok])
         good, xn, pn = rows[ok], xn[ok], pn[ok]
         self.display.update(arrays, good, times[ok], xn, pn)
         arrays.x[good], arrays.p[good], arrays.nis[good] = xn, pn, nis[ok]
