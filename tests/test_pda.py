@@ -80,3 +80,22 @@ def test_far_clutter_of_small_weight_leaves_a_jpda_track_on_its_quiet_modes():
     assert sorted(tracker.store.where) == [track]
     pos = np.array(tracker.state(track)["pos"])
     assert np.linalg.norm(pos - (START + VEL * 19 * PERIOD)) < 3 * SIGMA
+
+
+def test_a_track_spread_wide_by_a_detected_scan_is_deleted_only_when_missed():
+    """`MofNDeleter`'s sigma limit ends tracks too uncertain to hold anything: a track
+    whose position sigma passes it is kept while the scan detected it (a JPDA update may
+    spread it over kilometres for a scan) and deleted at the first scan that misses it."""
+    from zenoh_track.tracking.life import MofNDeleter
+
+    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14)))
+    for k in range(6):
+        t = k * PERIOD
+        tracker.step(Unlabelled.of("r1", t, [det(t, START + VEL * t)]))
+    (track,) = tracker.store.where
+    arrays, row = tracker.store.where[track]
+    arrays.p[row, :3, :3] = np.eye(3) * 3000.0**2  # a spread of 5 km
+    deleter = MofNDeleter(3, 5, 6, 2000.0)
+    assert arrays.misses[row] == 0 and deleter.delete_tracks(tracker.store, 6 * PERIOD) == []
+    arrays.misses[row] = 1
+    assert deleter.delete_tracks(tracker.store, 6 * PERIOD) == [track]

@@ -9,8 +9,8 @@ confirmation threshold (and stays confirmed): M of N alone lets clutter that hap
 line up confirm; the score weighs how well it lined up. `MofNDeleter` ends
 tentative tracks that missed N - M + 1 scans in a row (they cannot reach M of the last
 N at the next scan), confirmed tracks after K consecutive misses, and any of them whose
-position sigma exceeds a limit (Blackman & Popoli 1999, sec. 6.3; Stone Soup's
-UpdateTimeStepsDeleter and CovarianceBasedDeleter play the same roles).
+position sigma exceeds a limit at a scan that missed it (Blackman & Popoli 1999, sec.
+6.3; Stone Soup's UpdateTimeStepsDeleter and CovarianceBasedDeleter play the same roles).
 """
 
 from __future__ import annotations
@@ -58,7 +58,8 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:
 
 class MofNDeleter:
     """Deletes unlabelled tracks that cannot be confirmed any more, that missed
-    `misses` scans in a row once confirmed, or whose position sigma exceeds `sigma`."""
+    `misses` scans in a row once confirmed, or whose position sigma exceeds `sigma` at a
+    scan that missed them."""
 
     def __init__(self, m: int, n: int, misses: int, sigma: float) -> None:
         self.m, self.n, self.misses, self.sigma = m, n, misses, sigma
@@ -76,6 +77,8 @@ class MofNDeleter:
             var = np.add.reduce(pr[:, :d * (n + 1):n + 1], axis=1)  # the trace of the
             # position block (its diagonal, a strided view)
             gone = np.where(confirmed, misses >= self.misses, misses > self.n - self.m)
-            gone |= var > self.sigma**2
+            # too uncertain to hold anything: once it misses (an update by weighted
+            # detections, JPDA's, may spread a track that was detected over kilometres)
+            gone |= (var > self.sigma**2) & (misses > 0)
             out += [ids[i] for i in (plot & gone).nonzero()[0].tolist()]
         return out
