@@ -185,16 +185,7 @@ class IMM:
         pu = np.stack([o[2][1] for o in outs], 1)
         loglik = np.stack([o[2][4] for o in outs], 1)
         ok = np.all([o[2][3] for o in outs], 0)
-        logw = np.log(np.maximum(c, 1e-300)) + loglik
-        with np.errstate(invalid="ignore"):  # a row with no finite mode: masked by ok
-            logw -= logw.max(1, keepdims=True)
-            mu_new = np.exp(logw)
-            mu_new /= mu_new.sum(1, keepdims=True)
-        ok &= np.isfinite(mu_new).all(1)
-        good = rows[ok]
-        arrays.mode_x[good], arrays.mode_p[good] = xu[ok], pu[ok]
-        arrays.mode_prob[good] = mu_new[ok]
-        x, p = moments(xu, pu, np.where(np.isfinite(mu_new), mu_new, 0.0))
+        x, p, ok = _posterior(arrays, rows, c, loglik, xu, pu, ok)
         # NIS of the mixture's prediction, with R averaged over it: sum_j c_j R_j
         xbar, pbar = moments(np.stack([o[0] for o in outs], 1),
                              np.stack([o[1] for o in outs], 1), c)
@@ -220,17 +211,8 @@ class IMM:
         xu, pu, loglam, ok = pda.pda_update(xp.reshape(-1, n), pp.reshape(-1, n, n), ti,
                                             w.pz[k], w.pr[k], w.beta[k], w.pd, w.lam)
         xu, pu = xu.reshape(t_count, m, n), pu.reshape(t_count, m, n, n)
-        ok = ok.reshape(t_count, m).all(1)
-        logw = np.log(np.maximum(c, 1e-300)) + loglam.reshape(t_count, m)
-        with np.errstate(invalid="ignore"):
-            logw -= logw.max(1, keepdims=True)
-            mu_new = np.exp(logw)
-            mu_new /= mu_new.sum(1, keepdims=True)
-        ok &= np.isfinite(mu_new).all(1)
-        good = rows[ok]
-        arrays.mode_x[good], arrays.mode_p[good] = xu[ok], pu[ok]
-        arrays.mode_prob[good] = mu_new[ok]
-        x, p = moments(xu, pu, np.where(np.isfinite(mu_new), mu_new, 0.0))
+        x, p, ok = _posterior(arrays, rows, c, loglam.reshape(t_count, m), xu, pu,
+                              ok.reshape(t_count, m).all(1))
         xbar, pbar = moments(xp, pp, c)  # NIS: the mixture's prediction, the equivalent z
         _, _, nis, _ = kalman.update(xbar, pbar, w.z, w.r)
         return x, p, nis, ok
@@ -288,6 +270,25 @@ class IMM:
 
     def labels(self, arrays: Rows, rows: np.ndarray) -> ModeProbabilities:
         return ModeProbabilities([name for name, *_ in self.modes], arrays.mode_prob[rows])
+
+
+def _posterior(arrays: Rows, rows: np.ndarray, c: np.ndarray, loglik: np.ndarray,
+               xu: np.ndarray, pu: np.ndarray, ok: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The modes' updates (xu, pu) and likelihoods of rows put in the store with their
+    new probabilities (predicted c times the likelihood); the combined state, covariance
+    and the mask of the rows updated (finite)."""
+    logw = np.log(np.maximum(c, 1e-300)) + loglik
+    with np.errstate(invalid="ignore"):  # a row with no finite mode: masked by ok
+        logw -= logw.max(1, keepdims=True)
+        mu_new = np.exp(logw)
+        mu_new /= mu_new.sum(1, keepdims=True)
+    ok &= np.isfinite(mu_new).all(1)
+    good = rows[ok]
+    arrays.mode_x[good], arrays.mode_p[good] = xu[ok], pu[ok]
+    arrays.mode_prob[good] = mu_new[ok]
+    x, p = moments(xu, pu, np.where(np.isfinite(mu_new), mu_new, 0.0))
+    return x, p, ok
 
 
 class ModeProbabilities(Sequence):
