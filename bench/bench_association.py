@@ -37,7 +37,7 @@ to confirm a truth, confirmed tracks at the end, and the wall time per scan
 (time.perf_counter around one tracker step) as mean and worst, with the ratio of Stone
 Soup's GNN mean time to each. `--scale`: our GNN and JPDA on 1,000 targets + 1,000
 clutter per scan (median ms per scan after 3 warm-up scans), and a scan of 10,000
-detections.
+detections; with `--scale-filter default`, the service's default IMM in place of CV.
 """
 
 from __future__ import annotations
@@ -118,10 +118,10 @@ def ours(kind: str, sc: plotgen.Scenario, scans: list[plotgen.Scan]) -> Run:
     return run
 
 
-def our_tracker(kind: str, sc: plotgen.Scenario) -> Tracker:
-    """Our CV tracker (q = Q) with the scan associator `kind` and the true Pd and
-    clutter density."""
-    return Tracker(TrackerConfig(filter=FilterSpec("cv", Q), associator=kind,
+def our_tracker(kind: str, sc: plotgen.Scenario, spec: FilterSpec | None = None) -> Tracker:
+    """Our CV tracker (q = Q; or the filter `spec`) with the scan associator `kind` and
+    the true Pd and clutter density."""
+    return Tracker(TrackerConfig(filter=spec or FilterSpec("cv", Q), associator=kind,
                                  gate_probability=GATE,
                                  sensors=SensorModels(pd=sc.pd,
                                                       clutter_density=sc.clutter_density)))
@@ -257,10 +257,10 @@ def table(results: dict[str, list[tuple]], c: float) -> None:
 
 
 # ---------------------------------------------------------------- scale
-def scale(kind: str) -> None:
+def scale(kind: str, spec: FilterSpec | None = None) -> None:
     """Our tracker on 1,000 targets + 1,000 clutter per scan, then 10,000 detections."""
     sc = plotgen.swarm_plots(targets=1000, clutter=1000.0, scans=10, seed=1)
-    tracker = our_tracker(kind, sc)
+    tracker = our_tracker(kind, sc, spec)
     times, dets = [], []
     for s in sc:
         outcomes = records(s, sc.sigma)
@@ -274,7 +274,7 @@ def scale(kind: str) -> None:
           f"(~{int(np.mean(dets))} detections; first scans {', '.join(f'{1e3 * t:.0f}' for t in times[:3])} ms), "  # noqa: E501
           f"{len(est)} confirmed tracks at the end, {len(tracker)} in all")
     big = plotgen.swarm_plots(targets=5000, clutter=6000.0, scans=3, seed=2)
-    tracker = our_tracker(kind, big)
+    tracker = our_tracker(kind, big, spec)
     out = []
     for s in big:
         s = s._replace(dets=s.dets[:10_000])
@@ -297,6 +297,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--quick", action="store_true", help="1 run of 30 scans; small table 10 scans")
     ap.add_argument("--scale", action="store_true", help="also the 1,000- and 10,000-plot scans")
     ap.add_argument("--no-stonesoup", action="store_true")
+    ap.add_argument("--scale-filter", choices=("cv", "default"), default="cv",
+                    help="--scale: our CV filter (default) or the service's default IMM")
     args = ap.parse_args(argv)
     runs, scans, small_scans = (1, 30, 10) if args.quick else (args.runs, args.scans, 20)
     peer = stonesoup is not None and not args.no_stonesoup
@@ -327,8 +329,9 @@ def main(argv: list[str] | None = None) -> None:
 
     if args.scale:
         print("scale (ours):")
+        spec = FilterSpec() if args.scale_filter == "default" else None
         for kind in ("gnn", "jpda"):
-            scale(kind)
+            scale(kind, spec)
 
 
 if __name__ == "__main__":
