@@ -144,23 +144,30 @@ class IMM:
     def mix(self, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray, pi: np.ndarray, dim: int
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted mode probabilities c (N, M) and the mixed initial conditions
-        x0 (N, M, n), P0 (N, M, n, n) of every mode."""
+        x0 (N, M, n), P0 (N, M, n, n) of every mode: x0_j = sum_i w_ij x_i and
+        P0_j = sum_i w_ij (P_i + (x_i - x0_j)(x_i - x0_j)'), as batched matrix products."""
+        n_rows, m, n = mx.shape
         c = einsum("nij,ni->nj", pi, mu)  # predicted mode probabilities
         w = pi * mu[:, :, None] / np.maximum(c[:, None, :], 1e-300)  # mixing mu_{i|j}
-        xs = np.repeat(mx[:, :, None], len(self.modes), 2)  # (N, i, j, n): x_i for mode j
-        ps = np.repeat(mp[:, :, None], len(self.modes), 2)
+        wt = w.transpose(0, 2, 1)  # (N, j, i)
+        x0 = wt @ mx
+        d = mx[:, :, None] - x0[:, None]  # (N, i, j, n): x_i about mode j's mix
+        p0 = (wt @ mp.reshape(n_rows, m, n * n)).reshape(n_rows, m, n, n) \
+            + (w[..., None] * d).transpose(0, 2, 3, 1) @ d.transpose(0, 2, 1, 3)
         acc = slice(2 * dim, 3 * dim)
-        has = [kind == "ca" for _, kind, _, _ in self.modes]
-        for j, hj in enumerate(has):
-            for i, hi in enumerate(has):
-                if hj and not hi and self.unbiased_mixing:  # pad i with j's acceleration
-                    xs[:, i, j, acc] = mx[:, j, acc]
-                    ps[:, i, j, acc, :] = 0.0
-                    ps[:, i, j, :, acc] = 0.0
-                    ps[:, i, j, acc, acc] = mp[:, j, acc, acc]
-        x0 = einsum("nij,nijx->njx", w, xs)
-        d = xs - x0[:, None]
-        p0 = einsum("nij,nijxy->njxy", w, ps + d[..., :, None] * d[..., None, :])
+        has = np.array([kind == "ca" for _, kind, _, _ in self.modes])
+        if self.unbiased_mixing and has.any() and not has.all():
+            for j in np.flatnonzero(has).tolist():  # pad the others with j's acceleration
+                xs, ps = mx.copy(), mp.copy()
+                xs[:, ~has, acc] = mx[:, j, None, acc]
+                ps[:, ~has, acc, :] = 0.0
+                ps[:, ~has, :, acc] = 0.0
+                ps[:, ~has, acc, acc] = mp[:, j, None, acc, acc]
+                wj = w[:, None, :, j]  # (N, 1, i)
+                x0[:, j] = (wj @ xs)[:, 0]
+                dj = xs - x0[:, j, None]
+                p0[:, j] = (wj @ ps.reshape(n_rows, m, n * n)).reshape(n_rows, n, n) \
+                    + (w[:, :, j, None] * dj).transpose(0, 2, 1) @ dj
         return c, x0, p0
 
     def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
