@@ -52,10 +52,11 @@ def spec(name: str, period: float) -> FilterSpec:
 
 
 def ours(name: str, sc: Manoeuvres, labelled: bool, associator: str = "gnn",
-         second_look: float = defaults.SECOND_LOOK) -> tuple[ms.Shown, ms.States, float]:
+         second_look: float = defaults.SECOND_LOOK, stitch_reach: float = defaults.STITCH_REACH
+         ) -> tuple[ms.Shown, ms.States, float]:
     """Our tracker over the scenario: what a lockstep service would show at each scan."""
     tr = Tracker(TrackerConfig(filter=spec(name, sc.period), associator=associator,
-                               second_look=second_look,
+                               second_look=second_look, stitch_reach=stitch_reach,
                                delete_misses=4 if name == "before" else defaults.DELETE_MISSES))
     if name == "before":  # the default before the manoeuvre modes, gated by the store's state
         tr.updater = ModeSet(manoeuvre=(), ca_q=0.1, initial=(0.1, 0.6, 0.3)).imm()
@@ -174,6 +175,8 @@ def main() -> None:
     p.add_argument("--associator", choices=("gnn", "jpda"), default="gnn", help="ours")
     p.add_argument("--second-look", type=float, default=defaults.SECOND_LOOK,
                    help="ours: the service's --second-look (0: off)")
+    p.add_argument("--stitch-reach", type=float, default=defaults.STITCH_REACH,
+                   help="ours: the service's --stitch-reach (0: off)")
     args = p.parse_args()
     for period in args.period or [1.0, 2.0, 4.0]:
         for name in args.names:
@@ -185,7 +188,7 @@ def main() -> None:
                     shown, states, s = stone_soup(sc)
                 else:
                     shown, states, s = ours(name, sc, args.labelled, args.associator,
-                                                 args.second_look)
+                                            args.second_look, args.stitch_reach)
                 spent += s
                 got += ms.score(sc, shown, states, args.labelled)
             form = "labelled" if args.labelled else f"Pd {args.pd:g}, {args.clutter:g} clutter"

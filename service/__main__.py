@@ -64,6 +64,7 @@ def tracker_config(args: argparse.Namespace) -> TrackerConfig:
                                                blend_speed=args.blend_speed, lag=args.lag),
                          associator=args.associator, sensors=sensors,
                          gate_probability=args.gate, second_look=args.second_look,
+                         stitch_reach=args.stitch_reach,
                          max_speed=args.max_speed,
                          confirm_m=m, confirm_n=n, confirm_score=args.confirm_score,
                          delete_misses=args.delete_misses, delete_sigma=args.delete_sigma)
@@ -183,6 +184,11 @@ def parser() -> argparse.ArgumentParser:
                    metavar="LN_RATIO", help="a confirmed track whose detection beats a miss "
                    "by less than this log-likelihood ratio keeps its miss branch, and the "
                    "next scan chooses (0: off; default %(default)s)")
+    g.add_argument("--stitch-reach", type=float, default=defaults.STITCH_REACH,
+                   metavar="M_S2", help="a track confirmed within an aircraft's reach at "
+                   "this acceleration of one confirmed track that missed every scan it "
+                   "took (and no other) continues that track's id (0: off; default "
+                   "%(default)s = 10 g)")
     g.add_argument("--max-speed", type=float, default=defaults.MAX_SPEED,
                    help="m/s: fastest target; a new track's velocity prior has std a third "
                         "of it per axis (default %(default)s)")

@@ -71,6 +71,9 @@ SECOND_LOOK = 4.0  # ln 55 (docs/accuracy.md, "A doubtful update beyond reach wa
 # m/s^2: a doubtful detection farther from the track's own prediction than an aircraft
 # could go at this acceleration (10 g) is not shown until the next scan confirms it
 SECOND_LOOK_REACH = 98.0
+# m/s^2: a newly confirmed track within this reach of a lost confirmed track (not updated
+# since the new one began) continues it under its id (tracking.stitcher); 0: never
+STITCH_REACH = 98.0
 JPDA_MAX_EVENTS = 5000  # joint events enumerated per cluster; more: cheap JPDA
 MAX_SPEED = 340.0  # m/s: a new track's velocity prior has std MAX_SPEED / 3 per axis
 CONFIRM_M, CONFIRM_N = 3, 5  # confirmed once detected in 3 of its last 5 scans ...

@@ -50,6 +50,7 @@ class Queries:
             "rejected_by_reason": dict(c.by_reason),
             "sensor_noise": self.tracking.noise.status(),
             "second_look": self.tracking.second_look(),
+            "tracks_continued": self.tracking.continued(),
             "display_puts": c.display_puts, "tracks_puts": c.tracks_puts,
             "queue": self.ingest.waiting(),
         }

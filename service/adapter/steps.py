@@ -47,6 +47,10 @@ class Tracking:
         look = self.tracker.scan_associator.second_look
         return {"deferred": look.deferred, "reverted": look.reverted}
 
+    def continued(self) -> int:
+        """Lost tracks continued by a new one under their id since start (status)."""
+        return self.tracker.stitcher.joined
+
     def delete(self, t: float) -> list[str]:
         return self.tracker.delete(t)
 

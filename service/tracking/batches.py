@@ -17,7 +17,7 @@ measurement (`StepOutcome`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -138,6 +138,13 @@ class StepOutcome:
     rejected: list[tuple[int, str]] = field(default_factory=list)
     deleted: list[str] = field(default_factory=list)
     states: list[States] = field(default_factory=list)
+
+    def renamed(self, ids: Mapping[str, str]) -> None:
+        """Tracks went on under other ids ({old: new}): their states here are renamed,
+        the old ids reported deleted."""
+        for block in self.states:
+            block.ids[:] = [ids.get(i, i) for i in block.ids]
+        self.deleted += list(ids)
 
     def keep(self, states: Callable[[np.ndarray | None], States], ids: list[str | None],
              rows: np.ndarray, want: Want | None) -> None:

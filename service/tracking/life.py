@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .hypotheses import Seen
-from .store import Column, TrackStore
+from .store import Column, TrackArrays, TrackStore
 
 # the life of a track of unlabelled scans, per row of the store, zero for a new track:
 # whether it is one, its detections in the last scans as bits (newest lowest), the
@@ -31,10 +31,12 @@ LIFE_COLUMNS = {"plot": Column(dtype=bool, fresh=True), "hits": Column(dtype=np.
                 "confirmed": Column(dtype=bool, fresh=True)}
 
 
-def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:
+def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float
+                ) -> list[tuple[TrackArrays, np.ndarray]]:
     """Record one scan's detections and misses of unlabelled tracks, and add the scan's
     log-likelihood ratio to each track's score; confirm those detected M of the last N
-    scans whose score reached `threshold`."""
+    scans whose score reached `threshold`. The rows confirmed by this scan, per layout."""
+    out: list[tuple[TrackArrays, np.ndarray]] = []
     mask = (1 << n) - 1
     by_layout: dict[int, list[Seen]] = {}
     for s in seen:  # one pass per layout (a scan's stages see disjoint tracks)
@@ -53,7 +55,12 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float) -> None:
         a.misses[rows] = np.where(hit, 0, a.misses[rows] + 1)
         score = a.score[rows] + gain
         a.score[rows] = score
-        a.confirmed[rows] |= (np.bitwise_count(hits) >= m) & (score >= threshold)
+        was = a.confirmed[rows]
+        now = was | ((np.bitwise_count(hits) >= m) & (score >= threshold))
+        a.confirmed[rows] = now
+        if (now & ~was).any():
+            out.append((a, rows[now & ~was]))
+    return out
 
 
 class MofNDeleter:

@@ -214,6 +214,13 @@ class TrackStore:
         for arrays, rows in by_layout.values():
             arrays.remove(rows)
 
+    def rename(self, old: str, new: str) -> None:
+        """Track `old` goes on as `new` (an id not in the store)."""
+        arrays, row = self.where.pop(old)
+        arrays.ids[row] = new
+        arrays._live = None
+        self.where[new] = (arrays, row)
+
     def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray,
                labels: Sequence, x: np.ndarray | None = None, p: np.ndarray | None = None
                ) -> States:

@@ -33,6 +33,7 @@ from .noise_check import NoiseCheck
 from .plot_association import GNNAssociator, JPDAAssociator, SensorModels
 from .protocols import Associator, Deleter, Initiator, Updater
 from .second_look import SecondLook
+from .stitcher import Stitcher
 from .store import States, TrackArrays, TrackStore
 
 NON_FINITE = "update gave a non-finite state"
@@ -56,6 +57,7 @@ class TrackerConfig:
     sensors: SensorModels = field(default_factory=SensorModels)
     gate_probability: float = defaults.GATE_PROBABILITY
     second_look: float = defaults.SECOND_LOOK  # ln ratio below which a scan waits a scan
+    stitch_reach: float = defaults.STITCH_REACH  # m/s^2: a lost track continued (0: never)
     max_speed: float = defaults.MAX_SPEED  # m/s: a new track's velocity std is a third
     confirm_m: int = defaults.CONFIRM_M
     confirm_n: int = defaults.CONFIRM_N
@@ -107,6 +109,7 @@ class Tracker:
         self.scan_associator.predict = self.updater.gate_prediction
         # a confirmed track's doubtful detection waits one scan (`second_look`)
         self.scan_associator.second_look = SecondLook(c.second_look, moved=self._moved)
+        self.stitcher = Stitcher(c.stitch_reach)  # a lost track continued by a new one
         self.initiator: Initiator = SinglePointInitiator(c.init_speed, c.init_accel)
         self.deleter: Deleter = CompositeDeleter(
             UpdateTimeDeleter(c.delete_after),
@@ -143,7 +146,7 @@ class Tracker:
                 good, x, p = self._settle(weighted.arrays, good, x, p)
                 out.keep(self._block(weighted.arrays, good, x, p), weighted.arrays.ids, good,
                          want)
-            self.count_detections(hyp)
+            self.count_detections(hyp, out)
             out.deleted += self.delete(part.t)
             if hyp.unassociated:
                 self._initiate(hyp, part, bad, out, want)
@@ -257,13 +260,18 @@ class Tracker:
         arrays.updates[good] += 1
         return good, xn, pn
 
-    def count_detections(self, hyp: Hypotheses) -> None:
+    def count_detections(self, hyp: Hypotheses, out: StepOutcome | None = None) -> None:
         """The unlabelled tracks in view count the scan as a detection or a miss (M of
-        N, the track score). Tracks without a measurement keep their filtered state:
+        N, the track score); a track confirmed by it that continues a lost one takes
+        the lost one's id (`Stitcher`: its new id is reported deleted in `out`, and its
+        states there renamed). Tracks without a measurement keep their filtered state:
         the display predicts it to every instant, and labelled ones turn coasting with
         age."""
         c = self.config
-        update_life(hyp.seen, c.confirm_m, c.confirm_n, c.confirm_score)
+        for arrays, rows in update_life(hyp.seen, c.confirm_m, c.confirm_n, c.confirm_score):
+            joined = self.stitcher.join(self.store, arrays, rows)
+            if joined and out is not None:
+                out.renamed(joined)
 
     def delete(self, now: float) -> list[str]:
         """Remove the tracks the deleter picks at time `now`; their ids."""
