@@ -60,6 +60,7 @@ def test_a_track_found_again_on_a_new_heading_keeps_its_id():
     joined = outs[4]  # scan 19: detected at 3 of 17, 18, 19
     assert joined.deleted == ["r1-2"]
     assert [i for s in joined.states for i in s.ids] == ["r1-1"]
+    assert [int(u) for s in joined.states for u in s.updates] == [15 + 3]
     assert all(not o.deleted for o in outs if o is not joined)
 
 

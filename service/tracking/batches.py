@@ -139,11 +139,14 @@ class StepOutcome:
     deleted: list[str] = field(default_factory=list)
     states: list[States] = field(default_factory=list)
 
-    def renamed(self, ids: Mapping[str, str]) -> None:
-        """Tracks went on under other ids ({old: new}): their states here are renamed,
-        the old ids reported deleted."""
+    def renamed(self, ids: Mapping[str, tuple[str, int]]) -> None:
+        """Tracks went on under other ids ({id: (new id, updates counted before)}): their
+        states here are renamed and their updates counted on, the ids reported deleted."""
         for block in self.states:
-            block.ids[:] = [ids.get(i, i) for i in block.ids]
+            for i, track_id in enumerate(block.ids):
+                if track_id in ids:
+                    block.ids[i], before = ids[track_id]
+                    block.updates[i] += before
         self.deleted += list(ids)
 
     def keep(self, states: Callable[[np.ndarray | None], States], ids: list[str | None],

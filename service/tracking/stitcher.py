@@ -83,10 +83,10 @@ class Stitcher:
         return [(int(new[a]), int(old[b])) for a, b in zip(j.tolist(), i.tolist(), strict=True)]
 
     def join(self, store: TrackStore, arrays: TrackArrays, new: np.ndarray
-             ) -> dict[str, str]:
-        """Continue lost tracks by the rows `new` just confirmed: {new id: old id} of
-        those joined (the old rows removed, the new rows renamed)."""
-        out: dict[str, str] = {}
+             ) -> dict[str, tuple[str, int]]:
+        """Continue lost tracks by the rows `new` just confirmed: {new id: (old id, its
+        updates)} of those joined (the old rows removed, the new rows renamed)."""
+        out: dict[str, tuple[str, int]] = {}
         for n, o in self.pairs(arrays, new):
             new_id, old_id = arrays.ids[n], arrays.ids[o]
             assert new_id is not None and old_id is not None
@@ -95,6 +95,6 @@ class Stitcher:
             store.rename(new_id, old_id)
             arrays.updates[n] += updates
             arrays.t_first[n] = first
-            out[new_id] = old_id
+            out[new_id] = (old_id, int(updates))
         self.joined += len(out)
         return out
