@@ -3,7 +3,7 @@ scans and scoring as `track-eval manoeuvres`), for designing the default filter,
 Stone Soup's GNN and a CV EKF (continuous white-noise acceleration q 300 m^2/s^3) as the
 peer on the same scans.
 
-    python bench/manoeuvres.py                          # default, ncv-blair, stonesoup; 1, 2, 4 s
+    python bench/manoeuvres.py                      # default, ncv-blair, stonesoup; 1, 2, 4, 5 s
     python bench/manoeuvres.py default --period 2 --runs 4
     python bench/manoeuvres.py default --labelled
     python bench/manoeuvres.py before default   # the default before the manoeuvre modes
@@ -178,7 +178,7 @@ def main() -> None:
     p.add_argument("--stitch-reach", type=float, default=defaults.STITCH_REACH,
                    help="ours: the service's --stitch-reach (0: off)")
     args = p.parse_args()
-    for period in args.period or [1.0, 2.0, 4.0]:
+    for period in args.period or [1.0, 2.0, 4.0, 5.0]:
         for name in args.names:
             got: list[ms.Aircraft] = []
             spent, wall = 0.0, time.monotonic()

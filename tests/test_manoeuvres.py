@@ -113,11 +113,11 @@ def test_the_imm_gate_holds_the_first_scan_of_a_7g_turn():
 def test_every_aircraft_held_with_one_track(capsys):
     """A reduced `track-eval manoeuvres` (one run, one aircraft a class) through the
     service without options: no track break, every aircraft held at >= 98 % of its scans
-    from confirmation on, at 1, 2 and 4 s."""
+    from confirmation on, at 1, 2, 4 and 5 s."""
     track_eval.main(["manoeuvres", "--runs", "1", "--per-class", "1", "--config", "default",
                      "--json"])
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"default 1 s", "default 2 s", "default 4 s"}
+    assert set(out) == {"default 1 s", "default 2 s", "default 4 s", "default 5 s"}
     for label, sums in out.items():
         assert set(sums) == set(CLASSES)
         for kind, row in sums.items():

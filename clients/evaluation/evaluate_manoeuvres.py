@@ -118,7 +118,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=int, default=10, help="Monte Carlo runs per scan period")
     p.add_argument("--per-class", type=int, default=2, help="aircraft of each class a run")
     p.add_argument("--period", type=float, action="append", default=[],
-                   help="scan period, s (repeatable; default 1, 2 and 4)")
+                   help="scan period, s (repeatable; default 1, 2, 4 and 5)")
     p.add_argument("--pd", type=float, default=0.9)
     p.add_argument("--clutter", type=float, default=10.0, help="false detections a scan")
     p.add_argument("--labelled", action="store_true",
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parser().parse_args(argv)
     out: dict[str, Any] = {}
     form = "labelled" if args.labelled else f"Pd {args.pd:g}, {args.clutter:g} clutter a scan"
-    for period in args.period or [1.0, 2.0, 4.0]:
+    for period in args.period or [1.0, 2.0, 4.0, 5.0]:
         for config in args.config or CONFIGS:
             start, got = time.monotonic(), []
             options = [*service_args(config, period), *args.service_arg]
