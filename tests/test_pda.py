@@ -55,12 +55,14 @@ def test_one_sure_detection_is_the_kalman_update():
 def test_far_clutter_of_small_weight_leaves_a_jpda_track_on_its_quiet_modes():
     """A straight flight under JPDA with the default IMM; at one scan the aircraft is
     missed and a false detection lies far out in the widest gate, with a small
-    association probability. Updated mode by mode, the track keeps its probability on
-    the quiet modes and a covariance of hundreds of metres, not kilometres, and goes on
-    with the aircraft: one track. (Updated by the one equivalent measurement for all
-    modes, that detection took every mode to the widest one and its spread deleted the
-    track: docs/accuracy.md, "JPDA with the IMM, mode by mode".)"""
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14), associator="jpda"))
+    association probability (targets up to 1,000 m/s: within the speed gate). Updated
+    mode by mode, the track keeps its probability on the quiet modes and a covariance of
+    hundreds of metres, not kilometres, and goes on with the aircraft: one track.
+    (Updated by the one equivalent measurement for all modes, that detection took every
+    mode to the widest one and its spread deleted the track: docs/accuracy.md, "JPDA
+    with the IMM, mode by mode".)"""
+    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14), associator="jpda",
+                                    max_speed=1000.0))
     for k in range(15):
         t = k * PERIOD
         tracker.step(Unlabelled.of("r1", t, [det(t, START + VEL * t)]))
@@ -99,3 +101,43 @@ def test_a_track_spread_wide_by_a_detected_scan_is_deleted_only_when_missed():
     assert arrays.misses[row] == 0 and deleter.delete_tracks(tracker.store, 6 * PERIOD) == []
     arrays.misses[row] = 1
     assert deleter.delete_tracks(tracker.store, 6 * PERIOD) == [track]
+
+
+def test_a_jpda_track_weighs_no_detection_beyond_the_fastest_target():
+    """The speed gate (`JPDAAssociator.reachable`): a detection farther from a track's
+    last position than the fastest target flies meanwhile takes no weight. Before it, the
+    standard-rate aircraft of seed 9 at 4 s (docs/accuracy.md, "JPDA with the IMM") was
+    missed twice in its turn, its track spread over false detections kilometres out in
+    the widest mode's gate and was deleted, and the aircraft started a second track."""
+    from zenoh_track.clients.evaluation import manoeuvre_score as ms
+    from zenoh_track.clients.feeds.manoeuvres import Manoeuvres
+    from zenoh_track.wire import Measurement
+
+    sc = Manoeuvres(4.0, 0.9, 10.0, 2, 9)
+    tracker = Tracker(TrackerConfig(associator="jpda"))
+    shown = {}
+    for s in sc:
+        tracker.step(Unlabelled.of(s.sensor, s.t, [
+            Measurement(s.sensor, "", s.t, 3, True, tuple(d), (sc.sr, sc.sa, sc.sa),
+                        s.sensor_pos, None) for d in s.dets.tolist()]))
+        snap = tracker.snapshot(s.t)
+        shown[round(s.t, 6)] = {k: snap.pos[i].copy() for i, k in enumerate(snap.ids)
+                                if snap.status[i] != "tentative"}
+    got = ms.score(sc, shown, dict.fromkeys(shown, {}), False)
+    assert all(a.breaks == 0 for a in got), [(a.name, a.ids) for a in got if a.breaks]
+
+
+@pytest.mark.parametrize("speed, weighed", [(340.0, False), (1000.0, True)])
+def test_the_speed_gate_is_the_fastest_targets(speed, weighed):
+    """A false detection 2.6 km from a JPDA track's last position 4 s later: beyond what
+    a 340 m/s target flies (not weighed, the track coasts), within a 1,000 m/s one's."""
+    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14), associator="jpda",
+                                    max_speed=speed))
+    for k in range(15):
+        t = k * PERIOD
+        tracker.step(Unlabelled.of("r1", t, [det(t, START + VEL * t)]))
+    (track,) = tracker.store.where
+    arrays, row = tracker.store.where[track]
+    t1 = 15 * PERIOD
+    tracker.step(Unlabelled.of("r1", t1, [det(t1, START + VEL * t1 + [2500.0, 0.0, 0.0])]))
+    assert (arrays.t[row] == t1) == weighed

@@ -207,12 +207,15 @@ def clusters_reference(ti: np.ndarray, dj: np.ndarray, n_tracks: int,
     return connected_components(graph, directed=False)[1][ti]
 
 
-def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray | None = None) -> Gating:
+def restrict(g: Gating, tracks: np.ndarray, dets: np.ndarray | None = None,
+             pairs: np.ndarray | None = None) -> Gating:
     """The gating of a subset of the tracks (boolean mask over g.rows) and of the
-    detections (ascending indices into g.z; None: all of them) of `g`, its pairs
-    renumbered."""
+    detections (ascending indices into g.z; None: all of them) of `g`, of its pairs
+    `pairs` (boolean mask; None: all), its pairs renumbered."""
     t_new = np.add.accumulate(tracks, dtype=np.intp)  # 1 + the new index of a kept track
     keep = tracks[g.ti]
+    if pairs is not None:
+        keep &= pairs
     if dets is not None:
         d_new = np.zeros(len(g.z), dtype=np.intp)
         d_new[dets] = np.arange(1, len(dets) + 1)
