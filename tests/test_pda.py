@@ -3,6 +3,7 @@ and the IMM's update by them mode by mode (the IMM-PDAF) in a JPDA tracker."""
 
 from __future__ import annotations
 
+import manoeuvre_runs
 import numpy as np
 import pytest
 from test_second_look import PD, PERIOD, SIGMA, START, VEL, det
@@ -52,6 +53,17 @@ def test_one_sure_detection_is_the_kalman_update():
     np.testing.assert_allclose(pn, pk, rtol=1e-9, atol=1e-6)
 
 
+def jpda_settled(max_speed: float) -> tuple[Tracker, str]:
+    """A confirmed JPDA track of the default IMM on a straight flight, 15 scans."""
+    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14), associator="jpda",
+                                    max_speed=max_speed))
+    for k in range(15):
+        t = k * PERIOD
+        tracker.step(Unlabelled.of("r1", t, [det(t, START + VEL * t)]))
+    (track,) = tracker.store.where
+    return tracker, track
+
+
 def test_far_clutter_of_small_weight_leaves_a_jpda_track_on_its_quiet_modes():
     """A straight flight under JPDA with the default IMM; at one scan the aircraft is
     missed and a false detection lies far out in the widest gate, with a small
@@ -61,12 +73,7 @@ def test_far_clutter_of_small_weight_leaves_a_jpda_track_on_its_quiet_modes():
     (Updated by the one equivalent measurement for all modes, that detection took every
     mode to the widest one and its spread deleted the track: docs/accuracy.md, "JPDA
     with the IMM, mode by mode".)"""
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14), associator="jpda",
-                                    max_speed=1000.0))
-    for k in range(15):
-        t = k * PERIOD
-        tracker.step(Unlabelled.of("r1", t, [det(t, START + VEL * t)]))
-    (track,) = tracker.store.where
+    tracker, track = jpda_settled(1000.0)
     arrays, row = tracker.store.where[track]
     t1 = 15 * PERIOD
     far = START + VEL * t1 + [2500.0, 0.0, 0.0]
@@ -109,21 +116,7 @@ def test_a_jpda_track_weighs_no_detection_beyond_the_fastest_target():
     standard-rate aircraft of seed 9 at 4 s (docs/accuracy.md, "JPDA with the IMM") was
     missed twice in its turn, its track spread over false detections kilometres out in
     the widest mode's gate and was deleted, and the aircraft started a second track."""
-    from zenoh_track.clients.evaluation import manoeuvre_score as ms
-    from zenoh_track.clients.feeds.manoeuvres import Manoeuvres
-    from zenoh_track.wire import Measurement
-
-    sc = Manoeuvres(4.0, 0.9, 10.0, 2, 9)
-    tracker = Tracker(TrackerConfig(associator="jpda"))
-    shown = {}
-    for s in sc:
-        tracker.step(Unlabelled.of(s.sensor, s.t, [
-            Measurement(s.sensor, "", s.t, 3, True, tuple(d), (sc.sr, sc.sa, sc.sa),
-                        s.sensor_pos, None) for d in s.dets.tolist()]))
-        snap = tracker.snapshot(s.t)
-        shown[round(s.t, 6)] = {k: snap.pos[i].copy() for i, k in enumerate(snap.ids)
-                                if snap.status[i] != "tentative"}
-    got = ms.score(sc, shown, dict.fromkeys(shown, {}), False)
+    got = manoeuvre_runs.fly(Tracker(TrackerConfig(associator="jpda")), 4.0, 9)
     assert all(a.breaks == 0 for a in got), [(a.name, a.ids) for a in got if a.breaks]
 
 
@@ -131,12 +124,7 @@ def test_a_jpda_track_weighs_no_detection_beyond_the_fastest_target():
 def test_the_speed_gate_is_the_fastest_targets(speed, weighed):
     """A false detection 2.6 km from a JPDA track's last position 4 s later: beyond what
     a 340 m/s target flies (not weighed, the track coasts), within a 1,000 m/s one's."""
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14), associator="jpda",
-                                    max_speed=speed))
-    for k in range(15):
-        t = k * PERIOD
-        tracker.step(Unlabelled.of("r1", t, [det(t, START + VEL * t)]))
-    (track,) = tracker.store.where
+    tracker, track = jpda_settled(speed)
     arrays, row = tracker.store.where[track]
     t1 = 15 * PERIOD
     tracker.step(Unlabelled.of("r1", t1, [det(t1, START + VEL * t1 + [2500.0, 0.0, 0.0])]))

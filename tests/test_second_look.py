@@ -4,6 +4,7 @@ scan, and the next scan chooses between taking it and having missed. The default
 
 from __future__ import annotations
 
+import manoeuvre_runs
 import numpy as np
 import pytest
 from reference.record import Outcome, scan_step
@@ -191,20 +192,7 @@ def test_a_turn_ending_in_a_missed_scan_keeps_its_track():
     1.8 km off with confidence (its wide manoeuvre mode still allows the turn); the
     aircraft's detections at the next scan put it back. Before, the aircraft started a
     second track there and was not held at 2 of its 46 scans."""
-    from zenoh_track.clients.evaluation import manoeuvre_score as ms
-    from zenoh_track.clients.feeds.manoeuvres import Manoeuvres
-
-    sc = Manoeuvres(4.0, 0.9, 10.0, 2, 12)
     tracker = Tracker()
-    shown = {}
-    for s in sc:
-        tracker.step(Unlabelled.of(s.sensor, s.t, [
-            Measurement(s.sensor, "", s.t, 3, True, tuple(d), (sc.sr, sc.sa, sc.sa),
-                        s.sensor_pos, None) for d in s.dets.tolist()]))
-        snap = tracker.snapshot(s.t)
-        shown[round(s.t, 6)] = {k: snap.pos[i].copy() for i, k in enumerate(snap.ids)
-                                if snap.status[i] != "tentative"}
-    (aircraft,) = [a for a in ms.score(sc, shown, dict.fromkeys(shown, {}), False)
-                   if a.name == "4g-0"]
+    aircraft = manoeuvre_runs.aircraft(tracker, 4.0, 12, "4g-0")
     assert aircraft.breaks == 0 and aircraft.held == aircraft.scans
     assert tracker.scan_associator.second_look.reverted >= 1

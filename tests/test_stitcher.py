@@ -4,6 +4,7 @@ continue, are never joined. The default filter, unlabelled 3-D detections every 
 
 from __future__ import annotations
 
+import manoeuvre_runs
 import numpy as np
 from reference.record import Outcome
 
@@ -84,23 +85,9 @@ def test_a_4g_turn_through_two_missed_scans_at_5_s_holds_one_track():
     """The traced break of issue 30 at 5 s (docs/accuracy.md, "Lost and found"): the
     4 g aircraft of seed 2 is missed at the first two scans of its turn and coasts 2 km
     off; its detections start a new track, which continues the lost one's id."""
-    from zenoh_track.clients.evaluation import manoeuvre_score as ms
-    from zenoh_track.clients.feeds.manoeuvres import Manoeuvres
-
-    def run(reach: float | None) -> ms.Aircraft:
-        sc = Manoeuvres(5.0, 0.9, 10.0, 2, 2)
+    def breaks(reach: float | None) -> int:
         tracker = Tracker() if reach is None else Tracker(TrackerConfig(stitch_reach=reach))
-        shown = {}
-        for s in sc:
-            tracker.step(Unlabelled.of(s.sensor, s.t, [
-                Measurement(s.sensor, "", s.t, 3, True, tuple(d), (sc.sr, sc.sa, sc.sa),
-                            s.sensor_pos, None) for d in s.dets.tolist()]))
-            snap = tracker.snapshot(s.t)
-            shown[round(s.t, 6)] = {k: snap.pos[i].copy() for i, k in enumerate(snap.ids)
-                                    if snap.status[i] != "tentative"}
-        (aircraft,) = [a for a in ms.score(sc, shown, dict.fromkeys(shown, {}), False)
-                       if a.name == "4g-0"]
-        return aircraft
+        return manoeuvre_runs.aircraft(tracker, 5.0, 2, "4g-0").breaks
 
-    assert run(0.0).breaks == 1
-    assert run(None).breaks == 0
+    assert breaks(0.0) == 1
+    assert breaks(None) == 0
