@@ -59,5 +59,6 @@ def test_a_far_doubtful_detection_is_not_put_until_the_next_scan(service_factory
     last = puts[-1]
     assert np.linalg.norm(np.array(last["pos"]) - (START + VEL * t2)) < 3 * SIGMA
     assert last["updates"] == 16  # 15 scans, then t2: the update held back was dropped
-    assert status(s)["second_look"] == {"deferred": 1, "reverted": 1}
+    assert status(s)["second_look"] == {"deferred": 1, "reverted": 1, "chances": 0,
+                                        "retaken": 0}
     sub.undeclare()

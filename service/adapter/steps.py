@@ -45,7 +45,8 @@ class Tracking:
     def second_look(self) -> dict[str, int]:
         """How often the second look acted since start (status)."""
         look = self.tracker.scan_associator.second_look
-        return {"deferred": look.deferred, "reverted": look.reverted}
+        return {"deferred": look.deferred, "reverted": look.reverted,
+                "chances": look.chances, "retaken": look.retaken}
 
     def continued(self) -> int:
         """Lost tracks continued by a new one under their id since start (status)."""

@@ -165,6 +165,7 @@ class _ScanAssociator:
             det[hyp.rows[-1]] = hyp.index[-1]
             far = self.second_look.far(arrays, taken, z, r, det[taken], t)
         self.second_look.note(arrays, taken, seen.gain[seen.detected] - miss, t, far)
+        free = self.second_chance(g, free, z, r, t, pd, lam, hyp)
         free = gnn(restrict(every, ~confirmed, free), free, pd, lam, hyp)
         if len(free):
             hyp.unassociated = free.tolist()
@@ -174,6 +175,14 @@ class _ScanAssociator:
                   ) -> np.ndarray | None:
         """The pairs of `g` the established tracks may take (None: all)."""
         return None
+
+    def second_chance(self, g: Gating, free: np.ndarray, z: np.ndarray, r: np.ndarray,
+                      t: float, pd: float, lam: float, hyp: Hypotheses) -> np.ndarray:
+        """After the established tracks' association `g` (detections `free` left):
+        detections a missed track passed over by less than the second look's margin,
+        taken as a branch set aside for the next scan (`SecondLook`); the detections
+        still free."""
+        return free
 
     def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
                 hyp: Hypotheses) -> np.ndarray:
@@ -305,6 +314,44 @@ class GNNAssociator(_ScanAssociator):
     def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
                 hyp: Hypotheses) -> np.ndarray:
         return gnn(g, index, pd, lam, hyp)
+
+    def second_chance(self, g: Gating, free: np.ndarray, z: np.ndarray, r: np.ndarray,
+                      t: float, pd: float, lam: float, hyp: Hypotheses) -> np.ndarray:
+        return _second_chance(self.second_look, g, free, z, r, t, pd, lam, hyp)
+
+
+def _second_chance(look: SecondLook, g: Gating, free: np.ndarray, z: np.ndarray,
+                   r: np.ndarray, t: float, pd: float, lam: float, hyp: Hypotheses
+                   ) -> np.ndarray:
+    """`GNNAssociator.second_chance`: of each confirmed track that missed, its likeliest
+    free gated detection within the margin below a miss and within an aircraft's reach
+    (one track a detection, likeliest first)."""
+    if look.margin <= 0 or not len(g.ti) or not len(free):
+        return free
+    score, miss = scores(g, pd, lam)
+    lead = score - miss
+    open_ = np.zeros(len(g.z), dtype=bool)
+    open_[free] = True
+    k = np.flatnonzero(~hyp.seen[-1].detected[g.ti] & open_[g.dj] & (lead > -look.margin))
+    if not len(k):
+        return free
+    k = k[~look.far(g.arrays, g.rows[g.ti[k]], z, r, g.dj[k], t)]
+    k = k[np.argsort(-lead[k], kind="stable")]
+    used_t: set[int] = set()
+    pick: list[int] = []
+    for kk, ti, dj in zip(k.tolist(), g.ti[k].tolist(), g.dj[k].tolist(), strict=True):
+        if ti in used_t or not open_[dj]:
+            continue
+        used_t.add(ti)
+        open_[dj] = False
+        pick.append(kk)
+    if not pick:
+        return free
+    p = np.array(pick, dtype=np.intp)
+    rows = g.rows[g.ti[p]]
+    hyp.assign(g.dj[p], rows)
+    look.note(g.arrays, rows, lead[p], t, missed=True)
+    return free[open_[free]]
 
 
 class JPDAAssociator(_ScanAssociator):

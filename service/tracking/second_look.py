@@ -28,6 +28,11 @@ with an N-scan window). This is that window of one scan, for that one case:
   margin plus its best) against missed (its best). The better is put in the row, and
   the scan is associated as usual from there (`decide`). Either way the doubt ends.
 
+- The other way round (`plot_association._second_chance`): a confirmed track that
+  missed while a free detection in its gate, within reach, scored less than `margin`
+  below a miss is updated with it as a branch set aside at once (`note(missed=True)`:
+  `settle` always defers it), its score's shortfall counted against it at the next scan.
+
 The branches are compared track by track, before the joint assignment of the second
 scan (which then resolves any detection two tracks want). The track's life counters
 (M of N, score) keep the first scan's detection. Doubts are not checkpointed.
@@ -61,6 +66,7 @@ class Doubt:
     deferred: bool = False
     at: float = float("nan")
     far: bool = False  # noted for its distance alone (no doubt by its score)
+    missed: bool = False  # a miss by a hair: the detection's branch set aside (`chance`)
 
 
 class SecondLook:
@@ -75,6 +81,8 @@ class SecondLook:
         self.doubts: dict[tuple[int, int], Doubt] = {}  # settled, for the next scan
         self.reverted = 0  # doubts decided for the miss branch, since start
         self.deferred = 0  # doubtful updates not shown until the next scan, since start
+        self.chances = 0  # misses by a hair whose detection's branch waited a scan
+        self.retaken = 0  # ... decided for that branch
 
     def far(self, arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray,
             det: np.ndarray, t: float) -> np.ndarray:
@@ -94,7 +102,7 @@ class SecondLook:
         return out
 
     def note(self, arrays: TrackArrays, rows: np.ndarray, margins: np.ndarray,
-             t: float, far: np.ndarray | None = None) -> None:
+             t: float, far: np.ndarray | None = None, missed: bool = False) -> None:
         """Tracks `rows` take a detection at `t` that beats missing by `margins`: keep the
         rows (before their update) of those below the margin, and of those `far`
         (`SecondLook.far`)."""
@@ -109,7 +117,7 @@ class SecondLook:
             self.noted[arrays.dim, row] = Doubt(
                 arrays.ids[row], t, float(margins[i]),
                 {name: getattr(arrays, name)[row].copy() for name in kept},
-                far=bool(margins[i] >= self.margin))
+                far=bool(margins[i] >= self.margin), missed=missed)
 
     def settle(self, arrays: TrackArrays, rows: np.ndarray) -> np.ndarray:
         """Rows of `arrays` were just updated: of those noted as doubtful, the ones that
@@ -119,6 +127,7 @@ class SecondLook:
         if not self.noted:
             return out
         d_, o = arrays.dim, arrays.order
+        chances = 0
         for i, row in enumerate(rows.tolist()):
             d = self.noted.pop((d_, row), None)
             if d is None or arrays.ids[row] != d.track_id:
@@ -135,14 +144,16 @@ class SecondLook:
                     d.margin, d.at = self.margin, float(arrays.t[row])
                     self.doubts[d_, row] = d
                 continue
-            if beyond:
+            if beyond or d.missed:
+                chances += d.missed
                 taken = {name: getattr(arrays, name)[row].copy() for name in d.row}
                 _put(arrays, np.array([row]), [d.row])
                 d.row, d.deferred = taken, True
                 out[i] = True
             d.at = float(arrays.t[row])
             self.doubts[d_, row] = d
-        self.deferred += int(out.sum())
+        self.chances += chances
+        self.deferred += int(out.sum()) - chances
         if out.any() and self.moved is not None:
             self.moved(arrays, rows[out])
         return out
@@ -181,6 +192,7 @@ class SecondLook:
         for name, values in now.items():  # the row's own branch where it stays
             getattr(arrays, name)[rows[~swap]] = values[~swap]
         self.reverted += int(back.sum())
+        self.retaken += int((swap & np.array([d.missed for _, d in live])).sum())
         if self.moved is not None:
             self.moved(arrays, rows)
         return bool(swap.any())
