@@ -34,6 +34,7 @@ from zenoh_track.estimation.imm import ModeSet  # noqa: E402
 from zenoh_track.tracking.batches import Labelled, Unlabelled  # noqa: E402
 from zenoh_track.tracking.display import DISPLAY_COLUMNS  # noqa: E402
 from zenoh_track.tracking.life import LIFE_COLUMNS  # noqa: E402
+from zenoh_track.tracking.plot_association import SensorModels  # noqa: E402
 from zenoh_track.tracking.store import TrackStore  # noqa: E402
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
 from zenoh_track.wire import Measurement  # noqa: E402
@@ -52,12 +53,13 @@ def spec(name: str, period: float) -> FilterSpec:
 
 
 def ours(name: str, sc: Manoeuvres, labelled: bool, associator: str = "gnn",
-         second_look: float = defaults.SECOND_LOOK, stitch_reach: float = defaults.STITCH_REACH
-         ) -> tuple[ms.Shown, ms.States, float]:
+         second_look: float = defaults.SECOND_LOOK, stitch_reach: float = defaults.STITCH_REACH,
+         delete_misses: int = defaults.DELETE_MISSES) -> tuple[ms.Shown, ms.States, float]:
     """Our tracker over the scenario: what a lockstep service would show at each scan."""
     tr = Tracker(TrackerConfig(filter=spec(name, sc.period), associator=associator,
+                               sensors=SensorModels(pd=sc.pd),  # the radar's, as stated
                                second_look=second_look, stitch_reach=stitch_reach,
-                               delete_misses=4 if name == "before" else defaults.DELETE_MISSES))
+                               delete_misses=4 if name == "before" else delete_misses))
     if name == "before":  # the default before the manoeuvre modes, gated by the store's state
         tr.updater = ModeSet(manoeuvre=(), ca_q=0.1, initial=(0.1, 0.6, 0.3)).imm()
         tr.store = TrackStore(tr.updater.order, tr.updater.fields,
@@ -177,6 +179,8 @@ def main() -> None:
                    help="ours: the service's --second-look (0: off)")
     p.add_argument("--stitch-reach", type=float, default=defaults.STITCH_REACH,
                    help="ours: the service's --stitch-reach (0: off)")
+    p.add_argument("--delete-misses", type=int, default=defaults.DELETE_MISSES,
+                   help="ours: the service's --delete-misses")
     args = p.parse_args()
     for period in args.period or [1.0, 2.0, 4.0, 5.0]:
         for name in args.names:
@@ -188,7 +192,8 @@ def main() -> None:
                     shown, states, s = stone_soup(sc)
                 else:
                     shown, states, s = ours(name, sc, args.labelled, args.associator,
-                                            args.second_look, args.stitch_reach)
+                                            args.second_look, args.stitch_reach,
+                                            args.delete_misses)
                 spent += s
                 got += ms.score(sc, shown, states, args.labelled)
             form = "labelled" if args.labelled else f"Pd {args.pd:g}, {args.clutter:g} clutter"

@@ -199,7 +199,9 @@ def parser() -> argparse.ArgumentParser:
                    help="... whose track score (log-likelihood ratio) reached this "
                         "(default %(default)s = ln 100)")
     g.add_argument("--delete-misses", type=int, default=defaults.DELETE_MISSES,
-                   help="delete a confirmed track after this many missed scans in a row")
+                   help="delete a confirmed track after this many missed scans in a row "
+                        "at Pd 0.9, or as many as are as unlikely at its sensors' Pd (12 at "
+                        "0.7; default %(default)s)")
     g.add_argument("--delete-sigma", type=float, default=defaults.DELETE_SIGMA,
                    help="m: delete a track whose position sigma exceeds this")
     g.add_argument("--reorder", type=float, default=defaults.REORDER, metavar="SECONDS",

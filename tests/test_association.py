@@ -269,6 +269,25 @@ def test_m_of_n_confirmation_and_deletion():
                       "coasting", "coasting", None]
 
 
+@pytest.mark.parametrize("pd, misses", [(0.9, 6), (0.7, 12), (0.5, 20)])
+def test_a_sensor_that_misses_more_keeps_its_tracks_longer(pd, misses):
+    """A confirmed track is deleted after the misses in a row that are as unlikely for a
+    target still there as 6 at Pd 0.9 (the default --delete-misses): 12 at Pd 0.7, 20
+    at 0.5 (docs/protocol.md §3.2)."""
+    tracker = make(pd=pd)
+    p, v = np.array([0.0, 0.0]), np.array([50.0, 0.0])
+    for k in range(5):
+        scan(tracker, float(k), [p + v * k])
+    (track,) = tracker.store.where
+    gone = None
+    for k in range(5, 40):
+        scan(tracker, float(k), [])
+        if track not in tracker.store.where:
+            gone = k - 4
+            break
+    assert gone == misses
+
+
 def test_tentative_track_from_clutter_is_dropped_and_ids_are_not_reused():
     tracker = make(confirm_m=3, confirm_n=4)
     scan(tracker, 0.0, [(0.0, 0.0)])

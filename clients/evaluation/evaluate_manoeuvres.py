@@ -119,7 +119,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--per-class", type=int, default=2, help="aircraft of each class a run")
     p.add_argument("--period", type=float, action="append", default=[],
                    help="scan period, s (repeatable; default 1, 2, 4 and 5)")
-    p.add_argument("--pd", type=float, default=0.9)
+    p.add_argument("--pd", type=float, default=0.9,
+                   help="the radar's detection probability (stated to the service too)")
     p.add_argument("--clutter", type=float, default=10.0, help="false detections a scan")
     p.add_argument("--labelled", action="store_true",
                    help="labelled measurements (no clutter) instead of scans")
@@ -139,7 +140,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     for period in args.period or [1.0, 2.0, 4.0, 5.0]:
         for config in args.config or CONFIGS:
             start, got = time.monotonic(), []
-            options = [*service_args(config, period), *args.service_arg]
+            # the radar's Pd stated to the service, as its operator would
+            options = [*service_args(config, period), "--pd", f"{args.pd:g}",
+                       *args.service_arg]
             for r in range(args.runs):
                 fa = feed_argv(args, period, args.seed + r)
                 shown, states = through_service(fa, options)

@@ -45,7 +45,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="service associator(s) to compare (repeatable; default: the "
                         "service's default)")
     g.add_argument("--targets", type=int, default=20)
-    g.add_argument("--pd", type=float, default=0.9, help="the scenario's detection probability")
+    g.add_argument("--pd", type=float, default=0.9,
+                   help="the scenario's detection probability (stated to the service too)")
     g.add_argument("--clutter", type=float, default=20.0, help="false detections per scan")
     g.add_argument("--sigma", type=float, default=25.0,
                    help="m: Cartesian noise per axis (multisensor: range noise)")
@@ -227,7 +228,9 @@ def run(args: argparse.Namespace) -> None:
             argv = feed_argv(args, args.seed + r)
             sc = feed_plots.scenario(feed.parser().parse_args(argv))
             rate = len(sc.radars) / sc.dt  # multisensor: radar k scans at k dt / radars
-            shown = run_plots_through_service(argv, ["--rate", f"{rate:g}", *opts,
+            # the radars' Pd stated to the service, as its operator would
+            shown = run_plots_through_service(argv, ["--rate", f"{rate:g}", "--pd",
+                                                     f"{args.pd:g}", *opts,
                                                      *args.service_arg])
             results[label].append(score(sc, shown, args.c, args.seed + r))
             progress.update(1)

@@ -39,12 +39,14 @@ class WeightedUpdate:
 @dataclass
 class Seen:
     """Tracks of one layout that a scan could have seen: which it `detected` (else
-    missed) and the log-likelihood ratio each gains (`life.update_life`, M of N)."""
+    missed), the log-likelihood ratio each gains (`life.update_life`, M of N) and what a
+    miss weighs (the deletion's evidence)."""
 
     arrays: TrackArrays
     rows: np.ndarray
     detected: np.ndarray  # (T,) bool
     gain: np.ndarray  # (T,)
+    miss: float  # ln(1 - Pd) of the scan's sensor: what a miss weighs against the track
 
 
 @dataclass

@@ -19,16 +19,20 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .. import defaults
 from .hypotheses import Seen
 from .store import Column, TrackArrays, TrackStore
 
 # the life of a track of unlabelled scans, per row of the store, zero for a new track:
 # whether it is one, its detections in the last scans as bits (newest lowest), the
-# scans that could have seen it, its consecutive misses, its score, whether confirmed
+# scans that could have seen it, its consecutive misses, its score, whether confirmed,
+# and the evidence of its consecutive misses, sum -ln(1 - Pd) (not checkpointed: made
+# again from the misses, `restore_lost`)
 LIFE_COLUMNS = {"plot": Column(dtype=bool, fresh=True), "hits": Column(dtype=np.int64, fresh=True),
                 "scans": Column(dtype=np.int64, fresh=True),
                 "misses": Column(dtype=np.int64, fresh=True), "score": Column(fresh=True),
-                "confirmed": Column(dtype=bool, fresh=True)}
+                "confirmed": Column(dtype=bool, fresh=True),
+                "lost": Column(fresh=True, saved=False)}
 
 
 def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float
@@ -45,14 +49,17 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float
         a = group[0].arrays
         if len(group) == 1:
             rows, hit, gain = group[0].rows, group[0].detected, group[0].gain
+            weight: float | np.ndarray = -group[0].miss
         else:
             rows = np.concatenate([s.rows for s in group])
             hit = np.concatenate([s.detected for s in group])
             gain = np.concatenate([s.gain for s in group])
+            weight = np.concatenate([np.full(len(s.rows), -s.miss) for s in group])
         hits = ((a.hits[rows] << 1) | hit) & mask
         a.hits[rows] = hits
         a.scans[rows] += 1
         a.misses[rows] = np.where(hit, 0, a.misses[rows] + 1)
+        a.lost[rows] = np.where(hit, 0.0, a.lost[rows] + weight)
         score = a.score[rows] + gain
         a.score[rows] = score
         was = a.confirmed[rows]
@@ -63,13 +70,23 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float
     return out
 
 
+def restore_lost(arrays: TrackArrays, rows: np.ndarray) -> None:
+    """The evidence of restored tracks' consecutive misses, as if at the reference Pd."""
+    arrays.lost[rows] = arrays.misses[rows] * -np.log1p(-defaults.PD)
+
+
 class MofNDeleter:
-    """Deletes unlabelled tracks that cannot be confirmed any more, that missed
-    `misses` scans in a row once confirmed, or whose position sigma exceeds `sigma` at a
-    scan that missed them."""
+    """Deletes unlabelled tracks that cannot be confirmed any more, that missed scans in a
+    row once confirmed as unlikely for a target still there as `misses` misses at the
+    reference Pd (`defaults.PD`, 0.9; the sum of -ln(1 - Pd) over the misses, each at its
+    sensor's Pd: 6 misses at 0.9 are 12 at 0.7 and 20 at 0.5: the track score's drop,
+    Blackman & Popoli 1999, sec. 6.3), or whose position sigma exceeds `sigma` at a scan
+    that missed them."""
 
     def __init__(self, m: int, n: int, misses: int, sigma: float) -> None:
         self.m, self.n, self.misses, self.sigma = m, n, misses, sigma
+        # the evidence of `misses` at the reference Pd, less a rounding's worth
+        self.lost = misses * -np.log1p(-defaults.PD) * (1.0 - 1e-9)
 
     def delete_tracks(self, store: TrackStore, now: float) -> list[str]:
         out: list[str] = []
@@ -83,7 +100,8 @@ class MofNDeleter:
             pr = arrays.p.reshape(len(arrays.p), n * n)[rows]
             var = np.add.reduce(pr[:, :d * (n + 1):n + 1], axis=1)  # the trace of the
             # position block (its diagonal, a strided view)
-            gone = np.where(confirmed, misses >= self.misses, misses > self.n - self.m)
+            gone = np.where(confirmed, arrays.lost[rows] >= self.lost,
+                            misses > self.n - self.m)
             # too uncertain to hold anything: once it misses (an update by weighted
             # detections, JPDA's, may spread a track that was detected over kilometres)
             gone |= (var > self.sigma**2) & (misses > 0)

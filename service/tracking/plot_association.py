@@ -129,7 +129,7 @@ class _ScanAssociator:
     def associate(self, store: TrackStore, part: Detections) -> Hypotheses:
         batch = part.batch
         if batch is None:
-            return self._nothing_seen(store, part.t)
+            return self._nothing_seen(store, part.t, part.sensor)
         t, n, dim = float(batch.t[0]), len(batch.t), batch.dim
         arrays = store.layout(dim)
         rows = arrays.rows()
@@ -190,17 +190,17 @@ class _ScanAssociator:
         returns the indices of the detections left for tentative tracks."""
         raise NotImplementedError
 
-    def _nothing_seen(self, store: TrackStore, now: float) -> Hypotheses:
+    def _nothing_seen(self, store: TrackStore, now: float, sensor: str) -> Hypotheses:
         """An empty scan: the sensor saw none of the unlabelled tracks (of any layout:
         an empty scan says nothing of its dimension)."""
         hyp = Hypotheses(0)
-        miss = miss_score(self.sensors.pd)  # of the sensor, unknown here: of the default
+        miss = miss_score(self.sensors.model(sensor).pd)
         for arrays in store.layouts.values():
             rows = arrays.rows()
             rows = rows[arrays.plot[rows] & (arrays.t[rows] <= now)]
             if len(rows):
                 hyp.seen.append(Seen(arrays, rows, np.zeros(len(rows), dtype=bool),
-                                     np.full(len(rows), miss)))
+                                     np.full(len(rows), miss), miss))
         return hyp
 
 
@@ -232,7 +232,7 @@ def gnn(g: Gating, index: np.ndarray, pd: float, lam: float, hyp: Hypotheses) ->
     gain = np.empty(len(g.rows))
     gain.fill(miss)
     gain[ti] = score[pairs]
-    hyp.seen.append(Seen(g.arrays, g.rows, hit, gain))
+    hyp.seen.append(Seen(g.arrays, g.rows, hit, gain, miss))
     free = np.ones(len(index), dtype=bool)
     free[dj] = False
     return index[free]
@@ -395,7 +395,7 @@ class JPDAAssociator(_ScanAssociator):
         # M of N counts a track as seen when it was more likely detected than not; the
         # score gains the log of the track's likelihood ratio, detected or not
         gain = np.log(np.bincount(g.ti, ratio, len(g.rows)) + (1 - pd))
-        hyp.seen.append(Seen(g.arrays, g.rows, mass >= 0.5, gain))
+        hyp.seen.append(Seen(g.arrays, g.rows, mass >= 0.5, gain, miss_score(pd)))
         # a detection mostly explained as clutter is left to tentative and new tracks
         claimed = np.bincount(g.dj, beta, len(index))
         return index[claimed < 0.5]

@@ -28,7 +28,7 @@ from .display import DISPLAY_COLUMNS, DisplayConfig, DisplayState, Snapshot
 from .hypotheses import Hypotheses, WeightedUpdate
 from .initiator import SinglePointInitiator
 from .label_association import LabelAssociator
-from .life import LIFE_COLUMNS, MofNDeleter, update_life
+from .life import LIFE_COLUMNS, MofNDeleter, restore_lost, update_life
 from .noise_check import NoiseCheck
 from .plot_association import GNNAssociator, JPDAAssociator, SensorModels
 from .protocols import Associator, Deleter, Initiator, Updater
@@ -344,6 +344,7 @@ class Tracker:
         arrays, rows = self.store.add_many(ids, dim)
         for name, values in columns.items():
             getattr(arrays, name)[rows] = values
+        restore_lost(arrays, rows)
         self.display.initiate(arrays, rows)
 
     def recall(self, memory: Mapping[str, Mapping]) -> None:
