@@ -125,6 +125,19 @@ def test_every_aircraft_held_with_one_track(capsys):
             assert row["held_min"] >= 0.98, (label, kind, row)
 
 
+@pytest.mark.slow
+def test_jpda_holds_every_aircraft_with_one_track(capsys):
+    """The same through the service with `--associator jpda`: no track break at 1 to 5 s
+    (its speed gate; docs/accuracy.md, "JPDA with the IMM")."""
+    track_eval.main(["manoeuvres", "--runs", "1", "--per-class", "1", "--config", "default",
+                     "--service-arg=--associator=jpda", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert len(out) == 4
+    for label, sums in out.items():
+        for kind, row in sums.items():
+            assert row["never"] == 0 and row["breaks"] == 0, (label, kind, row)
+
+
 @pytest.mark.parametrize("gate_wide, taken", [(None, False), (1.0, True)])
 def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
     """A track that missed a 4 s scan has a gate of kilometres (its widest mode over
