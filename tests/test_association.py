@@ -19,7 +19,8 @@ from zenoh_track.tracking import gating
 from zenoh_track.tracking import plot_association as association
 from zenoh_track.tracking.batches import Detections
 from zenoh_track.tracking.hypotheses import Hypotheses
-from zenoh_track.tracking.plot_association import GNNAssociator, JPDAAssociator, SensorModels
+from zenoh_track.tracking.jpda import JPDAAssociator
+from zenoh_track.tracking.plot_association import GNNAssociator, SensorModels
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 from zenoh_track.wire import Measurement
 

@@ -15,7 +15,7 @@ EMPTY = np.zeros(0, dtype=np.intp)
 @dataclass
 class WeightedUpdate:
     """Tracks of one layout each updated by an equivalent measurement z (T, d) with
-    covariance r (T, d, d) standing for several weighted detections (`plot_association.pda`),
+    covariance r (T, d, d) standing for several weighted detections (`jpda.pda`),
     with the spread of those detections (T, n, n) added to the posterior covariance;
     `mass`: each track's probability of having been detected. The detections themselves,
     for a filter that updates by them (an IMM, mode by mode: `estimation.pda`): pair k of

@@ -27,10 +27,11 @@ from .deleter import CompositeDeleter, UpdateTimeDeleter
 from .display import DISPLAY_COLUMNS, DisplayConfig, DisplayState, Snapshot
 from .hypotheses import Hypotheses, WeightedUpdate
 from .initiator import SinglePointInitiator
+from .jpda import JPDAAssociator
 from .label_association import LabelAssociator
 from .life import LIFE_COLUMNS, MofNDeleter, restore_lost, update_life
 from .noise_check import NoiseCheck
-from .plot_association import GNNAssociator, JPDAAssociator, SensorModels
+from .plot_association import GNNAssociator, SensorModels
 from .protocols import Associator, Deleter, Initiator, Updater
 from .second_look import SecondLook
 from .stitcher import Stitcher
@@ -68,7 +69,7 @@ class TrackerConfig:
 
 @dataclass(frozen=True)
 class EquivalentConversion:
-    """A PDA update as one equivalent measurement per track (`plot_association.pda`):
+    """A PDA update as one equivalent measurement per track (`jpda.pda`):
     called with the filter's own prediction it returns z and
     R~ = R / b + ((1 - b) / b) H P H'."""
 
