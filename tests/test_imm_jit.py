@@ -44,12 +44,13 @@ def close(a: np.ndarray, b: np.ndarray, rel: float) -> bool:
     return bool((np.abs(a - b) <= rel * scale).all())
 
 
+@pytest.mark.parametrize("turn", [0.0, 2.0])  # the default's modes; with turns at +-2 deg/s
 @pytest.mark.parametrize("own_r", [False, True])  # one R for the modes, or each its own
 @pytest.mark.parametrize("count", [40, 1, imm_jit.SMALL + 1, imm_jit.BLOCK, imm_jit.BLOCK + 1])
 @pytest.mark.parametrize("dim", [3, 2])
-def test_compiled_imm_is_the_textbook_imm(dim, count, own_r):
+def test_compiled_imm_is_the_textbook_imm(dim, count, own_r, turn):
     rng = np.random.default_rng(5)
-    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm")))
+    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm", imm_turn=turn)))
     assert tracker.updater.mode_conversion is False  # the default shares R
     imm = dataclasses.replace(tracker.updater, mode_conversion=own_r)
     assert imm_jit.applies(imm)
@@ -78,11 +79,6 @@ def test_compiled_imm_is_the_textbook_imm(dim, count, own_r):
             equal_nan=True)
     p = fast[1][ok]
     assert (p == p.transpose(0, 2, 1)).all()  # exactly symmetric
-
-
-def test_turn_modes_take_the_textbook_code():
-    imm = FilterSpec("imm", imm_turn=2.0).build().updater
-    assert not imm_jit.applies(imm)
 
 
 WARMED_ONLY = """

@@ -21,7 +21,8 @@ Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct"), q, omega 
 class ModeSet:
     """The service's IMM design: a quiet CV mode (white acceleration `quiet_q`, m/s^2),
     a nominal CV mode (`q`), a CA mode (white jerk `ca_q`, m/s^3) and manoeuvre modes
-    `manoeuvre` (kind "cv" or "ca" and its white noise, m/s^2 or m/s^3), plus, with `turn_deg` > 0,
+    `manoeuvre` (kind "cv" or "ca" and its white noise, m/s^2 or m/s^3, or "ct", its
+    noise and its turn rate in deg/s), plus, with `turn_deg` > 0,
     coordinated turns at +- `turn_deg` deg/s with `ct_q` x q. Quiet <-> nominal <-> CA
     (and turns) are chained as before: the quiet and nominal modes are left for each
     other and the CA mode in `sojourn` s on average, the CA (and turn) modes in
@@ -40,7 +41,7 @@ class ModeSet:
     initial: tuple[float, ...] = defaults.IMM_INITIAL
     ct_q: float = defaults.IMM_CT_Q
     turn_deg: float = defaults.IMM_TURN_DEG
-    manoeuvre: tuple[tuple[str, float], ...] = defaults.IMM_MANOEUVRE
+    manoeuvre: tuple[tuple, ...] = defaults.IMM_MANOEUVRE
     onset: float = defaults.IMM_ONSET
     turn_sojourn: float = defaults.IMM_TURN_SOJOURN
     exit_quiet: float = defaults.IMM_EXIT_QUIET
@@ -52,7 +53,8 @@ class ModeSet:
             w = float(np.radians(self.turn_deg))
             modes += [("ct+", "ct", self.ct_q * self.q, w), ("ct-", "ct", self.ct_q * self.q, -w)]
         b = len(modes)  # the chained modes; the manoeuvre modes follow
-        modes += [(f"{kind}{q:g}", kind, q, 0.0) for kind, q in self.manoeuvre]
+        modes += [(f"{m[0]}{m[1]:g}{'' if len(m) < 3 else f'@{m[2]:g}'}", m[0], m[1],
+                   float(np.radians(m[2])) if len(m) > 2 else 0.0) for m in self.manoeuvre]
         m, k = len(modes), len(self.manoeuvre)
         rate = np.zeros((m, m))  # rate[i, j]: per second from mode i to mode j
         rate[0, 1] = 1.0 / self.sojourn

@@ -42,10 +42,11 @@ def kernel(k: int) -> Callable:
 
 
 def applies(imm: IMM) -> bool:
-    """Whether `step` computes this IMM's update: CV and CA modes in the order-3 state,
+    """Whether `step` computes this IMM's update: CV, CA and CT modes in the order-3 state,
     unbiased mixing (the default's options; R shared or each mode's own)."""
     return (imm.order == 3 and imm.unbiased_mixing
-            and all(kind in ("cv", "ca") for _, kind, _, _ in imm.modes))
+            and all(kind in ("cv", "ca") or (kind == "ct" and w != 0.0)
+                    for _, kind, _, w in imm.modes))
 
 
 def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
@@ -58,11 +59,11 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
     xn, pn = np.empty((k, n)), np.empty((k, n, n))
     nis, ok = np.empty(k), np.empty(k, dtype=np.bool_)
     if k:
-        tau, dest, kinds, qs = design(imm)
+        tau, dest, kinds, qs, ws = design(imm)
         kernel(k)(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
                   np.ascontiguousarray(rows, dtype=np.int64),
                   _writable(dt, k),
-                  tau, dest, kinds, qs, not imm.mode_conversion,
+                  tau, dest, kinds, qs, ws, not imm.mode_conversion,
                   np.ascontiguousarray(batch.polar),
                   np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
                   np.ascontiguousarray(batch.origin.T), xn, pn, nis, ok)
@@ -80,10 +81,10 @@ def _writable(dt: np.ndarray | float, k: int) -> np.ndarray:
 _DESIGNS: dict[int, tuple] = {}
 
 
-def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The IMM's constants as arrays (as `IMM.transition` reads them): sojourns (M,), the
-    normalised destinations of a mode left (M, M), the kinds (1: CA, 0: CV) and the
-    noise of each mode."""
+    normalised destinations of a mode left (M, M), the kinds (1: CA, 2: CT, 0: CV), the
+    noise and the turn rate (rad/s) of each mode."""
     got = _DESIGNS.get(id(imm))
     if got is None or got[0] is not imm:
         m = len(imm.modes)
@@ -91,9 +92,11 @@ def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         dest = np.ones((m, m)) if imm.leave is None else np.array(imm.leave, dtype=float)
         dest[np.arange(m), np.arange(m)] = 0.0
         dest /= np.maximum(dest.sum(1, keepdims=True), 1e-300)
-        kinds = np.array([kind == "ca" for _, kind, _, _ in imm.modes], dtype=np.int64)
+        kinds = np.array([{"ca": 1, "ct": 2}.get(kind, 0) for _, kind, _, _ in imm.modes],
+                         dtype=np.int64)
         qs = np.array([q for _, _, q, _ in imm.modes], dtype=float)
-        got = _DESIGNS[id(imm)] = (imm, tau, dest, kinds, qs)
+        ws = np.array([w for _, _, _, w in imm.modes], dtype=float)
+        got = _DESIGNS[id(imm)] = (imm, tau, dest, kinds, qs, ws)
     return got[1:]
 
 

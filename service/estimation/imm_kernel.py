@@ -38,25 +38,25 @@ _FACT = np.array([1, 1, 2, 6])  # k! for the process noise's denominators
 
 
 @njit(**JIT)
-def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, polar,
+def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
                 values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
     """The update of every row, 32 rows at a time (the last block padded with copies of
     its last row, which are not written back). `shared`: one R for every mode, averaged
     over the mixture of the modes' predictions; else each mode's own."""
-    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, 32, polar,
+    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 32, polar,
           values, sigmas, origin, xn, pn, nis, ok)
 
 
 @njit(**JIT)
-def update_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, polar,
+def update_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
                values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
     """`update_rows` 8 rows at a time: less padding for a pass of few rows."""
-    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, 8, polar,
+    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 8, polar,
           values, sigmas, origin, xn, pn, nis, ok)
 
 
 @njit(**JIT, inline="always")
-def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, b, polar,
+def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, b, polar,
           values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
     """The body of both, inlined so that the block length b is a constant of each."""
     m, n = mode_x.shape[1], mode_x.shape[2]
@@ -94,7 +94,10 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, shared, b, 
         for j in range(m):
             s = n if kinds[j] == 1 else 2 * d  # a CV mode: position and velocity
             _mix(mx, mp, w, dest, kinds, j, s, d, xp[j], pp[j], dv)
-            _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j], wk[0], wv)
+            if kinds[j] == 2:  # a coordinated turn at the known rate ws[j]
+                _predict_ct(xp[j], pp[j], d, h, ws[j], qs[j], wk[0], wk[1])
+            else:
+                _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j], wk[0], wv)
         _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
         if shared:
             noise(pol, sig, org, const, mean, spread, d, rr[0], mats, nvec)
@@ -231,6 +234,61 @@ def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
                 for q in range(b):
                     gk = g[n1, q] if n1 < 3 else g2[n1 - 3, q]  # |dt|^(n1 + 1)
                     p[r, col, q] += qq * gk
+            for q in range(b):
+                p[col, r, q] = p[r, col, q]
+
+
+@njit(**JIT)
+def _predict_ct(x, p, d, h, w, qn, fm, tmp):  # pragma: no cover - compiled
+    """`_predict` of a coordinated turn at the rate w (rad/s, counter-clockwise in x-y) on
+    the first 2 d components: the x-y position and velocity turned (Bar-Shalom, Li &
+    Kirubarajan 2001, sec. 11.7.1; `models.motion`'s "ct"), the other axes CV, the CV's
+    white-noise Q. F is built per row in fm and applied densely."""
+    b, s = x.shape[1], 2 * d
+    for r in range(s):
+        for col in range(s):
+            for q in range(b):
+                fm[r, col, q] = 0.0
+    for q in range(b):
+        t = h[q]
+        sn, cs = math.sin(w * t), math.cos(w * t)
+        sw, cw = sn / w, (1.0 - cs) / w
+        for k in range(d):
+            fm[k, k, q] = 1.0
+            fm[d + k, d + k, q] = 1.0
+            fm[k, d + k, q] = t
+        fm[0, d, q], fm[0, d + 1, q], fm[1, d, q], fm[1, d + 1, q] = sw, -cw, cw, sw
+        fm[d, d, q], fm[d, d + 1, q], fm[d + 1, d, q], fm[d + 1, d + 1, q] = cs, -sn, sn, cs
+    for r in range(s):  # x <- F x
+        for q in range(b):
+            acc = 0.0
+            for col in range(s):
+                acc += fm[r, col, q] * x[col, q]
+            tmp[r, 0, q] = acc
+    for r in range(s):
+        for q in range(b):
+            x[r, q] = tmp[r, 0, q]
+    for r in range(s):  # tmp = F P
+        for col in range(s):
+            for q in range(b):
+                acc = 0.0
+                for e in range(s):
+                    acc += fm[r, e, q] * p[e, col, q]
+                tmp[r, col, q] = acc
+    for r in range(s):  # P = tmp F' + Q, upper triangle, mirrored
+        for col in range(r, s):
+            for q in range(b):
+                acc = 0.0
+                for e in range(s):
+                    acc += tmp[r, e, q] * fm[col, e, q]
+                p[r, col, q] = acc
+            a, k, e2, el = r // d, r % d, col // d, col % d
+            if k == el:  # the CV's continuous white noise, as `_predict` with order 2
+                n1 = 3 - a - e2
+                qq = qn * qn / n1
+                for q in range(b):
+                    at = abs(h[q])
+                    p[r, col, q] += qq * at ** (n1 + 1)  # as `_predict`: |dt|^(k + 1)
             for q in range(b):
                 p[col, r, q] = p[r, col, q]
 
