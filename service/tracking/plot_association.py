@@ -317,38 +317,33 @@ class GNNAssociator(ScanAssociator):
 
     def second_chance(self, g: Gating, free: np.ndarray, z: np.ndarray, r: np.ndarray,
                       t: float, pd: float, lam: float, hyp: Hypotheses) -> np.ndarray:
-        return _second_chance(self.second_look, g, free, z, r, t, pd, lam, hyp)
-
-
-def _second_chance(look: SecondLook, g: Gating, free: np.ndarray, z: np.ndarray,
-                   r: np.ndarray, t: float, pd: float, lam: float, hyp: Hypotheses
-                   ) -> np.ndarray:
-    """`GNNAssociator.second_chance`: of each confirmed track that missed, its likeliest
-    free gated detection within the margin below a miss and within an aircraft's reach
-    (one track a detection, likeliest first)."""
-    if look.margin <= 0 or not len(g.ti) or not len(free):
-        return free
-    score, miss = scores(g, pd, lam)
-    lead = score - miss
-    open_ = np.zeros(len(g.z), dtype=bool)
-    open_[free] = True
-    k = np.flatnonzero(~hyp.seen[-1].detected[g.ti] & open_[g.dj] & (lead > -look.margin))
-    if not len(k):
-        return free
-    k = k[~look.far(g.arrays, g.rows[g.ti[k]], z, r, g.dj[k], t)]
-    k = k[np.argsort(-lead[k], kind="stable")]
-    used_t: set[int] = set()
-    pick: list[int] = []
-    for kk, ti, dj in zip(k.tolist(), g.ti[k].tolist(), g.dj[k].tolist(), strict=True):
-        if ti in used_t or not open_[dj]:
-            continue
-        used_t.add(ti)
-        open_[dj] = False
-        pick.append(kk)
-    if not pick:
-        return free
-    p = np.array(pick, dtype=np.intp)
-    rows = g.rows[g.ti[p]]
-    hyp.assign(g.dj[p], rows)
-    look.note(g.arrays, rows, lead[p], t, missed=True)
-    return free[open_[free]]
+        """Of each confirmed track that missed, its likeliest free gated detection within
+        the margin below a miss and within an aircraft's reach (one track a detection,
+        likeliest first), its branch set aside (`SecondLook.note(missed=True)`)."""
+        look = self.second_look
+        if look.margin <= 0 or not len(g.ti) or not len(free):
+            return free
+        score, miss = scores(g, pd, lam)
+        lead = score - miss
+        open_ = np.zeros(len(g.z), dtype=bool)
+        open_[free] = True
+        k = np.flatnonzero(~hyp.seen[-1].detected[g.ti] & open_[g.dj] & (lead > -look.margin))
+        if not len(k):
+            return free
+        k = k[~look.far(g.arrays, g.rows[g.ti[k]], z, r, g.dj[k], t)]
+        k = k[np.argsort(-lead[k], kind="stable")]
+        used_t: set[int] = set()
+        pick: list[int] = []
+        for kk, ti, dj in zip(k.tolist(), g.ti[k].tolist(), g.dj[k].tolist(), strict=True):
+            if ti in used_t or not open_[dj]:
+                continue
+            used_t.add(ti)
+            open_[dj] = False
+            pick.append(kk)
+        if not pick:
+            return free
+        p = np.array(pick, dtype=np.intp)
+        rows = g.rows[g.ti[p]]
+        hyp.assign(g.dj[p], rows)
+        look.note(g.arrays, rows, lead[p], t, missed=True)
+        return free[open_[free]]

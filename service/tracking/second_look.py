@@ -28,7 +28,7 @@ with an N-scan window). This is that window of one scan, for that one case:
   margin plus its best) against missed (its best). The better is put in the row, and
   the scan is associated as usual from there (`decide`). Either way the doubt ends.
 
-- The other way round (`plot_association._second_chance`): a confirmed track that
+- The other way round (`GNNAssociator.second_chance`): a confirmed track that
   missed while a free detection in its gate, within reach, scored less than `margin`
   below a miss is updated with it as a branch set aside at once (`note(missed=True)`:
   `settle` always defers it), its score's shortfall counted against it at the next scan.

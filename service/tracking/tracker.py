@@ -262,7 +262,7 @@ class Tracker:
         arrays.updates[good] += 1
         return good, xn, pn
 
-    def count_detections(self, hyp: Hypotheses, out: StepOutcome | None = None) -> None:
+    def count_detections(self, hyp: Hypotheses, out: StepOutcome) -> None:
         """The unlabelled tracks in view count the scan as a detection or a miss (M of
         N, the track score); a track confirmed by it that continues a lost one takes
         the lost one's id (`Stitcher`: its new id is reported deleted in `out`, and its
@@ -272,7 +272,7 @@ class Tracker:
         c = self.config
         for arrays, rows in update_life(hyp.seen, c.confirm_m, c.confirm_n, c.confirm_score):
             joined = self.stitcher.join(self.store, arrays, rows)
-            if joined and out is not None:
+            if joined:
                 out.renamed(joined)
 
     def delete(self, now: float) -> list[str]:
