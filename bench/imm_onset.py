@@ -54,7 +54,7 @@ def main() -> None:
             k: eval(x) for k, x in (kv.split("=") for kv in v.split(";"))}  # noqa: S307
         a, b, c = (design.run(sc, n, design.tracker(ModeSet(**changes).imm()))
                    for sc, n in RUNS.items())
-        print(f"{v}: A {a['frame RMS']:.4f} B {b['RMSE/CRB']:.3f} NEES {b['NEES']:.2f} "
+        print(f"{v}: A {a['frame RMS']:.4f} B {b['RMSE/CRB']:.4f} NEES {b['NEES']:.2f} "
               f"(window {b['max window NEES']:.2f}) C {c['straight RMSE']:.1f} "
               f"{c['slow turn RMSE']:.1f} {c['fast turn RMSE']:.1f}", flush=True)
         name = "default" if v == "default" else f"default:{v}"

@@ -38,8 +38,11 @@ IMM_CA_Q = 0.2  # m/s^3: the CA mode's white jerk std per axis (docs/accuracy.md
 IMM_SOJOURN = 600.0  # s: mean time in the quiet and in the nominal mode
 IMM_MANOEUVRE_SOJOURN = 10.0  # s: mean time in the CA (and any turn) mode
 IMM_INITIAL = (0.1, 0.3, 0.6, 0.0)  # a new track: quiet, nominal, CA, manoeuvre modes
-# the manoeuvre modes: (kind, white noise std per axis: m/s^2 for cv, m/s^3 for ca)
-IMM_MANOEUVRE = (("cv", 10.0), ("cv", 70.0))
+# the manoeuvre modes: (kind, white noise std per axis: m/s^2 for cv, m/s^3 for ca; for
+# ct also its turn rate, deg/s): coordinated turns at standard rate both ways (3 deg/s,
+# the turn every aircraft flies at each change of heading) and a CV mode whose noise
+# covers the rest up to 7 g (docs/accuracy.md, "Coordinated turns at standard rate")
+IMM_MANOEUVRE = (("ct", 1.0, 3.0), ("ct", 1.0, -3.0), ("cv", 55.0))
 IMM_ONSET = 30000.0  # s: 1 / the rate of entering the manoeuvre modes (docs/accuracy.md)
 IMM_TURN_SOJOURN = 5.0  # s: mean time in a manoeuvre mode
 # of a manoeuvre mode's exits, the share into the quiet mode (steady flight again; the

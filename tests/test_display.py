@@ -172,10 +172,10 @@ def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
     """The frame predicts the IMM's combined estimate with one model (F of CA on the
     combined state). The IMM's own predicted mean, the mixture of its modes' predictions,
     differs from it exactly by (mu_CA - c_CA) a_CA dt^2 / 2 in position and
-    (mu_CA - c_CA) a_CA dt in velocity (docs/performance.md, "Frame cost"): the CV modes
-    hold no acceleration, and mixing keeps the mean. |c_CA - mu_CA| <= 1 - exp(-dt / 10 s)
-    with the default sojourns (the CA mode's, 10 s, beside its onset of the manoeuvre
-    modes)."""
+    (mu_CA - c_CA) a_CA dt in velocity (docs/performance.md, "Frame cost"), less each turn
+    mode's c_j (F_CT - F_CV) x0_j: the CV modes hold no acceleration, and mixing keeps the
+    mean. |c_CA - mu_CA| <= 1 - exp(-dt / 10 s) with the default sojourns (the CA mode's,
+    10 s, beside its onset of the manoeuvre modes)."""
     from zenoh_track.estimation import models
 
     tracker = Tracker()
@@ -191,16 +191,21 @@ def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
         dts = t - arrays.t[rows]
         c, x0, _ = imm.mix(arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows],
                            imm.transition(dts), 3)
-        mean = np.zeros((len(rows), 9))
+        mean, turned = np.zeros((len(rows), 9)), np.zeros((len(rows), 9))
         for j, (_, kind, q, omega) in enumerate(imm.modes):
             f, _ = models.motion(kind, dts, 3, 3, q, omega)
             mean += c[:, j, None] * (f @ x0[:, j, :, None])[:, :, 0]
+            if kind == "ct":  # what the turn adds to the straight line
+                straight, _ = models.motion("cv", dts, 3, 3, q, 0.0)
+                turned += c[:, j, None] * ((f - straight) @ x0[:, j, :, None])[:, :, 0]
         pos, vel, _ = display.predicted_at(arrays.x[rows], arrays.t[rows],
                                            tracker.display.columns(arrays).axis_cov[rows], t,
                                            tracker.display.q, 3, 3)
         gap = (arrays.mode_prob[rows, ca] - c[:, ca])[:, None] * arrays.mode_x[rows, ca, 6:9]
-        np.testing.assert_allclose(pos - mean[:, :3], gap * dts[:, None] ** 2 / 2, atol=1e-6)
-        np.testing.assert_allclose(vel - mean[:, 3:6], gap * dts[:, None], atol=1e-8)
+        np.testing.assert_allclose(pos - mean[:, :3] + turned[:, :3], gap * dts[:, None] ** 2 / 2,
+                                   atol=1e-6)
+        np.testing.assert_allclose(vel - mean[:, 3:6] + turned[:, 3:6], gap * dts[:, None],
+                                   atol=1e-8)
         assert (np.abs(c[:, ca] - arrays.mode_prob[rows, ca])
                 <= 1 - np.exp(-dts / imm.sojourn[ca])).all()
         assert np.abs(gap).max() > 0  # the test sees a manoeuvre mode at work
