@@ -6,6 +6,7 @@ peer on the same scans.
     python bench/manoeuvres.py                      # default, ncv-blair, stonesoup; 1, 2, 4, 5 s
     python bench/manoeuvres.py default --period 2 --runs 4
     python bench/manoeuvres.py default --labelled
+    python bench/manoeuvres.py --classes straight,orbit,helicopter,glider   # slow, tight
     python bench/manoeuvres.py before default   # the default before the manoeuvre modes
 
 `before` is the default IMM before the manoeuvre modes (quiet, nominal, CA with jerk 0.1), gated by
@@ -28,7 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from zenoh_track import defaults  # noqa: E402
 from zenoh_track.clients.evaluation import manoeuvre_score as ms  # noqa: E402
-from zenoh_track.clients.feeds.manoeuvres import Manoeuvres  # noqa: E402
+from zenoh_track.clients.feeds import feed_plots  # noqa: E402
+from zenoh_track.clients.feeds.manoeuvres import CLASSES, Manoeuvres  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import ModeSet  # noqa: E402
 from zenoh_track.tracking.batches import Labelled, Unlabelled  # noqa: E402
@@ -170,6 +172,9 @@ def main() -> None:
     p.add_argument("--period", type=float, action="append", default=[])
     p.add_argument("--runs", type=int, default=10)
     p.add_argument("--per-class", type=int, default=2)
+    p.add_argument("--classes", type=feed_plots.classes, default=CLASSES,
+                   help="classes, comma-separated (the scenario's; also orbit, helicopter, "
+                        "glider)")
     p.add_argument("--pd", type=float, default=0.9)
     p.add_argument("--clutter", type=float, default=10.0)
     p.add_argument("--seed", type=int, default=0)
@@ -187,7 +192,8 @@ def main() -> None:
             got: list[ms.Aircraft] = []
             spent, wall = 0.0, time.monotonic()
             for r in range(args.runs):
-                sc = Manoeuvres(period, args.pd, args.clutter, args.per_class, args.seed + r)
+                sc = Manoeuvres(period, args.pd, args.clutter, args.per_class, args.seed + r,
+                                classes=args.classes)
                 if name == "stonesoup":
                     shown, states, s = stone_soup(sc)
                 else:

@@ -14,7 +14,7 @@ import pytest
 
 from zenoh_track.clients.evaluation import evaluate as track_eval
 from zenoh_track.clients.evaluation import manoeuvre_score as ms
-from zenoh_track.clients.feeds.manoeuvres import CLASSES, G, Manoeuvres
+from zenoh_track.clients.feeds.manoeuvres import CLASSES, SLOW_CLASSES, G, Manoeuvres
 from zenoh_track.estimation.measurements import MeasurementBatch
 from zenoh_track.tracking import gating
 from zenoh_track.tracking.batches import Unlabelled
@@ -49,6 +49,30 @@ def test_each_class_flies_its_manoeuvre():
     signs = {np.sign(s_turn.state(t)[1][0] * s_turn.state(t)[2][1]
                      - s_turn.state(t)[1][1] * s_turn.state(t)[2][0]) for t in ts}
     assert signs == {-1.0, 0.0, 1.0}  # turns both ways
+
+
+def test_slow_flyers_turn_tight():
+    """The slow and tight classes on request: a 60 m/s orbit at 6 deg/s, a 40 m/s
+    helicopter at 12 deg/s both ways, a 30 m/s glider circling five times at 15 deg/s
+    while climbing 2 m/s; coordinated, so constant speed and v omega of acceleration."""
+    sc = Manoeuvres(period=1.0, per_class=1, seed=5, classes=SLOW_CLASSES)
+    assert [f.kind for f in sc.flights] == list(SLOW_CLASSES)
+    ts = np.arange(0.0, 200.0, 0.25)
+    rate = {"orbit": (60.0, 6.0), "helicopter": (40.0, 12.0), "glider": (30.0, 15.0)}
+    for f in sc.flights:
+        v, deg = rate[f.kind]
+        states = [f.state(t) for t in ts]
+        acc = np.array([np.linalg.norm(s[2][:2]) for s in states])
+        speed = np.array([np.linalg.norm(s[1][:2]) for s in states])
+        assert acc.max() == pytest.approx(v * math.radians(deg), rel=1e-9), f.name
+        assert np.ptp(speed) < 1e-6 * v and speed[0] == pytest.approx(v)
+    glider = sc.flights[2]
+    heading = [math.atan2(glider.state(t)[1][1], glider.state(t)[1][0]) for t in ts]
+    turned = np.abs(np.diff(np.unwrap(heading))).sum()
+    assert math.degrees(turned) == pytest.approx(1800.0, rel=1e-3)
+    assert glider.state(150.0)[1][2] == pytest.approx(2.0)
+    with pytest.raises(ValueError, match="unknown class"):
+        Manoeuvres(classes=("jet",))
 
 
 def test_scans_detect_with_pd_and_add_clutter():
@@ -126,6 +150,22 @@ def test_every_aircraft_held_with_one_track(capsys):
 
 
 @pytest.mark.slow
+def test_slow_flyers_held_with_one_track(capsys):
+    """The slow and tight flyers (orbit, helicopter, glider) through the service without
+    options, one run at 1 and 4 s: no break, every scan held from confirmation."""
+    track_eval.main(["manoeuvres", "--runs", "1", "--per-class", "1", "--config", "default",
+                     "--classes", ",".join(SLOW_CLASSES), "--period", "1", "--period", "4",
+                     "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"default 1 s", "default 4 s"}
+    for label, sums in out.items():
+        assert set(sums) == set(SLOW_CLASSES)
+        for kind, row in sums.items():
+            assert row["never"] == 0 and row["breaks"] == 0, (label, kind, row)
+            assert row["held_min"] >= 0.98, (label, kind, row)
+
+
+@pytest.mark.slow
 def test_jpda_holds_every_aircraft_with_one_track(capsys):
     """The same through the service with `--associator jpda`: no track break at 1 to 5 s
     (its speed gate; docs/accuracy.md, "JPDA with the IMM")."""
@@ -143,8 +183,8 @@ def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
     """A track that missed a 4 s scan has a gate of kilometres (its widest mode over
     8 s); a false detection 6 km off is in it. Scored under the widest mode alone
     (`gate_wide` 1) the track takes it; under the IMM's two-component likelihood (the
-    default) it is left to start a track of its own (the second look off: this is the
-    likelihood's doing alone)."""
+    default) it is left to start a track of its own (the second look off and targets up
+    to 2,000 m/s, beyond the speed gate's reach: this is the likelihood's doing alone)."""
     import dataclasses
 
     from zenoh_track.tracking.plot_association import SensorModels
@@ -152,7 +192,7 @@ def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
     from zenoh_track.tracking.tracker import TrackerConfig
 
     tracker = Tracker(TrackerConfig(sensors=SensorModels(clutter_density=9e-14),
-                                    second_look=0.0))
+                                    second_look=0.0, max_speed=2000.0))
     if gate_wide is not None:
         tracker.updater = dataclasses.replace(tracker.updater, gate_wide=gate_wide)
         tracker.store = TrackStore(tracker.updater.order, tracker.updater.fields,

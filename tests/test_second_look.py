@@ -32,8 +32,11 @@ def step(tracker: Tracker, t: float, positions) -> list[Outcome]:
 
 
 def settled(margin: float, density: float = DENSITY) -> tuple[Tracker, str, float]:
-    """A confirmed track on a straight flight, 15 scans; its id and the last scan's time."""
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, density), second_look=margin))
+    """A confirmed track on a straight flight, 15 scans; its id and the last scan's time.
+    Targets up to 1,000 m/s: the doubtful offsets (about 2 km in 4 s) within the speed
+    gate (`ScanAssociator.reachable`), which at the default 340 m/s takes none of them."""
+    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, density), second_look=margin,
+                                    max_speed=1000.0))
     for k in range(15):
         step(tracker, k * PERIOD, [START + VEL * k * PERIOD])
     (track,) = tracker.store.where
@@ -109,9 +112,9 @@ def test_a_turn_confirmed_by_the_next_scan_is_kept():
     dy = doubtful_offset(tracker, track, t1)
     p1 = START + VEL * t1 + [dy, 0.0, 0.0]
     step(tracker, t1, [p1])
-    p2 = p1 + VEL * PERIOD + [3 * dy, 0.0, 0.0]  # the turn goes on
+    p2 = p1 + VEL * PERIOD + [1.5 * dy, 0.0, 0.0]  # the turn goes on
     step(tracker, t2, [p2])
-    p3 = p2 + VEL * PERIOD + [3 * dy, 0.0, 0.0]  # and on (p2 may be in doubt in turn)
+    p3 = p2 + VEL * PERIOD + [1.5 * dy, 0.0, 0.0]  # and on (p2 may be in doubt in turn)
     step(tracker, t2 + PERIOD, [p3])
     assert tracker.scan_associator.second_look.reverted == 0
     assert sorted(tracker.store.where) == [track]

@@ -30,6 +30,7 @@ import zenoh
 from zenoh_track.clients.evaluation import manoeuvre_score as ms
 from zenoh_track.clients.evaluation.collect import lockstep_service
 from zenoh_track.clients.feeds import feed, feed_plots
+from zenoh_track.clients.feeds.manoeuvres import CLASSES, SLOW_CLASSES
 from zenoh_track.wire import Keys, peer_config, unpack, wait_for_tracker
 
 A_MAX = 7 * 9.80665  # m/s^2: the largest manoeuvre of the scenario
@@ -109,6 +110,7 @@ def through_service(feed_argv: list[str], options: list[str],
 def feed_argv(args: argparse.Namespace, period: float, seed: int) -> list[str]:
     return ["manoeuvres", "--period", f"{period:g}", "--pd", f"{args.pd:g}", "--clutter",
             f"{args.clutter:g}", "--per-class", str(args.per_class), "--seed", str(seed),
+            "--classes", ",".join(args.classes),
             *(["--labelled"] if args.labelled else [])]
 
 
@@ -117,6 +119,9 @@ def parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--runs", type=int, default=10, help="Monte Carlo runs per scan period")
     p.add_argument("--per-class", type=int, default=2, help="aircraft of each class a run")
+    p.add_argument("--classes", type=feed_plots.classes, default=CLASSES,
+                   help=f"classes, comma-separated (default {','.join(CLASSES)}; the slow and "
+                        f"tight flyers: {','.join(SLOW_CLASSES)})")
     p.add_argument("--period", type=float, action="append", default=[],
                    help="scan period, s (repeatable; default 1, 2, 4 and 5)")
     p.add_argument("--pd", type=float, default=0.9,

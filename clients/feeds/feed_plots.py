@@ -46,10 +46,25 @@ def add_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--period", type=float, default=1.0, help="manoeuvres: scan period, s")
     g.add_argument("--per-class", type=int, default=2,
                    help="manoeuvres: aircraft of each class")
+    g.add_argument("--classes", type=classes, default=manoeuvres.CLASSES,
+                   help="manoeuvres: the classes, comma-separated (default "
+                        f"{','.join(manoeuvres.CLASSES)}; also "
+                        f"{','.join(manoeuvres.SLOW_CLASSES)})")
     g.add_argument("--labelled", action="store_true",
                    help="manoeuvres: labelled measurements on <ns>/meas/ instead of scans")
     g.add_argument("--columnar", action="store_true",
                    help="send scans in the columnar form (bins) instead of a list of dets")
+
+
+def classes(text: str) -> tuple[str, ...]:
+    """`--classes`: names of the manoeuvres scenario's classes, comma-separated."""
+    out = tuple(c.strip() for c in text.split(",") if c.strip())
+    bad = [c for c in out if c not in manoeuvres.CLASSES + manoeuvres.SLOW_CLASSES]
+    if bad or not out:
+        raise argparse.ArgumentTypeError(
+            f"unknown class {', '.join(bad) or '(none)'}; one of "
+            f"{', '.join(manoeuvres.CLASSES + manoeuvres.SLOW_CLASSES)}")
+    return out
 
 
 def is_plots(args: argparse.Namespace) -> bool:
@@ -72,7 +87,7 @@ def scenario(args: argparse.Namespace) -> Any:
     `manoeuvres` a `manoeuvres.Manoeuvres`: the same scans, polar 3-D)."""
     if args.scenario == "manoeuvres":
         return manoeuvres.Manoeuvres(args.period, args.pd, clutter(args), args.per_class,
-                                     args.seed, sensor=args.sensor)
+                                     args.seed, sensor=args.sensor, classes=args.classes)
     n = targets(args)
     if args.scenario == "crossing":
         return plotgen.crossing(targets=n, pd=args.pd, clutter=clutter(args), sigma=args.sigma,

@@ -11,6 +11,13 @@ end, 200 s in all; its heading and first turn's direction are drawn from the see
 - `climbing`: 200 m/s, a 3 s pull-up at 1 g to 30 m/s of climb, a 270 deg turn at
   6 deg/s (2.1 g) climbing, a 3 s push-over.
 
+Slow and tight flyers, on request (`SLOW_CLASSES`, not among the default `CLASSES`):
+
+- `orbit`: 60 m/s, a survey or calibration orbit, 720 deg at 6 deg/s (0.64 g);
+- `helicopter`: 40 m/s, 720 deg at 12 deg/s (0.85 g), 20 s straight, 360 deg back;
+- `glider`: 30 m/s, thermalling: a 1 s pull-up to 2 m/s of climb, 1,800 deg at
+  15 deg/s (0.8 g) climbing, a 1 s push-over.
+
 Turns are coordinated (constant speed, the velocity turning at a constant rate: the
 position in closed form). The manoeuvres of Blair et al.'s benchmark for radar tracking
 (IEEE TAES 1998) reach 7 g; airliners turn at standard rate. The radar at the origin
@@ -34,6 +41,7 @@ from zenoh_track.wire import pack
 
 G = 9.80665
 CLASSES = ("straight", "standard-rate", "4g", "7g-s", "climbing")
+SLOW_CLASSES = ("orbit", "helicopter", "glider")
 DURATION, LEAD = 200.0, 60.0  # s: the run, and the straight flight before any manoeuvre
 # a leg: duration (s), turn rate (rad/s, + counter-clockwise), vertical acceleration (m/s^2)
 Leg = tuple[float, float, float]
@@ -66,7 +74,16 @@ def _legs(kind: str, sign: float) -> tuple[float, list[Leg]]:
         w = math.radians(6.0)
         return 200.0, [(LEAD, 0.0, 0.0), (3.0, 0.0, 10.0), (1.5 * math.pi / w, sign * w, 0.0),
                        (3.0, 0.0, -10.0)]
-    raise ValueError(f"unknown class {kind!r}; one of {', '.join(CLASSES)}")
+    if kind == "orbit":
+        return 60.0, [(LEAD, 0.0, 0.0), (120.0, sign * math.radians(6.0), 0.0)]
+    if kind == "helicopter":
+        w = math.radians(12.0)
+        return 40.0, [(LEAD, 0.0, 0.0), (60.0, sign * w, 0.0), (20.0, 0.0, 0.0),
+                      (30.0, -sign * w, 0.0)]
+    if kind == "glider":
+        return 30.0, [(LEAD, 0.0, 0.0), (1.0, 0.0, 2.0), (120.0, sign * math.radians(15.0), 0.0),
+                      (1.0, 0.0, -2.0)]
+    raise ValueError(f"unknown class {kind!r}; one of {', '.join(CLASSES + SLOW_CLASSES)}")
 
 
 @dataclass(frozen=True)

@@ -25,22 +25,6 @@ class JPDAAssociator(ScanAssociator):
         super().__init__(q, sensors, gate_probability)
         self.max_events = max_events
 
-    def reachable(self, g: Gating, z: np.ndarray, r: np.ndarray, t: float
-                  ) -> np.ndarray | None:
-        """Not the detections farther from a track's last position than the fastest
-        target flies meanwhile (`max_speed`, plus 3 sigma of both positions):
-        a speed gate (Blackman & Popoli 1999, sec. 4.5). JPDA weighs every gated
-        detection into the update, and a false one kilometres out in the widest mode's
-        gate of a coasting track spreads the track over it (docs/accuracy.md, "JPDA with
-        the IMM")."""
-        a, rows, d = g.arrays, g.rows[g.ti], g.arrays.dim
-        dt = t - a.t[rows]
-        var = np.trace(r[g.dj], axis1=1, axis2=2) + np.trace(a.p[rows, :d, :d], axis1=1,
-                                                             axis2=2)
-        far = np.linalg.norm(z[g.dj] - a.x[rows, :d], axis=1) > \
-            self.max_speed * dt + 3.0 * np.sqrt(var)
-        return ~far if far.any() else None
-
     def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
                 hyp: Hypotheses) -> np.ndarray:
         ratio = np.exp(scores(g, pd, lam)[0])  # G of each pair

@@ -173,8 +173,20 @@ class ScanAssociator:
 
     def reachable(self, g: Gating, z: np.ndarray, r: np.ndarray, t: float
                   ) -> np.ndarray | None:
-        """The pairs of `g` the established tracks may take (None: all)."""
-        return None
+        """The pairs of `g` the established tracks may take (None: all): not the
+        detections farther from a track's last position than the fastest target flies
+        meanwhile (`max_speed`, plus 3 sigma of both positions), a speed gate (Blackman
+        & Popoli 1999, sec. 4.5). The widest mode's gate of a track coasting through
+        missed scans reaches kilometres out: JPDA weighed false detections there into
+        the update, GNN took one for a slow helicopter (docs/accuracy.md, "JPDA with
+        the IMM", "Slow and tight flyers")."""
+        a, rows, d = g.arrays, g.rows[g.ti], g.arrays.dim
+        dt = t - a.t[rows]
+        var = np.trace(r[g.dj], axis1=1, axis2=2) + np.trace(a.p[rows, :d, :d], axis1=1,
+                                                             axis2=2)
+        far = np.linalg.norm(z[g.dj] - a.x[rows, :d], axis=1) > \
+            self.max_speed * dt + 3.0 * np.sqrt(var)
+        return ~far if far.any() else None
 
     def second_chance(self, g: Gating, free: np.ndarray, z: np.ndarray, r: np.ndarray,
                       t: float, pd: float, lam: float, hyp: Hypotheses) -> np.ndarray:

@@ -110,7 +110,7 @@ class Tracker:
         self.scan_associator.predict = self.updater.gate_prediction
         # a confirmed track's doubtful detection waits one scan (`second_look`)
         self.scan_associator.second_look = SecondLook(c.second_look, moved=self._moved)
-        self.scan_associator.max_speed = c.max_speed  # JPDA's speed gate
+        self.scan_associator.max_speed = c.max_speed  # the speed gate
         self.stitcher = Stitcher(c.stitch_reach)  # a lost track continued by a new one
         self.initiator: Initiator = SinglePointInitiator(c.init_speed, c.init_accel)
         self.deleter: Deleter = CompositeDeleter(
