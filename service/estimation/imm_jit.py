@@ -27,8 +27,9 @@ if TYPE_CHECKING:
     from .imm import IMM
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-BLOCK = 32  # rows per block of a large pass (`imm_cost.py`: 2.3 us a row against 3.0 at
-# 16 and 2.5 at 64; imm_kernel.update_rows), SMALL of a pass of fewer rows (update_few)
+BLOCK = 24  # rows per block of a large pass, as imm_kernel.update_rows (`imm_cost.py`,
+# the six modes: 4.0-4.2 us a row against 4.5 at 32, 4.6 at 20, 4.9 at 16), SMALL of a
+# pass of fewer rows (update_few)
 SMALL = 8
 __all__ = ["BLOCK", "SMALL", "applies", "design", "kernel", "step", "warm"]
 
