@@ -27,9 +27,9 @@ if TYPE_CHECKING:
     from .imm import IMM
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-BLOCK = 24  # rows per block of a large pass, as imm_kernel.update_rows (`imm_cost.py`,
-# the six modes: 4.0-4.2 us a row against 4.5 at 32, 4.6 at 20, 4.9 at 16), SMALL of a
-# pass of fewer rows (update_few)
+BLOCK = 40  # rows per block of a large pass, as imm_kernel.update_rows (`imm_cost.py`,
+# the six modes: 3.7-3.9 us a row; 4.4-4.6 at 32, 4.0-4.2 at 24, 3.7-3.9 at 56, 4.2 at
+# 48, 4.8 at 16: a power of two is the worst), SMALL of a pass of fewer rows (update_few)
 SMALL = 8
 __all__ = ["BLOCK", "SMALL", "applies", "design", "kernel", "step", "warm"]
 

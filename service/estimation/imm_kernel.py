@@ -40,12 +40,12 @@ _FACT = np.array([1, 1, 2, 6])  # k! for the process noise's denominators
 @njit(**JIT)
 def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
                 values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
-    """The update of every row, 24 rows at a time (the last block padded with copies of
-    its last row, which are not written back; 24 rather than 32 since the six modes of
-    the turns: 4.0-4.2 against 4.5 us a row, docs/performance.md). `shared`: one R for
-    every mode, averaged over the mixture of the modes' predictions; else each mode's
-    own."""
-    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 24, polar,
+    """The update of every row, 40 rows at a time (the last block padded with copies of
+    its last row, which are not written back; not a power of two: with the six modes of
+    the turns, 3.7-3.9 us a row against 4.4-4.6 at 32, docs/performance.md). `shared`:
+    one R for every mode, averaged over the mixture of the modes' predictions; else each
+    mode's own."""
+    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 40, polar,
           values, sigmas, origin, xn, pn, nis, ok)
 
 
