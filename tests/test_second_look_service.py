@@ -32,7 +32,7 @@ def status(s: zenoh.Session) -> dict:
 
 def test_a_far_doubtful_detection_is_not_put_until_the_next_scan(service_factory):
     svc, s = service_factory("--clock", "lockstep", "--pd", str(PD), "--clutter-density",
-                             str(DENSITY), "--no-display-keys")
+                             str(DENSITY), "--no-display-keys", "--max-speed", "1000")
     cond, puts = threading.Condition(), []
 
     def on_tracks(x: zenoh.Sample) -> None:
@@ -42,7 +42,8 @@ def test_a_far_doubtful_detection_is_not_put_until_the_next_scan(service_factory
                 cond.notify_all()
 
     sub = s.declare_subscriber("track/tracks/*", on_tracks)
-    mirror = Tracker(TrackerConfig(sensors=SensorModels(PD, DENSITY)))  # the same inputs
+    # the same inputs; targets up to 1,000 m/s, as test_second_look.settled (the speed gate)
+    mirror = Tracker(TrackerConfig(sensors=SensorModels(PD, DENSITY), max_speed=1000.0))
     for k in range(15):
         t = k * PERIOD
         plots(s, t, [START + VEL * t])
