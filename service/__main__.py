@@ -201,7 +201,8 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--delete-misses", type=int, default=defaults.DELETE_MISSES,
                    help="delete a confirmed track after this many missed scans in a row "
                         "at Pd 0.9, or as many as are as unlikely at its sensors' Pd (12 at "
-                        "0.7; default %(default)s)")
+                        "0.7), a detection between them taking back ln(Pd/0.1) of their "
+                        "evidence (default %(default)s)")
     g.add_argument("--delete-sigma", type=float, default=defaults.DELETE_SIGMA,
                    help="m: delete a track whose position sigma exceeds this")
     g.add_argument("--reorder", type=float, default=defaults.REORDER, metavar="SECONDS",

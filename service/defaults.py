@@ -83,6 +83,9 @@ CONFIRM_M, CONFIRM_N = 3, 5  # confirmed once detected in 3 of its last 5 scans 
 CONFIRM_SCORE = 4.6  # ... with a track score (log-likelihood ratio) of at least ln 100
 DELETE_MISSES = 6  # a confirmed track is deleted after this many consecutive misses at Pd 0.9
 # (at another Pd: as many as are as unlikely, sum -ln(1 - Pd) >= 6 ln 10; tracking.life)
+# a detection takes back ln(Pd / DELETE_FALSE_HIT) of that evidence, not all of it: a
+# CUSUM of the detections, a false track taking a detection at a scan that often
+DELETE_FALSE_HIT = 0.1
 DELETE_SIGMA = 2000.0  # m: ... or when its position sigma exceeds this
 REORDER = 0.5  # s of simulation time a scan waits for older scans of other sensors
 

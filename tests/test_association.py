@@ -289,6 +289,32 @@ def test_a_sensor_that_misses_more_keeps_its_tracks_longer(pd, misses):
     assert gone == misses
 
 
+@pytest.mark.parametrize("pd, after", [(0.7, 3), (0.9, 2)])
+def test_a_detection_takes_back_part_of_the_misses_not_all(pd, after):
+    """A track missed all but once in 12 scans is no target at Pd 0.7 (it gives 8): a
+    detection after misses takes back ln(Pd / 0.1) of their evidence (a CUSUM), not all
+    of it. At Pd 0.7, 11 misses, one detection, then deleted at the 3rd miss (13.2 - 1.9
+    + 3 x 1.2 >= 6 ln 10); at 0.9, 5 misses, one detection, deleted at the 2nd (11.5 -
+    2.2 + 2 x 2.3); with a restart at each detection it took 12 and 6 more."""
+    tracker = make(pd=pd)
+    p, v = np.array([0.0, 0.0]), np.array([50.0, 0.0])
+    for k in range(5):
+        scan(tracker, float(k), [p + v * k])
+    (track,) = tracker.store.where
+    first = 11 if pd == 0.7 else 5
+    for k in range(5, 5 + first):
+        scan(tracker, float(k), [])
+    k = 5 + first
+    scan(tracker, float(k), [p + v * k])  # the one detection
+    gone = None
+    for j in range(1, 20):
+        scan(tracker, float(k + j), [])
+        if track not in tracker.store.where:
+            gone = j
+            break
+    assert gone == after
+
+
 def test_tentative_track_from_clutter_is_dropped_and_ids_are_not_reused():
     tracker = make(confirm_m=3, confirm_n=4)
     scan(tracker, 0.0, [(0.0, 0.0)])

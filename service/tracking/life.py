@@ -8,7 +8,8 @@ as bits; it is confirmed once M of them are detections and its score has reached
 confirmation threshold (and stays confirmed): M of N alone lets clutter that happens to
 line up confirm; the score weighs how well it lined up. `MofNDeleter` ends
 tentative tracks that missed N - M + 1 scans in a row (they cannot reach M of the last
-N at the next scan), confirmed tracks after K consecutive misses, and any of them whose
+N at the next scan), confirmed tracks after K consecutive misses (a detection between
+them taking back part of their evidence, not all: a CUSUM), and any of them whose
 position sigma exceeds a limit at a scan that missed it (Blackman & Popoli 1999, sec.
 6.3; Stone Soup's UpdateTimeStepsDeleter and CovarianceBasedDeleter play the same roles).
 """
@@ -59,7 +60,11 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float
         a.hits[rows] = hits
         a.scans[rows] += 1
         a.misses[rows] = np.where(hit, 0, a.misses[rows] + 1)
-        a.lost[rows] = np.where(hit, 0.0, a.lost[rows] + weight)
+        # a CUSUM of the detections (Page 1954): a miss adds -ln(1 - Pd), a detection
+        # takes back ln(Pd / P0), P0 the chance a false track takes a detection at a scan
+        back = np.log(-np.expm1(-np.asarray(weight)) / defaults.DELETE_FALSE_HIT)
+        a.lost[rows] = np.where(hit, np.maximum(a.lost[rows] - back, 0.0),
+                                a.lost[rows] + weight)
         score = a.score[rows] + gain
         a.score[rows] = score
         was = a.confirmed[rows]
@@ -71,17 +76,19 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float
 
 
 def restore_lost(arrays: TrackArrays, rows: np.ndarray) -> None:
-    """The evidence of restored tracks' consecutive misses, as if at the reference Pd."""
+    """The evidence of restored tracks' misses (their consecutive ones, as if at the
+    reference Pd: the CUSUM itself is not saved)."""
     arrays.lost[rows] = arrays.misses[rows] * -np.log1p(-defaults.PD)
 
 
 class MofNDeleter:
-    """Deletes unlabelled tracks that cannot be confirmed any more, that missed scans in a
-    row once confirmed as unlikely for a target still there as `misses` misses at the
+    """Deletes unlabelled tracks that cannot be confirmed any more, that missed scans once
+    confirmed as unlikely for a target still there as `misses` misses in a row at the
     reference Pd (`defaults.PD`, 0.9; the sum of -ln(1 - Pd) over the misses, each at its
     sensor's Pd: 6 misses at 0.9 are 12 at 0.7 and 20 at 0.5: the track score's drop,
-    Blackman & Popoli 1999, sec. 6.3), or whose position sigma exceeds `sigma` at a scan
-    that missed them."""
+    Blackman & Popoli 1999, sec. 6.3; a detection takes back ln(Pd / P0) of it,
+    `update_life`), or whose position sigma exceeds `sigma` at a scan that missed
+    them."""
 
     def __init__(self, m: int, n: int, misses: int, sigma: float) -> None:
         self.m, self.n, self.misses, self.sigma = m, n, misses, sigma
