@@ -62,7 +62,9 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float
         a.misses[rows] = np.where(hit, 0, a.misses[rows] + 1)
         # a CUSUM of the detections (Page 1954): a miss adds -ln(1 - Pd), a detection
         # takes back ln(Pd / P0), P0 the chance a false track takes a detection at a scan
-        back = np.log(-np.expm1(-np.asarray(weight)) / defaults.DELETE_FALSE_HIT)
+        # (none for a sensor stated to detect less often than that)
+        back = np.maximum(np.log(-np.expm1(-np.asarray(weight)) / defaults.DELETE_FALSE_HIT),
+                          0.0)
         a.lost[rows] = np.where(hit, np.maximum(a.lost[rows] - back, 0.0),
                                 a.lost[rows] + weight)
         score = a.score[rows] + gain
