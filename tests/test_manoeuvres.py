@@ -138,12 +138,20 @@ def test_every_aircraft_held_with_one_track(capsys):
     """A reduced `track-eval manoeuvres` (one run, one aircraft a class) through the
     service without options: no track break, every aircraft held at >= 98 % of its scans
     from confirmation on, at 1, 2, 4 and 5 s."""
+    held_with_one_track(capsys, CLASSES, (1, 2, 4, 5))
+
+
+def held_with_one_track(capsys, classes: tuple[str, ...], periods: tuple[int, ...],
+                        *extra: str) -> None:
+    """A reduced `track-eval manoeuvres` of `classes` at `periods` (s): no class of any
+    period broke a track or held an aircraft at fewer than 98 % of its scans."""
     track_eval.main(["manoeuvres", "--runs", "1", "--per-class", "1", "--config", "default",
-                     "--json"])
+                     "--classes", ",".join(classes),
+                     *[a for p in periods for a in ("--period", str(p))], *extra, "--json"])
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"default 1 s", "default 2 s", "default 4 s", "default 5 s"}
+    assert set(out) == {f"default {p} s" for p in periods}
     for label, sums in out.items():
-        assert set(sums) == set(CLASSES)
+        assert set(sums) == set(classes)
         for kind, row in sums.items():
             assert row["never"] == 0 and row["breaks"] == 0, (label, kind, row)
             assert row["held_min"] >= 0.98, (label, kind, row)
@@ -153,16 +161,7 @@ def test_every_aircraft_held_with_one_track(capsys):
 def test_slow_flyers_held_with_one_track(capsys):
     """The slow and tight flyers (orbit, helicopter, glider) through the service without
     options, one run at 1 and 4 s: no break, every scan held from confirmation."""
-    track_eval.main(["manoeuvres", "--runs", "1", "--per-class", "1", "--config", "default",
-                     "--classes", ",".join(SLOW_CLASSES), "--period", "1", "--period", "4",
-                     "--json"])
-    out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"default 1 s", "default 4 s"}
-    for label, sums in out.items():
-        assert set(sums) == set(SLOW_CLASSES)
-        for kind, row in sums.items():
-            assert row["never"] == 0 and row["breaks"] == 0, (label, kind, row)
-            assert row["held_min"] >= 0.98, (label, kind, row)
+    held_with_one_track(capsys, SLOW_CLASSES, (1, 4))
 
 
 @pytest.mark.slow
