@@ -44,7 +44,12 @@ IMM_INITIAL = (0.1, 0.3, 0.6, 0.0)  # a new track: quiet, nominal, CA, manoeuvre
 # covers the rest up to 7 g (docs/accuracy.md, "Coordinated turns at standard rate")
 IMM_MANOEUVRE = (("ct", 1.0, 3.0), ("ct", 1.0, -3.0), ("cv", 55.0))
 IMM_ONSET = 30000.0  # s: 1 / the rate of entering the manoeuvre modes (docs/accuracy.md)
-IMM_TURN_SOJOURN = 5.0  # s: mean time in a manoeuvre mode
+IMM_TURN_SOJOURN = 20.0  # s: mean time in a manoeuvre mode
+# s: ... in a manoeuvre mode of kind "ct" (a turn at a known rate: standard-rate turns
+# last 10 to 60 s), entered IMM_CT_ENTRY times as often as the others (the commonest
+# manoeuvre; docs/accuracy.md, "Sticky standard-rate turns")
+IMM_CT_SOJOURN = 60.0
+IMM_CT_ENTRY = 3.0
 # of a manoeuvre mode's exits, the share into the quiet mode (steady flight again; the
 # nominal mode takes 0.5 less this; docs/accuracy.md, "Straight legs after a manoeuvre")
 IMM_EXIT_QUIET = 0.05
@@ -52,6 +57,7 @@ IMM_EXIT_QUIET = 0.05
 # predictions (a third less CPU a row; A, B and C as with each mode's own, docs/accuracy.md)
 IMM_MODE_R = False
 IMM_GATE_WIDE = 0.02  # the least prior association gives the IMM's widest mode
+IMM_TURN_CAP = 0.5  # rad/s: a "turn" mode's rate at most (29 deg/s: 7 g at 140 m/s)
 IMM_CT_Q = 3.0  # optional turn modes' noise as a multiple of the nominal mode's
 IMM_TURN_DEG = 0.0  # deg/s: > 0 adds coordinated-turn modes at +- this (0: none)
 VDF_DETECT = 35.0  # VDF manoeuvre detection threshold (fading NIS sum)

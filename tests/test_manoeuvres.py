@@ -235,19 +235,38 @@ def test_imm_onset_option_sets_the_rate_of_entering_the_manoeuvre_modes():
 
 @pytest.mark.parametrize("exit_quiet", [0.0, 0.05, 0.2])
 def test_a_manoeuvre_mode_is_left_half_for_steady_flight(exit_quiet):
-    """A manoeuvre mode is left in `turn_sojourn` s: half of it for the quiet and nominal
-    modes (`exit_quiet` for the quiet one: an aircraft back on steady flight), the rest
-    for the CA and the other manoeuvre modes; the other modes' exits are unchanged."""
+    """A manoeuvre mode is left in `turn_sojourn` s (a turn at a known rate in
+    `ct_sojourn` s): half of it for the quiet and nominal modes (`exit_quiet` for the
+    quiet one: an aircraft back on steady flight), the rest for the CA and the other
+    manoeuvre modes; the other modes' exits are unchanged."""
     from zenoh_track.estimation.imm import ModeSet
 
-    imm = ModeSet(exit_quiet=exit_quiet).imm()
+    imm = ModeSet(exit_quiet=exit_quiet, turn_sojourn=7.0, ct_sojourn=40.0).imm()
     names = [m[0] for m in imm.modes]
     leave = np.array(imm.leave)
     assert names[:3] == ["quiet", "cv", "ca"] and len(names) > 4
+    kinds = [m[1] for m in imm.modes]
+    assert "ct" in kinds[3:] and "cv" in kinds[3:]
     for i in range(3, len(names)):  # the manoeuvre modes
-        assert imm.sojourn[i] == pytest.approx(5.0)
+        assert imm.sojourn[i] == pytest.approx(40.0 if kinds[i] == "ct" else 7.0)
         assert leave[i, names.index("quiet")] == pytest.approx(exit_quiet)
         assert leave[i, names.index("cv")] == pytest.approx(0.5 - exit_quiet)
         assert leave[i].sum() == pytest.approx(1.0) and leave[i, i] == 0.0
     base = np.array(ModeSet(exit_quiet=0.0).imm().leave)
     np.testing.assert_array_equal(leave[:3], base[:3])
+
+
+@pytest.mark.parametrize("entry", [1.0, 3.0])
+def test_the_turns_at_a_known_rate_are_entered_ct_entry_times_as_often(entry):
+    """Every chained mode enters the manoeuvre modes at 1 / `onset` in all, a "ct" one
+    `ct_entry` times as often as the others (the chained modes' own exits unchanged)."""
+    from zenoh_track.estimation.imm import ModeSet
+
+    imm = ModeSet(ct_entry=entry, onset=1000.0).imm()
+    kinds = [m[1] for m in imm.modes]
+    k = len(kinds) - 3
+    rate = np.array(imm.leave) / np.array(imm.sojourn)[:, None]  # per second, i -> j
+    for i in range(3):
+        for j in range(3, len(kinds)):
+            want = (entry if kinds[j] == "ct" else 1.0) / 1000.0 / k
+            assert rate[i, j] == pytest.approx(want)

@@ -14,22 +14,24 @@ from .batch import einsum
 from .filters import Convert, Result, Rows, moments, predict
 from .ucm import CMKFConversion
 
-Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct"), q, omega (rad/s)
+Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct", "turn"), q, omega (rad/s)
+ACCELERATING = ("ca", "turn")  # the kinds whose acceleration is estimated
 
 
 @dataclass(frozen=True)
 class ModeSet:
     """The service's IMM design: a quiet CV mode (white acceleration `quiet_q`, m/s^2),
     a nominal CV mode (`q`), a CA mode (white jerk `ca_q`, m/s^3) and manoeuvre modes
-    `manoeuvre` (kind "cv" or "ca" and its white noise, m/s^2 or m/s^3, or "ct", its
-    noise and its turn rate in deg/s), plus, with `turn_deg` > 0,
+    `manoeuvre` (kind "cv", "ca" or "turn" and its white noise, m/s^2 or m/s^3, or "ct",
+    its noise and its turn rate in deg/s), plus, with `turn_deg` > 0,
     coordinated turns at +- `turn_deg` deg/s with `ct_q` x q. Quiet <-> nominal <-> CA
     (and turns) are chained as before: the quiet and nominal modes are left for each
     other and the CA mode in `sojourn` s on average, the CA (and turn) modes in
     `manoeuvre_sojourn` s. Besides, every one of those modes enters the manoeuvre modes
-    at the rate 1 / `onset` (shared evenly), and a manoeuvre mode is left in
-    `turn_sojourn` s, half for the nominal and quiet modes (`exit_quiet` of it for the
-    quiet one), the rest evenly for the CA and the other manoeuvre modes. A new track
+    at the rate 1 / `onset` (shared evenly; a "ct" one `ct_entry` times as often), and
+    a manoeuvre mode is left in `turn_sojourn` s (a "ct" one in `ct_sojourn` s), half
+    for the nominal and quiet modes (`exit_quiet` of it for the quiet one), the rest
+    evenly for the CA and the other manoeuvre modes. A new track
     starts with the probabilities `initial` (quiet, nominal, CA and turns together,
     manoeuvre modes together). docs/accuracy.md gives the reasons."""
 
@@ -44,6 +46,8 @@ class ModeSet:
     manoeuvre: tuple[tuple, ...] = defaults.IMM_MANOEUVRE
     onset: float = defaults.IMM_ONSET
     turn_sojourn: float = defaults.IMM_TURN_SOJOURN
+    ct_sojourn: float = defaults.IMM_CT_SOJOURN
+    ct_entry: float = defaults.IMM_CT_ENTRY
     exit_quiet: float = defaults.IMM_EXIT_QUIET
 
     def imm(self) -> IMM:
@@ -61,12 +65,14 @@ class ModeSet:
         rate[1, [0, *range(2, b)]] = 1.0 / self.sojourn / (b - 1)
         rate[2:b, 1] = 1.0 / self.manoeuvre_sojourn
         if k:
-            rate[:b, b:] = 1.0 / self.onset / k
+            for j in range(b, m):  # the turns at a known rate ct_entry times as often
+                rate[:b, j] = (self.ct_entry if modes[j][1] == "ct" else 1.0) / self.onset / k
             for i in range(b, m):
                 rest = [2, *[j for j in range(b, m) if j != i]]
-                rate[i, 0] = self.exit_quiet / self.turn_sojourn
-                rate[i, 1] = (0.5 - self.exit_quiet) / self.turn_sojourn
-                rate[i, rest] += 0.5 / self.turn_sojourn / len(rest)
+                tau = self.ct_sojourn if modes[i][1] == "ct" else self.turn_sojourn
+                rate[i, 0] = self.exit_quiet / tau
+                rate[i, 1] = (0.5 - self.exit_quiet) / tau
+                rate[i, rest] += 0.5 / tau / len(rest)
         total = rate.sum(1)
         quiet, nominal, manoeuvre, *turns = (*self.initial, 0.0)[:4]
         initial = (quiet, nominal, *[manoeuvre / (b - 2)] * (b - 2), *[turns[0] / k] * k) \
@@ -114,6 +120,7 @@ class IMM:
     unbiased_mixing: bool = True  # False: zero padding (the ablation of docs/accuracy.md)
     mode_conversion: bool = defaults.IMM_MODE_R  # True: each mode's own R (ablation)
     gate_wide: float = defaults.IMM_GATE_WIDE  # association's prior of the widest mode
+    turn_cap: float = defaults.IMM_TURN_CAP  # rad/s: a "turn" mode's rate at most
     order: int = 3
 
     @property
@@ -157,7 +164,7 @@ class IMM:
         p0 = (wt @ mp.reshape(n_rows, m, n * n)).reshape(n_rows, m, n, n) \
             + (w[..., None] * d).transpose(0, 2, 3, 1) @ d.transpose(0, 2, 1, 3)
         acc = slice(2 * dim, 3 * dim)
-        has = np.array([kind == "ca" for _, kind, _, _ in self.modes])
+        has = np.array([kind in ACCELERATING for _, kind, _, _ in self.modes])
         if self.unbiased_mixing and has.any() and not has.all():
             for j in np.flatnonzero(has).tolist():  # pad the others with j's acceleration
                 xs, ps = mx.copy(), mp.copy()
@@ -172,15 +179,24 @@ class IMM:
                     + (w[:, :, j, None] * dj).transpose(0, 2, 1) @ dj
         return c, x0, p0
 
+    def predict(self, j: int, dt: np.ndarray, x0: np.ndarray, p0: np.ndarray, dim: int
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Mode j's prediction over dt of its mixed states x0 (N, n), P0 (N, n, n): a
+        "turn" mode's rate is each state's own (`models.turn_model`, an EKF)."""
+        _, kind, q, omega = self.modes[j]
+        if kind != "turn":
+            return predict(x0, p0, *models.motion(kind, dt, self.order, dim, q, omega))
+        f, qm, jac = models.turn_model(x0, dt, dim, q, self.turn_cap)
+        xp = (f @ x0[:, :, None])[:, :, 0]
+        return xp, kalman.symmetrise(jac @ p0 @ jac.transpose(0, 2, 1) + qm)
+
     def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         if jit.ready() and isinstance(convert, CMKFConversion) and imm_jit.applies(self):
             return imm_jit.step(self, arrays, rows, dt, convert.batch)  # the same, compiled
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
-        preds = []
-        for j, (_, kind, q, omega) in enumerate(self.modes):
-            f, qm = models.motion(kind, dt, self.order, arrays.dim, q, omega)
-            preds.append(predict(x0[:, j], p0[:, j], f, qm))
+        preds = [self.predict(j, dt, x0[:, j], p0[:, j], arrays.dim)
+                 for j in range(len(self.modes))]
         if not self.mode_conversion:
             z, r = convert(*moments(np.stack([x for x, _ in preds], 1),
                                     np.stack([p for _, p in preds], 1), c))[:2]
@@ -210,9 +226,8 @@ class IMM:
         gives the quiet ones the widest one's spread."""
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
-        preds = [predict(x0[:, j], p0[:, j], *models.motion(kind, dt, self.order, arrays.dim,
-                                                            q, omega))
-                 for j, (_, kind, q, omega) in enumerate(self.modes)]
+        preds = [self.predict(j, dt, x0[:, j], p0[:, j], arrays.dim)
+                 for j in range(len(self.modes))]
         xp, pp = np.stack([x for x, _ in preds], 1), np.stack([p for _, p in preds], 1)
         t_count, m, n = xp.shape
         ti = (w.ti[:, None] * m + np.arange(m)).ravel()  # pair k, mode j: row k * m + j
@@ -247,9 +262,8 @@ class IMM:
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), d)
         xs, ps = [], []
-        for j, (_, kind, q, omega) in enumerate(self.modes):
-            f, qm = models.motion(kind, dt, self.order, d, q, omega)
-            xp, pp = predict(x0[:, j], p0[:, j], f, qm)
+        for j in range(len(self.modes)):
+            xp, pp = self.predict(j, dt, x0[:, j], p0[:, j], d)
             xs.append(xp)
             ps.append(pp)
         xs_, ps_ = np.stack(xs, 1), np.stack(ps, 1)  # (N, M, n), (N, M, n, n)
