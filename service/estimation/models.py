@@ -311,7 +311,7 @@ def turn_axis(dt: np.ndarray, omega: np.ndarray, q: float) -> tuple[np.ndarray, 
     big = np.abs(y) >= TURN_SMALL
     if big.any():
         T, W, y = at[big], ws[big], y[big]
-        s1, s2, c1 = np.sin(y), np.sin(2 * y), np.cos(y)
+        s1, s2 = np.sin(y), np.sin(2 * y)
         e = np.empty((len(T), 3, 3))
         e[:, 0, 0] = (1.5 * T - 2 * s1 / W + s2 / (4 * W)) / W ** 4
         e[:, 0, 1] = (2 * np.sin(0.5 * y) ** 2 - 0.5 * s1 ** 2) / W ** 4
