@@ -8,6 +8,7 @@ peer on the same scans.
     python bench/manoeuvres.py default --labelled
     python bench/manoeuvres.py --classes straight,orbit,helicopter,glider   # slow, tight
     python bench/manoeuvres.py before default   # the default before the manoeuvre modes
+    python bench/manoeuvres.py default ncv-blair --period 1 --onset   # NEES by scans since onset
 
 `before` is the default IMM before the manoeuvre modes (quiet, nominal, CA with jerk 0.1), gated by
 the combined state and the nominal noise, deleted after 4 misses; `default:k=v;k=v` a
@@ -179,6 +180,8 @@ def main() -> None:
     p.add_argument("--clutter", type=float, default=10.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--labelled", action="store_true")
+    p.add_argument("--onset", action="store_true",
+                   help="also RMSE and NEES while manoeuvring by scans since the onset")
     p.add_argument("--associator", choices=("gnn", "jpda"), default="gnn", help="ours")
     p.add_argument("--second-look", type=float, default=defaults.SECOND_LOOK,
                    help="ours: the service's --second-look (0: off)")
@@ -206,6 +209,9 @@ def main() -> None:
             print(ms.table(f"{name}: period {period:g} s, {form}, {args.runs} runs x "
                            f"{args.per_class} a class ({spent:.1f} s tracking, "
                            f"{time.monotonic() - wall:.0f} s)", ms.summary(got)), flush=True)
+            if args.onset:
+                print(ms.onset_table([a for a in got if a.kind != "straight"], period),
+                      flush=True)
 
 
 if __name__ == "__main__":

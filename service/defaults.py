@@ -44,12 +44,11 @@ IMM_INITIAL = (0.1, 0.3, 0.6, 0.0)  # a new track: quiet, nominal, CA, manoeuvre
 # covers the rest up to 7 g (docs/accuracy.md, "Coordinated turns at standard rate")
 IMM_MANOEUVRE = (("ct", 1.0, 3.0), ("ct", 1.0, -3.0), ("cv", 55.0))
 IMM_ONSET = 30000.0  # s: 1 / the rate of entering the manoeuvre modes (docs/accuracy.md)
-IMM_TURN_SOJOURN = 20.0  # s: mean time in a manoeuvre mode
-# s: ... in a manoeuvre mode of kind "ct" (a turn at a known rate: standard-rate turns
-# last 10 to 60 s), entered IMM_CT_ENTRY times as often as the others (the commonest
-# manoeuvre; docs/accuracy.md, "Sticky standard-rate turns")
-IMM_CT_SOJOURN = 60.0
-IMM_CT_ENTRY = 3.0
+IMM_TURN_SOJOURN = 5.0  # s: mean time in a manoeuvre mode
+# s: ... in a manoeuvre mode of kind "ct" (a turn at a known rate; longer holds a turn at
+# exactly that rate better and every other rate worse: docs/accuracy.md, "Sticky turns")
+IMM_CT_SOJOURN = 5.0
+IMM_CT_ENTRY = 1.0  # a "ct" manoeuvre mode is entered this many times as often as the others
 # of a manoeuvre mode's exits, the share into the quiet mode (steady flight again; the
 # nominal mode takes 0.5 less this; docs/accuracy.md, "Straight legs after a manoeuvre")
 IMM_EXIT_QUIET = 0.05

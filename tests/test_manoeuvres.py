@@ -270,3 +270,28 @@ def test_the_turns_at_a_known_rate_are_entered_ct_entry_times_as_often(entry):
         for j in range(3, len(kinds)):
             want = (entry if kinds[j] == "ct" else 1.0) / 1000.0 / k
             assert rate[i, j] == pytest.approx(want)
+
+
+def test_the_onset_profile_splits_the_manoeuvring_samples_by_scans_since_the_onset():
+    """`Flight.leg_age` counts from the start of the current leg (a turn, a reversal);
+    `onset_table` bins the manoeuvring samples by it: each sample once, the NEES shares
+    of a class summing to 1."""
+    from zenoh_track.clients.feeds.manoeuvres import LEAD
+
+    sc = Manoeuvres(2.0, 0.9, 0.0, 1, 0, classes=("7g-s",))
+    f = sc.flights[0]
+    w = 7 * G / 250.0
+    assert f.leg_age(LEAD + 1.0) == pytest.approx(1.0)
+    assert f.leg_age(LEAD + math.pi / 2 / w + 0.5) == pytest.approx(0.5)  # the reversal
+    truth = {round(t, 6): f.state(t) for t in sc.times.tolist()}
+    shown = {t: {"a": s[0] + 10.0} for t, s in truth.items()}  # 10 m off on each axis
+    cov = np.eye(6) * 100.0
+    states = {t: {"a": (np.concatenate([s[0] + 10.0, s[1]]), cov)} for t, s in truth.items()}
+    got = ms.score(sc, shown, states)
+    man = [s for a in got for s in a.onset]
+    assert len(man) == sum(f.manoeuvring(t) for t in sc.times.tolist()) > 0
+    assert all(e == pytest.approx(300.0) and n == pytest.approx(3.0) for _, e, n in man)
+    rows = [r.split() for r in ms.onset_table(got, 2.0, scans=3).splitlines()[1:]]
+    assert sum(int(r[2]) for r in rows) == len(man)
+    assert sum(float(r[5]) for r in rows) == pytest.approx(1.0, abs=0.02)
+    assert {r[1] for r in rows} == {"0", "1", "2", "3+"}

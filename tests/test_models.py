@@ -273,6 +273,7 @@ def test_an_imm_mode_of_the_turn_holds_a_steady_4g_turn(kind):
     one CA mode with the same jerk noise, on 1 Hz positions (sigma 30 m) of a 4 g turn:
     the turn model's error stays near the noise, the CA's lags; without the Jacobian
     of the rate the turn filter diverged (400 m and more at this noise)."""
+    from zenoh_track.estimation import imm_jit
     from zenoh_track.estimation.imm import IMM
     from zenoh_track.tracking.batches import Labelled
     from zenoh_track.tracking.display import DISPLAY_COLUMNS
@@ -283,6 +284,7 @@ def test_an_imm_mode_of_the_turn_holds_a_steady_4g_turn(kind):
 
     tracker, rng = Tracker(), np.random.default_rng(3)
     tracker.updater = IMM(((kind, kind, 0.5, 0.0),), 1e9)
+    assert imm_jit.applies(tracker.updater) == (kind == "ca")  # the turn: NumPy's path
     tracker.store = TrackStore(3, tracker.updater.fields, {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
     errors = []
     for t in range(90):

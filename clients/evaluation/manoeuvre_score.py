@@ -41,6 +41,8 @@ class Aircraft:
     held: int = 0
     err: dict[str, list[float]] = field(default_factory=lambda: {"man": [], "str": []})
     nees: dict[str, list[float]] = field(default_factory=lambda: {"man": [], "str": []})
+    # while manoeuvring: (s since the manoeuvre's leg began, squared error, NEES or NaN)
+    onset: list[tuple[float, float, float]] = field(default_factory=list)
 
     @property
     def breaks(self) -> int:
@@ -84,9 +86,13 @@ def score(sc: Manoeuvres, shown: Shown, states: States, labelled: bool = False,
             p, v, _ = truth[i]
             a.err[phase].append(float(np.sum((tracks[k] - p) ** 2)))
             st = states.get(round(t, 6), {}).get(k)
+            nees = math.nan
             if st is not None:
                 e = st[0][:6] - np.concatenate([p, v])
-                a.nees[phase].append(float(e @ np.linalg.solve(st[1][:6, :6], e)))
+                nees = float(e @ np.linalg.solve(st[1][:6, :6], e))
+                a.nees[phase].append(nees)
+            if phase == "man":
+                a.onset.append((f.leg_age(t), a.err[phase][-1], nees))
     return out
 
 
@@ -124,6 +130,25 @@ def table(title: str, sums: dict[str, dict[str, float]]) -> str:
                      f"{r['never']:>6.0f}{r['held_min']:>9.3f}{r['held_mean']:>7.3f}"
                      f"{r['rmse_man']:>9.1f}{r['max_man']:>8.0f}{r['rmse_str']:>9.1f}"
                      f"{r['nees_man']:>9.2f}{r['nees_str']:>6.2f}")
+    return "\n".join(lines)
+
+
+def onset_table(aircraft: list[Aircraft], period: float, scans: int = 8) -> str:
+    """Per class, the manoeuvring samples by scans since the manoeuvre's leg began (its
+    first `scans`, then the rest): RMSE, mean NEES and that scan's share of the class's
+    NEES sum (where the NEES while manoeuvring comes from)."""
+    lines = [f"{'class':<14}{'scan':>6}{'n':>6}{'RMSE':>8}{'NEES':>9}{'share':>7}"]
+    for kind in dict.fromkeys(a.kind for a in aircraft):
+        got = [s for a in aircraft if a.kind == kind for s in a.onset]
+        total = sum(n for *_, n in got if not math.isnan(n))
+        for k in range(scans + 1):
+            sel = [s for s in got if min(int(s[0] / period + 1e-9), scans) == k]
+            nees = [n for *_, n in sel if not math.isnan(n)]
+            if sel:
+                lines.append(f"{kind:<14}{k if k < scans else f'{k}+':>6}{len(sel):>6}"
+                             f"{math.sqrt(np.mean([e for _, e, _ in sel])):>8.1f}"
+                             f"{np.mean(nees) if nees else math.nan:>9.1f}"
+                             f"{sum(nees) / total if total else math.nan:>7.2f}")
     return "\n".join(lines)
 
 

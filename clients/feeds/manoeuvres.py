@@ -122,6 +122,11 @@ class Flight:
         """Whether the aircraft accelerates at t (a turn, pull-up or push-over)."""
         return bool(np.any(self.state(t)[2] != 0.0))
 
+    def leg_age(self, t: float) -> float:
+        """Seconds since the current leg began (a turn, a reversal or a pull-up: an onset
+        when the aircraft manoeuvres at t)."""
+        return t - max((s[0] for s in self.starts if s[0] <= t + 1e-9), default=0.0)
+
     def quiet_for(self, t: float) -> float:
         """Seconds since the aircraft last accelerated (t itself if never)."""
         ends = [s[0] + d for s, (d, om, az) in zip(self.starts, self.legs, strict=True)
