@@ -14,10 +14,15 @@ import numpy as np
 import pytest
 from reference.record import track
 
+from zenoh_track import defaults
 from zenoh_track.estimation import imm_jit
 from zenoh_track.estimation.catalog import FilterSpec
+from zenoh_track.estimation.imm import ModeSet
 from zenoh_track.estimation.measurements import MeasurementBatch
 from zenoh_track.estimation.ucm import CMKFConversion
+from zenoh_track.tracking.display import DISPLAY_COLUMNS
+from zenoh_track.tracking.life import LIFE_COLUMNS
+from zenoh_track.tracking.store import TrackStore
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 from zenoh_track.wire import Measurement
 
@@ -44,13 +49,19 @@ def close(a: np.ndarray, b: np.ndarray, rel: float) -> bool:
     return bool((np.abs(a - b) <= rel * scale).all())
 
 
-@pytest.mark.parametrize("turn", [0.0, 2.0])  # the default's modes; with turns at +-2 deg/s
+# the default's modes; with turns at +-2 deg/s; with the turn at its own rate (a seventh)
+@pytest.mark.parametrize("modes", ["default", "turns", "turn-rate"])
 @pytest.mark.parametrize("own_r", [False, True])  # one R for the modes, or each its own
 @pytest.mark.parametrize("count", [40, 1, imm_jit.SMALL + 1, imm_jit.BLOCK, imm_jit.BLOCK + 1])
 @pytest.mark.parametrize("dim", [3, 2])
-def test_compiled_imm_is_the_textbook_imm(dim, count, own_r, turn):
+def test_compiled_imm_is_the_textbook_imm(dim, count, own_r, modes):
     rng = np.random.default_rng(5)
-    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm", imm_turn=turn)))
+    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm", imm_turn=2.0 * (modes == "turns"))))
+    if modes == "turn-rate":
+        tracker.updater = ModeSet(manoeuvre=(*defaults.IMM_MANOEUVRE[:2], ("turn", 5.0),
+                                             *defaults.IMM_MANOEUVRE[2:])).imm()
+        tracker.store = TrackStore(3, tracker.updater.fields,
+                                   {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
     assert tracker.updater.mode_conversion is False  # the default shares R
     imm = dataclasses.replace(tracker.updater, mode_conversion=own_r)
     assert imm_jit.applies(imm)

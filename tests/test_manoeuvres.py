@@ -226,8 +226,12 @@ def test_imm_onset_option_sets_the_rate_of_entering_the_manoeuvre_modes():
     fast = built(["--imm-onset", "60"])
     assert fast == ModeSet(onset=60.0).imm()
     assert built([]) == ModeSet().imm() != fast
+    turning = built(["--imm-turn-estimated", "5"])  # a seventh mode at its own rate
+    assert turning == ModeSet(manoeuvre=(*ModeSet().manoeuvre, ("turn", 5.0))).imm()
+    assert [m[1] for m in turning.modes].count("turn") == 1
     for bad in (["--imm-onset", "0"], ["--imm-onset", "-5"], ["--imm-sojourn", "inf"],
-                ["--second-look", "nan"]):  # a clear error (exit 2), not a traceback
+                ["--second-look", "nan"], ["--imm-turn-estimated", "-1"],
+                ["--imm-turn-estimated", "nan"]):  # a clear error (exit 2), not a traceback
         with pytest.raises(SystemExit) as stop:
             parser().parse_args(bad)
         assert stop.value.code == 2

@@ -34,7 +34,8 @@ class Filter:
 @dataclass(frozen=True)
 class FilterSpec:
     """`name`: imm (quiet CV, nominal CV and CA on converted measurements: `imm.ModeSet`;
-    `q` sets the nominal mode's noise, `imm_turn` > 0 adds two coordinated turns), cv and
+    `q` sets the nominal mode's noise, `imm_turn` > 0 adds two coordinated turns,
+    `imm_turn_estimated` > 0 a manoeuvre mode turning at its state's own rate), cv and
     ca (single-model CMKFs), ekf (CV with the linearised polar update: the baseline of
     scenario B) or vdf (the variable-dimension filter of scenario C). `q`: the white noise per
     axis (`models`: a continuous white noise of density q^2 |dt| over a step dt; m/s^2
@@ -48,6 +49,7 @@ class FilterSpec:
     vdf_detect: float = defaults.VDF_DETECT
     vdf_settle: float = defaults.VDF_SETTLE
     imm_onset: float = defaults.IMM_ONSET  # s: 1 / the rate of entering the manoeuvre modes
+    imm_turn_estimated: float = defaults.IMM_TURN_ESTIMATED  # > 0: a "turn" mode, this jerk
 
     def build(self) -> Filter:
         """The filter of this name, with its noise and its measurement conversion."""
@@ -55,8 +57,10 @@ class FilterSpec:
             raise ValueError(f"unknown filter {self.name!r}; one of {', '.join(FILTERS)}")
         if self.name == "imm":
             q = defaults.Q_CV if self.q is None else self.q
+            turn = (("turn", self.imm_turn_estimated),) if self.imm_turn_estimated > 0 else ()
             modes = ModeSet(q=q, sojourn=self.imm_sojourn, ct_q=self.imm_ct_q,
-                            turn_deg=self.imm_turn, onset=self.imm_onset)
+                            turn_deg=self.imm_turn, onset=self.imm_onset,
+                            manoeuvre=defaults.IMM_MANOEUVRE + turn)
             return Filter(modes.imm(), q, CMKFConversion)
         if self.name == "vdf":
             return Filter(VDF(detect=self.vdf_detect, settle=self.vdf_settle), 0.0,

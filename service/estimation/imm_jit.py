@@ -43,10 +43,10 @@ def kernel(k: int) -> Callable:
 
 
 def applies(imm: IMM) -> bool:
-    """Whether `step` computes this IMM's update: CV, CA and CT modes in the order-3 state,
-    unbiased mixing (the default's options; R shared or each mode's own)."""
+    """Whether `step` computes this IMM's update: CV, CA, CT and turn modes in the order-3
+    state, unbiased mixing (the default's options; R shared or each mode's own)."""
     return (imm.order == 3 and imm.unbiased_mixing
-            and all(kind in ("cv", "ca") or (kind == "ct" and w != 0.0)
+            and all(kind in ("cv", "ca", "turn") or (kind == "ct" and w != 0.0)
                     for _, kind, _, w in imm.modes))
 
 
@@ -80,12 +80,13 @@ def _writable(dt: np.ndarray | float, k: int) -> np.ndarray:
 
 
 _DESIGNS: dict[int, tuple] = {}
+KINDS = {"cv": 0, "ca": 1, "ct": 2, "turn": 3}  # as `imm_kernel` reads them
 
 
 def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The IMM's constants as arrays (as `IMM.transition` reads them): sojourns (M,), the
-    normalised destinations of a mode left (M, M), the kinds (1: CA, 2: CT, 0: CV), the
-    noise and the turn rate (rad/s) of each mode."""
+    normalised destinations of a mode left (M, M), the kinds (`KINDS`), the noise and the
+    turn rate (rad/s; a turn's: its cap) of each mode."""
     got = _DESIGNS.get(id(imm))
     if got is None or got[0] is not imm:
         m = len(imm.modes)
@@ -93,10 +94,10 @@ def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
         dest = np.ones((m, m)) if imm.leave is None else np.array(imm.leave, dtype=float)
         dest[np.arange(m), np.arange(m)] = 0.0
         dest /= np.maximum(dest.sum(1, keepdims=True), 1e-300)
-        kinds = np.array([{"ca": 1, "ct": 2}.get(kind, 0) for _, kind, _, _ in imm.modes],
-                         dtype=np.int64)
+        kinds = np.array([KINDS.get(kind, 0) for _, kind, _, _ in imm.modes], dtype=np.int64)
         qs = np.array([q for _, _, q, _ in imm.modes], dtype=float)
-        ws = np.array([w for _, _, _, w in imm.modes], dtype=float)
+        ws = np.array([imm.turn_cap if kind == "turn" else w for _, kind, _, w in imm.modes],
+                      dtype=float)
         got = _DESIGNS[id(imm)] = (imm, tau, dest, kinds, qs, ws)
     return got[1:]
 

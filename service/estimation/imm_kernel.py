@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from .kalman import S_FLOOR
+from .models import TURN_SMALL
 from .ucm import ROUNDING
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -74,7 +75,7 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
     mean, spread = np.empty((n, b)), np.empty((n, n, b))  # of the mixture's prediction
     # work arrays of the stages: (n, n) and (3, 3) matrices, vectors of 3, per row
     wk, w33, wv = np.empty((3, n, n, b)), np.empty((3, 3, 3, b)), np.empty((6, 3, b))
-    dv = np.empty((n, b))
+    dv, tv, tc = np.empty((n, b)), np.empty((4, n, b)), np.empty((TURN_COEFFS, b))
     const, mats, nvec = np.empty((CONSTS, b)), np.empty((3, 3, 3, b)), np.empty((13, 6, b))
     for lo in range(0, len(rows), b):
         for q in range(b):  # gather the block, batch axis last
@@ -94,10 +95,12 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
         point(pol, val, sig, org, d, z, const)
         _weights(mu, h, tau, dest, w, c)
         for j in range(m):
-            s = n if kinds[j] == 1 else 2 * d  # a CV mode: position and velocity
+            s = n if _accelerating(kinds[j]) else 2 * d  # a CV mode: position and velocity
             _mix(mx, mp, w, dest, kinds, j, s, d, xp[j], pp[j], dv)
             if kinds[j] == 2:  # a coordinated turn at the known rate ws[j]
                 _predict_ct(xp[j], pp[j], d, h, ws[j], qs[j], wk[0])
+            elif kinds[j] == 3:  # the turn at its state's own rate, at most ws[j]
+                _predict_turn(xp[j], pp[j], d, h, ws[j], qs[j], wk[0], tv, tc)
             else:
                 _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j], wk[0], wv)
         _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
@@ -108,7 +111,7 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
                 noise(pol, sig, org, const, xp[j], pp[j], d, rr[j], mats, nvec)
             elif j:
                 rr[j] = rr[0]
-            s = n if kinds[j] == 1 else 2 * d
+            s = n if _accelerating(kinds[j]) else 2 * d
             _update(xp[j], pp[j], s, d, z, rr[j], xu[j], pu[j], lik[j], fin[j], wk, w33, wv)
         _probabilities(c, lik, fin, mu, nb)
         _moments(xu, pu, mu, n, xo, po, dv)
@@ -164,7 +167,8 @@ def _mix(mx, mp, w, dest, kinds, j, s, d, x0, p0, dv):  # pragma: no cover - com
         for i in range(m):
             if i != j and dest[i, j] == 0.0:
                 continue
-            top = 2 * d if kinds[j] == 1 and kinds[i] != 1 else s  # i's own components
+            # i's own components (a mode without acceleration: j's own acceleration)
+            top = 2 * d if _accelerating(kinds[j]) and not _accelerating(kinds[i]) else s
             for a in range(s):
                 src = mx[i, a] if a < top else mx[j, a]
                 if pas == 0:
@@ -295,6 +299,132 @@ def _predict_ct(x, p, d, h, w, qn, co):  # pragma: no cover - compiled
                     p[r, col, q] += qq * co[1, n1, q]  # |dt|^(n1 + 1)
             for q in range(b):
                 p[col, r, q] = p[r, col, q]
+
+
+@njit(**JIT, inline="always")
+def _accelerating(kind):  # pragma: no cover - compiled
+    """Whether a mode of this kind (0 CV, 1 CA, 2 CT, 3 turn) estimates the acceleration."""
+    return kind == 1 or kind == 3
+
+
+TURN_COEFFS = 20  # per row: Phi (6), dPhi/domega (6), Q (6), omega, and h' P h
+
+
+@njit(**JIT)
+def _predict_turn(x, p, d, h, cap, qn, tmp, tv, co):  # pragma: no cover - compiled
+    """`_predict` of the 3-D coordinated turn at each row's own rate omega = |v x a| /
+    |v|^2 (at most `cap`) on the whole order-3 state: x <- (Phi x I) x and the EKF's
+    P <- J P J' + Q, J = F + g h' with g = (dPhi/domega x I) x and h = domega/dx, as
+    J P J' = F P F' + w g' + g w' + (h' P h) g g', w = F P h (`models.turn_model`, its
+    reference; the formulas and their sources there)."""
+    b, n = x.shape[1], 3 * d
+    hv, g, u, wv = tv[0], tv[1], tv[2], tv[3]
+    for q in range(b):  # the rate and its gradient h (zero on the position)
+        c0, c1, c2 = 0.0, 0.0, 0.0
+        v0, v1, a0, a1 = x[d, q], x[d + 1, q], x[2 * d, q], x[2 * d + 1, q]
+        v2 = x[d + 2, q] if d == 3 else 0.0
+        a2 = x[2 * d + 2, q] if d == 3 else 0.0
+        c0, c1, c2 = v1 * a2 - v2 * a1, v2 * a0 - v0 * a2, v0 * a1 - v1 * a0
+        nn = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        sv = v0 * v0 + v1 * v1 + v2 * v2
+        om = min(nn / max(sv, 1.0), cap) if sv > 1.0 else 0.0
+        for a in range(n):
+            hv[a, q] = 0.0
+        if sv > 1.0 and nn > 1e-12 * max(sv, 1.0) and nn / max(sv, 1.0) < cap:
+            ns, k2 = nn * sv, 2.0 * nn / (sv * sv)
+            dv = ((a1 * c2 - a2 * c1) / ns - k2 * v0, (a2 * c0 - a0 * c2) / ns - k2 * v1,
+                  (a0 * c1 - a1 * c0) / ns - k2 * v2)
+            da = ((c1 * v2 - c2 * v1) / ns, (c2 * v0 - c0 * v2) / ns, (c0 * v1 - c1 * v0) / ns)
+            for k in range(d):
+                hv[d + k, q], hv[2 * d + k, q] = dv[k], da[k]
+        t = h[q]
+        y = om * t
+        sn, cs = math.sin(y), math.cos(y)
+        if om != 0.0:
+            hs = math.sin(0.5 * y)
+            co[0, q], co[1, q] = sn / om, 2.0 * hs * hs / (om * om)
+        else:
+            co[0, q], co[1, q] = t, 0.5 * t * t
+        co[2, q], co[3, q], co[4, q], co[5, q] = cs, co[0, q], -om * sn, cs  # f11 f12 f21 f22
+        if abs(y) < TURN_SMALL:  # the series of `models.turn_model`
+            t3, o3 = t * t * t, om * om * om
+            co[6, q] = -om * t3 / 3.0 + o3 * t3 * t * t / 30.0
+            co[7, q] = -om * t3 * t / 12.0 + o3 * t3 * t3 / 180.0
+        else:
+            co[6, q] = (y * cs - sn) / (om * om)
+            co[7, q] = (y * sn - 2.0 * (1.0 - cs)) / (om * om * om)
+        co[8, q], co[9, q], co[10, q], co[11, q] = -t * sn, co[6, q], -sn - y * cs, -t * sn
+        at = abs(t)
+        yq = om * at
+        if abs(yq) < TURN_SMALL:  # `models.turn_noise_series`, density |dt|
+            t2, w2 = at * at, om * om
+            w4, t4 = w2 * w2, t2 * t2
+            co[12, q] = t4 * at * (1 / 20 - w2 * t2 / 168 + w4 * t4 / 2880) * at
+            co[13, q] = t4 * (1 / 8 - w2 * t2 / 48 + w4 * t4 / 640) * at
+            co[14, q] = t2 * at * (1 / 6 - 7 * w2 * t2 / 120 + 31 * w4 * t4 / 5040) * at
+            co[15, q] = t2 * at * (1 / 3 - w2 * t2 / 15 + 2 * w4 * t4 / 315) * at
+            co[16, q] = t2 * (1 / 2 - w2 * t2 / 6 + w4 * t4 / 45) * at
+            co[17, q] = at * (1 - w2 * t2 / 3 + w4 * t4 / 15) * at
+        else:
+            s1, s2, w2 = math.sin(yq), math.sin(2.0 * yq), om * om
+            hq = math.sin(0.5 * yq)
+            co[12, q] = (1.5 * at - 2.0 * s1 / om + s2 / (4.0 * om)) / (w2 * w2) * at
+            co[13, q] = (2.0 * hq * hq - 0.5 * s1 * s1) / (w2 * w2) * at
+            co[14, q] = (s1 / om - 0.5 * at - s2 / (4.0 * om)) / w2 * at
+            co[15, q] = (0.5 * at - s2 / (4.0 * om)) / w2 * at
+            co[16, q] = 0.5 * s1 * s1 / w2 * at
+            co[17, q] = (0.5 * at + s2 / (4.0 * om)) * at
+    for r in range(n):  # u = P h, h' P h
+        for q in range(b):
+            u[r, q] = 0.0
+        for c in range(d, n):
+            for q in range(b):
+                u[r, q] += p[r, c, q] * hv[c, q]
+    for q in range(b):
+        co[19, q] = 0.0
+    for c in range(d, n):
+        for q in range(b):
+            co[19, q] += hv[c, q] * u[c, q]
+    for k in range(d):  # g = (dPhi x I) x, w = (Phi x I) u, x <- (Phi x I) x
+        for q in range(b):
+            pk, vk, ak = x[k, q], x[d + k, q], x[2 * d + k, q]
+            g[k, q] = co[6, q] * vk + co[7, q] * ak
+            g[d + k, q] = co[8, q] * vk + co[9, q] * ak
+            g[2 * d + k, q] = co[10, q] * vk + co[11, q] * ak
+            x[k, q] = pk + co[0, q] * vk + co[1, q] * ak
+            x[d + k, q] = co[2, q] * vk + co[3, q] * ak
+            x[2 * d + k, q] = co[4, q] * vk + co[5, q] * ak
+            pk, vk, ak = u[k, q], u[d + k, q], u[2 * d + k, q]
+            wv[k, q] = pk + co[0, q] * vk + co[1, q] * ak
+            wv[d + k, q] = co[2, q] * vk + co[3, q] * ak
+            wv[2 * d + k, q] = co[4, q] * vk + co[5, q] * ak
+    for k in range(d):  # tmp = (Phi x I) P, row operations
+        for col in range(n):
+            for q in range(b):
+                pk, vk, ak = p[k, col, q], p[d + k, col, q], p[2 * d + k, col, q]
+                tmp[k, col, q] = pk + co[0, q] * vk + co[1, q] * ak
+                tmp[d + k, col, q] = co[2, q] * vk + co[3, q] * ak
+                tmp[2 * d + k, col, q] = co[4, q] * vk + co[5, q] * ak
+    for r in range(n):  # P = tmp (Phi x I)' + w g' + g w' + (h'Ph) g g' + Q, mirrored
+        a, k = r // d, r % d
+        for col in range(r, n):
+            e, el = col // d, col % d
+            i0, i1 = (0, 1) if e == 0 else ((2, 3) if e == 1 else (4, 5))
+            for q in range(b):
+                v = co[i0, q] * tmp[r, d + el, q] + co[i1, q] * tmp[r, 2 * d + el, q]
+                p[r, col, q] = v + wv[r, q] * g[col, q] + g[r, q] * wv[col, q] \
+                    + co[19, q] * g[r, q] * g[col, q]
+            if e == 0:
+                for q in range(b):
+                    p[r, col, q] += tmp[r, el, q]
+            if k == el:
+                lo, hi = min(a, e), max(a, e)
+                idx = 12 + 3 * lo - lo * (lo - 1) // 2 + hi - lo
+                for q in range(b):
+                    p[r, col, q] += qn * qn * co[idx, q]
+            for q in range(b):
+                p[col, r, q] = p[r, col, q]
+
 
 
 @njit(**JIT)
