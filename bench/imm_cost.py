@@ -4,6 +4,7 @@ row-major arrays), one pass of k rows at N tracks, in this process.
 
     python bench/imm_cost.py [--tracks 10000] [--sizes 1 64 312 1024 10000]
     python bench/imm_cost.py --before     # also the three modes before the manoeuvre modes
+    python bench/imm_cost.py --before --turn-estimated 5   # and with the turn at its own rate
 
 Tracks: a swarm of polar 3-D measurements, three updates each, then passes of k of them
 (best of 5 per size, thread CPU time). The first line gives how long the kernel took to
@@ -22,6 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from zenoh_track import defaults  # noqa: E402
 from zenoh_track.estimation import imm_jit  # noqa: E402
 from zenoh_track.estimation.imm import IMM, ModeSet  # noqa: E402
 from zenoh_track.estimation.measurements import MeasurementBatch  # noqa: E402
@@ -56,22 +58,28 @@ def main() -> None:
     p.add_argument("--before", action="store_true",
                    help="also the default's three modes before the manoeuvre modes (quiet, "
                         "nominal, CA), in the same run, and the ratio per row")
+    p.add_argument("--turn-estimated", type=float, default=0.0, metavar="JERK",
+                   help="also the default with the service's --imm-turn-estimated JERK")
     args = p.parse_args()
     t0 = time.perf_counter()
     imm_jit.warm()
     print(f"# kernel compiled or loaded in {time.perf_counter() - t0:.2f} s; "
           f"{args.tracks} tracks, CPU per pass (best of 5)")
     sets = {"default": ModeSet().imm()}
+    if args.turn_estimated > 0:
+        sets["with the turn"] = ModeSet(manoeuvre=(*defaults.IMM_MANOEUVRE,
+                                                   ("turn", args.turn_estimated))).imm()
     if args.before:
         sets["three modes"] = ModeSet(manoeuvre=(), initial=(0.1, 0.6, 0.3)).imm()
     per_row: dict[str, dict[int, float]] = {}
     for label, imm in sets.items():
         print(f"{label}: {len(imm.modes)} modes ({', '.join(m[0] for m in imm.modes)})")
         per_row[label] = run(imm, args.tracks, args.sizes)
-    if args.before:
-        print("compiled us/row, default / three modes: " + ", ".join(
-            f"k={k} {per_row['default'][k] / per_row['three modes'][k]:.2f}"
-            for k in args.sizes))
+    for label in sets:
+        if args.before and label != "three modes":
+            print(f"compiled us/row, {label} / three modes: " + ", ".join(
+                f"k={k} {per_row[label][k] / per_row['three modes'][k]:.2f}"
+                for k in args.sizes))
 
 
 def run(imm: IMM, tracks: int, sizes: list[int]) -> dict[int, float]:
