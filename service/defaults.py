@@ -57,7 +57,7 @@ IMM_EXIT_QUIET = 0.05
 IMM_MODE_R = False
 IMM_GATE_WIDE = 0.02  # the least prior association gives the IMM's widest mode
 # m/s^3: > 0 adds a manoeuvre mode turning at its own state's rate (the 3-D coordinated
-# turn, `models.turn_model`) with this white jerk; 0: none (its gains and its cost, 1.2 x
+# turn, `turn.turn_model`) with this white jerk; 0: none (its gains and its cost, 1.2 x
 # the six modes' row: docs/accuracy.md, "a turn-rate filter")
 IMM_TURN_ESTIMATED = 0.0
 IMM_TURN_CAP = 0.5  # rad/s: a "turn" mode's rate at most (29 deg/s: 7 g at 140 m/s)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zenoh_track.estimation import models
+from zenoh_track.estimation import models, turn
 
 DT = np.array([2.0])
 Q_STD = 3.0
@@ -220,9 +220,9 @@ def _turn_truth(t: float, w: float = 0.196, v: float = 200.0) -> np.ndarray:
 
 def test_turn_predicts_a_steady_turn_exactly():
     x = _turn_truth(0.0)[None]
-    assert models.turn_rate(x, 3, 0.5)[0] == pytest.approx(0.196)
+    assert turn.turn_rate(x, 3, 0.5)[0] == pytest.approx(0.196)
     for dt in (1.0, 4.0, -2.0):
-        f, _, _ = models.turn_model(x, np.array([dt]), 3, 1.0, 0.5)
+        f, _, _ = turn.turn_model(x, np.array([dt]), 3, 1.0, 0.5)
         np.testing.assert_allclose(f[0] @ x[0], _turn_truth(dt), atol=1e-9)
 
 
@@ -235,7 +235,7 @@ def test_turn_axis_matches_the_matrix_exponential_and_van_loan(w, dt):
     m[:3, :3], m[:3, 3:], m[3:, 3:] = -a, np.diag([0.0, 0.0, 1.0]), a.T
     e = expm(m * abs(dt))
     q_ref = e[3:, 3:].T @ e[:3, 3:] * abs(dt) * Q_STD**2  # density q^2 |dt|
-    phi, q = models.turn_axis(np.array([dt]), np.array([w]), Q_STD)
+    phi, q = turn.turn_axis(np.array([dt]), np.array([w]), Q_STD)
     np.testing.assert_allclose(phi[0], expm(a * dt), atol=1e-12)
     np.testing.assert_allclose(q[0], q_ref, rtol=1e-6, atol=1e-12)  # series below TURN_SMALL
 
@@ -247,14 +247,14 @@ def test_turn_jacobian_matches_finite_differences(dim, dt):
     x = rng.normal(0, 1, (1, 3 * dim)) * np.r_[[1000.0] * dim, [200.0] * dim, [20.0] * dim]
 
     def step(y: np.ndarray) -> np.ndarray:
-        return models.turn_model(y[None], np.array([dt]), dim, 1.0, 0.5)[0][0] @ y
+        return turn.turn_model(y[None], np.array([dt]), dim, 1.0, 0.5)[0][0] @ y
 
     num = np.empty((3 * dim, 3 * dim))
     for i in range(3 * dim):
         h = np.zeros(3 * dim)
         h[i] = 1e-5 * max(1.0, abs(x[0, i]))
         num[:, i] = (step(x[0] + h) - step(x[0] - h)) / (2 * h[i])
-    _, _, jac = models.turn_model(x, np.array([dt]), dim, 1.0, 0.5)
+    _, _, jac = turn.turn_model(x, np.array([dt]), dim, 1.0, 0.5)
     np.testing.assert_allclose(jac[0], num, atol=1e-6 * np.abs(num).max())
 
 
@@ -263,13 +263,13 @@ def test_turn_rate_is_capped_and_zero_when_slow_or_straight():
     x[0, 3], x[0, 7] = 100.0, 200.0  # 2 rad/s asked: capped
     x[1, 3], x[1, 7] = 0.5, 10.0  # slower than 1 m/s
     x[2, 3], x[2, 6] = 200.0, 30.0  # acceleration along v: no turn
-    np.testing.assert_allclose(models.turn_rate(x, 3, 0.5), [0.5, 0.0, 0.0])
-    assert not models.turn_rate_gradient(x, 3, 0.5).any()
+    np.testing.assert_allclose(turn.turn_rate(x, 3, 0.5), [0.5, 0.0, 0.0])
+    assert not turn.turn_rate_gradient(x, 3, 0.5).any()
 
 
 @pytest.mark.parametrize("kind", ["turn", "ca"])
 def test_an_imm_mode_of_the_turn_holds_a_steady_4g_turn(kind):
-    """One "turn" mode (the EKF of `models.turn_model`) against
+    """One "turn" mode (the EKF of `turn.turn_model`) against
     one CA mode with the same jerk noise, on 1 Hz positions (sigma 30 m) of a 4 g turn:
     the turn model's error stays near the noise, the CA's lags; without the Jacobian
     of the rate the turn filter diverged (400 m and more at this noise)."""

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from .. import defaults
-from . import imm_jit, jit, kalman, models, pda
+from . import imm_jit, jit, kalman, models, pda, turn
 from .batch import einsum
 from .filters import Convert, Result, Rows, moments, predict
 from .ucm import CMKFConversion
@@ -182,11 +182,11 @@ class IMM:
     def predict(self, j: int, dt: np.ndarray, x0: np.ndarray, p0: np.ndarray, dim: int
                 ) -> tuple[np.ndarray, np.ndarray]:
         """Mode j's prediction over dt of its mixed states x0 (N, n), P0 (N, n, n): a
-        "turn" mode's rate is each state's own (`models.turn_model`, an EKF)."""
+        "turn" mode's rate is each state's own (`turn.turn_model`, an EKF)."""
         _, kind, q, omega = self.modes[j]
         if kind != "turn":
             return predict(x0, p0, *models.motion(kind, dt, self.order, dim, q, omega))
-        f, qm, jac = models.turn_model(x0, dt, dim, q, self.turn_cap)
+        f, qm, jac = turn.turn_model(x0, dt, dim, q, self.turn_cap)
         xp = (f @ x0[:, :, None])[:, :, 0]
         return xp, kalman.symmetrise(jac @ p0 @ jac.transpose(0, 2, 1) + qm)
 

@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .kalman import S_FLOOR
-from .models import TURN_SMALL
+from .turn import TURN_SMALL
 from .ucm import ROUNDING
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -315,7 +315,7 @@ def _predict_turn(x, p, d, h, cap, qn, tmp, tv, co):  # pragma: no cover - compi
     """`_predict` of the 3-D coordinated turn at each row's own rate omega = |v x a| /
     |v|^2 (at most `cap`) on the whole order-3 state: x <- (Phi x I) x and the EKF's
     P <- J P J' + Q, J = F + g h' with g = (dPhi/domega x I) x and h = domega/dx, as
-    J P J' = F P F' + w g' + g w' + (h' P h) g g', w = F P h (`models.turn_model`, its
+    J P J' = F P F' + w g' + g w' + (h' P h) g g', w = F P h (`turn.turn_model`, its
     reference; the formulas and their sources there)."""
     b, n = x.shape[1], 3 * d
     hv, g, u, wv = tv[0], tv[1], tv[2], tv[3]
@@ -346,7 +346,7 @@ def _predict_turn(x, p, d, h, cap, qn, tmp, tv, co):  # pragma: no cover - compi
         else:
             co[0, q], co[1, q] = t, 0.5 * t * t
         co[2, q], co[3, q], co[4, q], co[5, q] = cs, co[0, q], -om * sn, cs  # f11 f12 f21 f22
-        if abs(y) < TURN_SMALL:  # the series of `models.turn_model`
+        if abs(y) < TURN_SMALL:  # the series of `turn.turn_model`
             t3, o3 = t * t * t, om * om * om
             co[6, q] = -om * t3 / 3.0 + o3 * t3 * t * t / 30.0
             co[7, q] = -om * t3 * t / 12.0 + o3 * t3 * t3 / 180.0
@@ -356,7 +356,7 @@ def _predict_turn(x, p, d, h, cap, qn, tmp, tv, co):  # pragma: no cover - compi
         co[8, q], co[9, q], co[10, q], co[11, q] = -t * sn, co[6, q], -sn - y * cs, -t * sn
         at = abs(t)
         yq = om * at
-        if abs(yq) < TURN_SMALL:  # `models.turn_noise_series`, density |dt|
+        if abs(yq) < TURN_SMALL:  # `turn.turn_noise_series`, density |dt|
             t2, w2 = at * at, om * om
             w4, t4 = w2 * w2, t2 * t2
             co[12, q] = t4 * at * (1 / 20 - w2 * t2 / 168 + w4 * t4 / 2880) * at
