@@ -115,7 +115,8 @@ def parser() -> argparse.ArgumentParser:
                    metavar="JERK",
                    help="IMM: add a manoeuvre mode that turns at the rate of its own velocity "
                         "and acceleration (any rate, any plane), with this white jerk, m/s^3 "
-                        "(5: 5-7 %% closer on 4 g and climbing turns, 1.2 x the filter's CPU; "
+                        "(5: 5-7 %% closer in 4 g and climbing turns for 1.2 x the filter's CPU "
+                        "and a little straight-line accuracy (scenario B: 1.051 x its bound); "
                         "docs/accuracy.md; default 0: none)")
     p.add_argument("--imm-sojourn", type=seconds, default=defaults.IMM_SOJOURN,
                    help="IMM: mean time in the quiet and in the nominal mode, s (staying "
