@@ -165,6 +165,27 @@ def test_slow_flyers_held_with_one_track(capsys):
 
 
 @pytest.mark.slow
+def test_the_own_rate_turn_option_holds_every_aircraft(capsys):
+    """`--imm-turn-estimated 5` (a seventh mode turning at its own rate, compiled)
+    through the service, one run at 1 and 4 s: no break, every aircraft held."""
+    held_with_one_track(capsys, CLASSES, (1, 4), "--service-arg=--imm-turn-estimated=5")
+
+
+@pytest.mark.slow
+def test_eval_prints_where_the_nees_comes_from(capsys):
+    """`track-eval manoeuvres --onset`: after each class table, the manoeuvring samples
+    by scans since their onset, every manoeuvring class and scan row present."""
+    track_eval.main(["manoeuvres", "--runs", "1", "--per-class", "1", "--config", "default",
+                     "--classes", "straight,4g", "--period", "4", "--onset"])
+    lines = capsys.readouterr().out.splitlines()
+    head = next(i for i, line in enumerate(lines) if line.split()[:2] == ["class", "scan"])
+    rows = [line.split() for line in lines[head + 1:] if line.strip()]
+    assert rows and {r[0] for r in rows} == {"4g"}  # straight flight has no onset
+    assert [r[1] for r in rows] == sorted({r[1] for r in rows}, key=lambda k: int(k[:1]))
+    assert sum(float(r[5]) for r in rows) == pytest.approx(1.0, abs=0.02)
+
+
+@pytest.mark.slow
 def test_jpda_holds_every_aircraft_with_one_track(capsys):
     """The same through the service with `--associator jpda`: no track break at 1 to 5 s
     (its speed gate; docs/accuracy.md, "JPDA with the IMM")."""

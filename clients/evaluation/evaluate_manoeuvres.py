@@ -134,6 +134,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--service-arg", action="append", default=[],
                    help="extra argument passed to every service (repeatable)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--onset", action="store_true",
+                   help="also RMSE and NEES while manoeuvring by scans since each onset "
+                        "(where the NEES comes from: docs/accuracy.md)")
     p.add_argument("--json", action="store_true", help="print the summaries as JSON")
     return p
 
@@ -160,6 +163,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                f"{period:g} s, {form}, {args.runs} runs x {args.per_class} "
                                f"aircraft a class, seeds {args.seed}-{args.seed + args.runs - 1}"
                                f" ({time.monotonic() - start:.0f} s)", sums), flush=True)
+                if args.onset:
+                    print(ms.onset_table([a for a in got if a.kind != "straight"], period),
+                          flush=True)
     if args.json:
         print(json.dumps(out, indent=1))
     return out
