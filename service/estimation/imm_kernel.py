@@ -320,7 +320,6 @@ def _predict_turn(x, p, d, h, cap, qn, tmp, tv, co):  # pragma: no cover - compi
     b, n = x.shape[1], 3 * d
     hv, g, u, wv = tv[0], tv[1], tv[2], tv[3]
     for q in range(b):  # the rate and its gradient h (zero on the position)
-        c0, c1, c2 = 0.0, 0.0, 0.0
         v0, v1, a0, a1 = x[d, q], x[d + 1, q], x[2 * d, q], x[2 * d + 1, q]
         v2 = x[d + 2, q] if d == 3 else 0.0
         a2 = x[2 * d + 2, q] if d == 3 else 0.0
