@@ -179,8 +179,8 @@ class IMM:
                     + (w[:, :, j, None] * dj).transpose(0, 2, 1) @ dj
         return c, x0, p0
 
-    def predict(self, j: int, dt: np.ndarray, x0: np.ndarray, p0: np.ndarray, dim: int
-                ) -> tuple[np.ndarray, np.ndarray]:
+    def predict_mode(self, j: int, dt: np.ndarray, x0: np.ndarray, p0: np.ndarray,
+                     dim: int) -> tuple[np.ndarray, np.ndarray]:
         """Mode j's prediction over dt of its mixed states x0 (N, n), P0 (N, n, n): a
         "turn" mode's rate is each state's own (`turn.turn_model`, an EKF)."""
         _, kind, q, omega = self.modes[j]
@@ -195,7 +195,7 @@ class IMM:
             return imm_jit.step(self, arrays, rows, dt, convert.batch)  # the same, compiled
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
-        preds = [self.predict(j, dt, x0[:, j], p0[:, j], arrays.dim)
+        preds = [self.predict_mode(j, dt, x0[:, j], p0[:, j], arrays.dim)
                  for j in range(len(self.modes))]
         if not self.mode_conversion:
             z, r = convert(*moments(np.stack([x for x, _ in preds], 1),
@@ -226,7 +226,7 @@ class IMM:
         gives the quiet ones the widest one's spread."""
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
-        preds = [self.predict(j, dt, x0[:, j], p0[:, j], arrays.dim)
+        preds = [self.predict_mode(j, dt, x0[:, j], p0[:, j], arrays.dim)
                  for j in range(len(self.modes))]
         xp, pp = np.stack([x for x, _ in preds], 1), np.stack([p for _, p in preds], 1)
         t_count, m, n = xp.shape
@@ -263,7 +263,7 @@ class IMM:
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), d)
         xs, ps = [], []
         for j in range(len(self.modes)):
-            xp, pp = self.predict(j, dt, x0[:, j], p0[:, j], d)
+            xp, pp = self.predict_mode(j, dt, x0[:, j], p0[:, j], d)
             xs.append(xp)
             ps.append(pp)
         xs_, ps_ = np.stack(xs, 1), np.stack(ps, 1)  # (N, M, n), (N, M, n, n)

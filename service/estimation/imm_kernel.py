@@ -326,10 +326,11 @@ def _predict_turn(x, p, d, h, cap, qn, tmp, tv, co):  # pragma: no cover - compi
         c0, c1, c2 = v1 * a2 - v2 * a1, v2 * a0 - v0 * a2, v0 * a1 - v1 * a0
         nn = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         sv = v0 * v0 + v1 * v1 + v2 * v2
-        om = min(nn / max(sv, 1.0), cap) if sv > 1.0 else 0.0
+        rate = nn / max(sv, 1.0)
+        om = min(rate, cap) if sv > 1.0 else 0.0
         for a in range(n):
             hv[a, q] = 0.0
-        if sv > 1.0 and nn > 1e-12 * max(sv, 1.0) and nn / max(sv, 1.0) < cap:
+        if sv > 1.0 and nn > 1e-12 * max(sv, 1.0) and rate < cap:
             ns, k2 = nn * sv, 2.0 * nn / (sv * sv)
             dv = ((a1 * c2 - a2 * c1) / ns - k2 * v0, (a2 * c0 - a0 * c2) / ns - k2 * v1,
                   (a0 * c1 - a1 * c0) / ns - k2 * v2)

@@ -16,18 +16,22 @@ from .models import axis_transition, expand
 TURN_SMALL = 0.2
 
 
+def _cross(x: np.ndarray, dim: int) -> tuple[np.ndarray, ...]:
+    """v, a (N, 3; a 2-D state's padded with 0), c = v x a, |c| and |v|^2 of states x."""
+    v, a = x[:, dim:2 * dim], x[:, 2 * dim:3 * dim]
+    if dim == 2:
+        v, a = np.pad(v, ((0, 0), (0, 1))), np.pad(a, ((0, 0), (0, 1)))
+    c = np.cross(v, a)
+    return v, a, c, np.linalg.norm(c, axis=1), np.einsum("na,na->n", v, v)
+
+
 def turn_rate(x: np.ndarray, dim: int, cap: float) -> np.ndarray:
     """The turn rate (N,) of order-3 states x (N, 3 dim) for the "turn" model:
     |v x a| / |v|^2 (Watson & Blair, SPIE 1698, 1992: a coordinated turn's rate from its
     velocity and acceleration; the acceleration along v does not turn it), at most `cap`
     rad/s; 0 below 1 m/s."""
-    v, a = x[:, dim:2 * dim], x[:, 2 * dim:3 * dim]
-    if dim == 3:
-        cross = np.linalg.norm(np.cross(v, a), axis=1)
-    else:
-        cross = np.abs(v[:, 0] * a[:, 1] - v[:, 1] * a[:, 0])
-    v2 = np.einsum("na,na->n", v, v)
-    return np.where(v2 > 1.0, np.minimum(cross / np.maximum(v2, 1.0), cap), 0.0)
+    *_, n, s = _cross(x, dim)
+    return np.where(s > 1.0, np.minimum(n / np.maximum(s, 1.0), cap), 0.0)
 
 
 def turn_axis(dt: np.ndarray, omega: np.ndarray, q: float) -> tuple[np.ndarray, np.ndarray]:
@@ -120,12 +124,7 @@ def turn_rate_gradient(x: np.ndarray, dim: int, cap: float) -> np.ndarray:
     """d `turn_rate` / dx (N, 3 dim): with c = v x a, n = |c|, s = |v|^2, omega = n / s,
     dn/dv = (a x c) / n, dn/da = (c x v) / n; 0 where the rate is capped, below 1 m/s or
     n = 0 (a along v: no turn)."""
-    v, a = x[:, dim:2 * dim], x[:, 2 * dim:3 * dim]
-    if dim == 2:
-        v, a = np.pad(v, ((0, 0), (0, 1))), np.pad(a, ((0, 0), (0, 1)))
-    c = np.cross(v, a)
-    n = np.linalg.norm(c, axis=1)
-    s = np.einsum("na,na->n", v, v)
+    v, a, c, n, s = _cross(x, dim)
     live = (s > 1.0) & (n > 1e-12 * np.maximum(s, 1.0)) & (n / np.maximum(s, 1.0) < cap)
     ns = np.where(live, n * s, 1.0)
     out = np.zeros((len(x), 3 * dim))
