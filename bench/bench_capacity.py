@@ -736,6 +736,8 @@ def main(argv: list[str] | None = None) -> None:
                    help="instead of the sweep: measurements per second answered when a feed "
                         "of N targets sends as fast as it can, for the echo floor "
                         "(bench/echo.py) and the service with no flags and tuned, same run")
+    p.add_argument("--echo-body", action="store_true",
+                   help="--throughput: also the echo with replies of a tracks/ body's size")
     p.add_argument("--repeat", type=int, default=1, metavar="R",
                    help="--throughput: the contenders in turn R times, medians printed")
     p.add_argument("--scaleout", type=int, default=0, metavar="N",

@@ -4,10 +4,10 @@
 
 Takes each `<ns>/meas/<sensor>/<target>` sample from a FIFO channel (as the service
 does), decodes its MessagePack body and puts a small reply `{t, id}` on
-`<ns>/tracks/<target>`; declares the tracker's liveliness token and answers `<ns>/status`
-(`meas_accepted`), so a feed and the capacity benchmark treat it as a tracker. The
-service's throughput is compared with this process's, measured in the same run
-(bench/bench_capacity.py --throughput).
+`<ns>/tracks/<target>` (`--reply-bytes N`: padded to about N bytes); declares the
+tracker's liveliness token and answers `<ns>/status` (`meas_accepted`), so a feed and
+the capacity benchmark treat it as a tracker. The service's throughput is compared with
+this process's, measured in the same run (bench/bench_capacity.py --throughput).
 """
 
 from __future__ import annotations
@@ -31,7 +31,11 @@ CHANNEL = 1 << 13  # as the service's measurement channel
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__)
     add_zenoh_args(p)
+    p.add_argument("--reply-bytes", type=int, default=0, metavar="N",
+                   help="pad each reply to about N bytes (a `pad` field), the size of the "
+                        "service's `tracks/` body, to measure what the body's size costs")
     args = p.parse_args(argv)
+    pad = bytes(max(0, args.reply_bytes - 40))
     keys = Keys(args.ns)
     session = zenoh.open(zenoh_config(args, serve=True))
     count = [0]
@@ -54,8 +58,10 @@ def main(argv: list[str] | None = None) -> None:
             key = str(s.key_expr)
             msg = unpack(s.payload.to_bytes())
             target = key[prefix:].split("/", 1)[1]
-            put(keys.tracks(target), pack({"t": msg["t"], "id": target}),
-                congestion_control=block)
+            reply = {"t": msg["t"], "id": target}
+            if pad:
+                reply["pad"] = pad
+            put(keys.tracks(target), pack(reply), congestion_control=block)
             count[0] += 1
 
     worker = threading.Thread(target=work, daemon=True)

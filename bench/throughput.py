@@ -46,6 +46,8 @@ from single_cost import compiled  # noqa: E402  # bench/single_cost.py
 from zenoh_track.clients.procs import stop  # noqa: E402
 from zenoh_track.wire import Keys, free_port, listen_config, peer_config, wait_for_tracker  # noqa: E402
 
+TRACKS_BODY = 1031  # bytes of a 3-D IMM track's `tracks/` body (encode.pack_tracks)
+
 
 class Replies:
     """Counts `tracks/` replies on Zenoh's receive thread: count, first and last arrival."""
@@ -118,6 +120,9 @@ def throughput(args: argparse.Namespace, log: Any) -> None:
     service = [py, "-m", "zenoh_track", "--clock", "realtime", "-l", "ENDPOINT", "--ns", "NS"]
     runs = [("echo floor (bench/echo.py)", [py, "bench/echo.py", "-l", "ENDPOINT", "--ns",
                                              "NS"], False),
+            *([("echo, replies of a tracks/ body's size", [
+                py, "bench/echo.py", "-l", "ENDPOINT", "--ns", "NS", "--reply-bytes",
+                str(TRACKS_BODY)], False)] if getattr(args, "echo_body", False) else []),
             ("service, no flags", service, False),
             ("service, --filter cv --no-display-keys", service + ["--filter", "cv",
                                                                   "--no-display-keys"], False),

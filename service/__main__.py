@@ -102,15 +102,18 @@ def parser() -> argparse.ArgumentParser:
                    help="display clock (default %(default)s)")
     p.add_argument("--rate", type=float, default=defaults.RATE, help="display rate, Hz")
     p.add_argument("--filter", choices=FILTERS, default=defaults.FILTER,
-                   help="imm (default): IMM of a quiet CV, a nominal CV (--q) and a CA mode "
-                        "on converted measurements; cv: CMKF, nearly-constant velocity; ca: "
+                   help="imm (default): IMM of a quiet CV, a nominal CV (--q), a CA and "
+                        "three manoeuvre modes (coordinated turns at 3 deg/s both ways, a "
+                        "55 m/s^2 CV) on converted measurements; cv: CMKF, nearly-constant "
+                        "velocity; ca: "
                         "CMKF, nearly-constant acceleration; ekf: EKF on polar measurements, "
                         "CV (baseline); vdf: variable-dimension CV/CA (scenario C's method)")
     p.add_argument("--imm-ct-q", type=float, default=defaults.IMM_CT_Q,
                    help="IMM: the turn modes' noise as a multiple of --q (with --imm-turn)")
     p.add_argument("--imm-turn", type=float, default=defaults.IMM_TURN_DEG,
-                   help="IMM: add coordinated-turn modes at +- this rate, deg/s (default 0: "
-                        "none)")
+                   help="IMM: add coordinated-turn modes at +- this rate, deg/s, chained "
+                        "with the nominal mode as the CA mode is (default 0: none; the "
+                        "manoeuvre modes turn at 3 deg/s whatever this)")
     p.add_argument("--imm-turn-estimated", type=non_negative, default=defaults.IMM_TURN_ESTIMATED,
                    metavar="JERK",
                    help="IMM: add a manoeuvre mode that turns at the rate of its own velocity "
