@@ -43,6 +43,12 @@ IMM_INITIAL = (0.1, 0.3, 0.6, 0.0)  # a new track: quiet, nominal, CA, manoeuvre
 # the turn every aircraft flies at each change of heading) and a CV mode whose noise
 # covers the rest up to 7 g (docs/accuracy.md, "Coordinated turns at standard rate")
 IMM_MANOEUVRE = (("ct", 1.0, 3.0), ("ct", 1.0, -3.0), ("cv", 55.0))
+# m/s: the most a CV mode's white acceleration changes the velocity over one step (q |dt|,
+# one sigma per axis; 0: no bound): 55 m/s^2 for 5 s, so the widest mode is as designed
+# up to 5 s and beyond grows no wider than an aircraft can turn (a 7 g turn reverses
+# 200 m/s within 9 s): a track after missed scans or under an en-route radar
+# (docs/accuracy.md, "Beyond 5 s")
+IMM_WIDE_DV = 275.0
 IMM_ONSET = 30000.0  # s: 1 / the rate of entering the manoeuvre modes (docs/accuracy.md)
 IMM_TURN_SOJOURN = 5.0  # s: mean time in a manoeuvre mode
 # s: ... in a manoeuvre mode of kind "ct" (a turn at a known rate; longer holds a turn at

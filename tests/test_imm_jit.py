@@ -55,6 +55,19 @@ def close(a: np.ndarray, b: np.ndarray, rel: float) -> bool:
 @pytest.mark.parametrize("count", [40, 1, imm_jit.SMALL + 1, imm_jit.BLOCK, imm_jit.BLOCK + 1])
 @pytest.mark.parametrize("dim", [3, 2])
 def test_compiled_imm_is_the_textbook_imm(dim, count, own_r, modes):
+    compare(dim, count, own_r, modes, 0.0)
+
+
+@pytest.mark.parametrize("own_r", [False, True])
+@pytest.mark.parametrize("dim", [3, 2])
+def test_compiled_imm_is_the_textbook_imm_after_a_long_gap(dim, own_r):
+    """Measurements ~10 s after the tracks' last: the widest CV mode's noise is bounded
+    (`imm.cv_noise`) in both."""
+    compare(dim, imm_jit.BLOCK + 1, own_r, "default", 8.5)
+
+
+def compare(dim: int, count: int, own_r: bool, modes: str, gap: float) -> None:
+    """The update of `count` rows by both, `gap` s later than the scan after the last."""
     rng = np.random.default_rng(5)
     tracker = Tracker(TrackerConfig(filter=FilterSpec("imm", imm_turn=2.0 * (modes == "turns"))))
     if modes == "turn-rate":
@@ -72,8 +85,9 @@ def test_compiled_imm_is_the_textbook_imm(dim, count, own_r, modes):
     rows = arrays.live()[0][::-1][:count]  # store rows in any order
     if count > 1:
         arrays.mode_p[rows[bad], 1, 0, 0] = np.nan  # a row whose update cannot be finite
-    batch = MeasurementBatch.of(measurements(40, 5.5, dim, rng)[::-1][:count], dim)
+    batch = MeasurementBatch.of(measurements(40, 5.5 + gap, dim, rng)[::-1][:count], dim)
     dt = batch.t - arrays.t[rows]
+    assert (dt * imm.modes[-1][2] > imm.dv_cap).any() == (gap > 0)  # the bound bites
     ref_arrays = copy.deepcopy(arrays)
     conversion = CMKFConversion(batch)
     fast = imm.update(arrays, rows, dt, conversion)

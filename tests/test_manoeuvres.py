@@ -201,10 +201,11 @@ def test_jpda_holds_every_aircraft_with_one_track(capsys):
 @pytest.mark.parametrize("gate_wide, taken", [(None, False), (1.0, True)])
 def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
     """A track that missed a 4 s scan has a gate of kilometres (its widest mode over
-    8 s); a false detection 6 km off is in it. Scored under the widest mode alone
-    (`gate_wide` 1) the track takes it; under the IMM's two-component likelihood (the
-    default) it is left to start a track of its own (the second look off and targets up
-    to 2,000 m/s, beyond the speed gate's reach: this is the likelihood's doing alone)."""
+    8 s, 34 m/s^2 there: `defaults.IMM_WIDE_DV`); a false detection 4 km off is in it.
+    Scored under the widest mode alone (`gate_wide` 1) the track takes it; under the
+    IMM's two-component likelihood (the default) it is left to start a track of its own
+    (the second look off and targets up to 2,000 m/s, beyond the speed gate's reach: this
+    is the likelihood's doing alone)."""
     import dataclasses
 
     from zenoh_track.tracking.plot_association import SensorModels
@@ -224,7 +225,7 @@ def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
     t = float(ts[-1] + 8.0)  # the scan at ts[-1] + 4 missed
     tracker.step(Unlabelled.of("r", float(ts[-1] + 4.0), []))
     x = arrays.x[row]
-    far = x[:3] + x[3:6] * 8.0 + np.array([0.0, 6000.0, 0.0])
+    far = x[:3] + x[3:6] * 8.0 + np.array([0.0, 4000.0, 0.0])
     clutter = Measurement("r", "", t, 3, False, tuple(far), (20.0,) * 3, (0.0, 0.0, 0.0), None)
     z, r = gating.convert(MeasurementBatch.of([clutter], 3))
     g = gating.gate(arrays, np.array([row]), z, r, t, 1.0, gating.gate_threshold(0.999, 3),

@@ -19,10 +19,13 @@ All numbers below are worked out by hand for dt = 2 and q = 3 (q^2 = 9):
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from zenoh_track.estimation import models, turn
+from zenoh_track.estimation.imm import ModeSet
 
 DT = np.array([2.0])
 Q_STD = 3.0
@@ -296,3 +299,23 @@ def test_an_imm_mode_of_the_turn_holds_a_steady_4g_turn(kind):
             errors.append(np.sum((snap.pos[0] - _turn_truth(float(t))[:3]) ** 2))
     rmse = float(np.sqrt(np.mean(errors)))
     assert rmse < 30.0 if kind == "turn" else rmse > 40.0
+
+
+def test_a_cv_modes_velocity_change_over_a_step_is_bounded():
+    """The default IMM's widest mode (55 m/s^2) is itself up to 5 s; beyond, the velocity
+    variance it adds over a step stays at dv_cap^2 (q |dt| <= dv_cap, per axis), and
+    its position variance grows as dt^2, not dt^4 (docs/accuracy.md, "Beyond 5 s")."""
+    imm = ModeSet().imm()
+    j = [m[0] for m in imm.modes].index("cv55")
+    assert imm.dv_cap == 275.0
+    unbounded = dataclasses.replace(imm, dv_cap=0.0)
+    x0, p0 = np.zeros((4, 9)), np.zeros((4, 9, 9))
+    dt = np.array([1.0, 5.0, 10.0, 20.0])
+    _, p = imm.predict_mode(j, dt, x0, p0, 3)
+    _, pu = unbounded.predict_mode(j, dt, x0, p0, 3)
+    np.testing.assert_allclose(p[:2], pu[:2], rtol=1e-15)  # up to 5 s: as designed
+    np.testing.assert_allclose(p[:, 3, 3], [55.0**2, 275.0**2, 275.0**2, 275.0**2])
+    np.testing.assert_allclose(p[:, 0, 0], (np.minimum(55.0, 275.0 / dt) * dt**2) ** 2 / 3)
+    assert (p[2:, 0, 0] < pu[2:, 0, 0] / 3).all()
+    assert (imm.predict_mode(0, dt, x0, p0, 3)[1] == unbounded.predict_mode(  # the quiet
+        0, dt, x0, p0, 3)[1]).all()  # mode: far from its bound

@@ -49,6 +49,7 @@ class ModeSet:
     ct_sojourn: float = defaults.IMM_CT_SOJOURN
     ct_entry: float = defaults.IMM_CT_ENTRY
     exit_quiet: float = defaults.IMM_EXIT_QUIET
+    dv_cap: float = defaults.IMM_WIDE_DV
 
     def imm(self) -> IMM:
         modes: list[Mode] = [("quiet", "cv", self.quiet_q, 0.0), ("cv", "cv", self.q, 0.0),
@@ -78,7 +79,8 @@ class ModeSet:
         initial = (quiet, nominal, *[manoeuvre / (b - 2)] * (b - 2), *[turns[0] / k] * k) \
             if k else (quiet, nominal, *[(manoeuvre + turns[0]) / (b - 2)] * (b - 2))
         return IMM(tuple(modes), tuple((1.0 / total).tolist()),
-                   tuple(map(tuple, (rate / total[:, None]).tolist())), initial)
+                   tuple(map(tuple, (rate / total[:, None]).tolist())), initial,
+                   dv_cap=self.dv_cap)
 
 
 def standard_modes(q: float = defaults.Q_CV, ct_q: float = 3.0, turn_deg: float = 1.8
@@ -121,6 +123,7 @@ class IMM:
     mode_conversion: bool = defaults.IMM_MODE_R  # True: each mode's own R (ablation)
     gate_wide: float = defaults.IMM_GATE_WIDE  # association's prior of the widest mode
     turn_cap: float = defaults.IMM_TURN_CAP  # rad/s: a "turn" mode's rate at most
+    dv_cap: float = 0.0  # m/s: a CV mode's q |dt| at most (0: unbounded; `ModeSet`'s 275)
     order: int = 3
 
     @property
@@ -182,8 +185,11 @@ class IMM:
     def predict_mode(self, j: int, dt: np.ndarray, x0: np.ndarray, p0: np.ndarray,
                      dim: int) -> tuple[np.ndarray, np.ndarray]:
         """Mode j's prediction over dt of its mixed states x0 (N, n), P0 (N, n, n): a
-        "turn" mode's rate is each state's own (`turn.turn_model`, an EKF)."""
+        "turn" mode's rate is each state's own (`turn.turn_model`, an EKF); a CV mode's
+        white acceleration at most `dv_cap` / |dt|."""
         _, kind, q, omega = self.modes[j]
+        if kind == "cv" and self.dv_cap > 0:
+            q = cv_noise(q, self.dv_cap, dt)
         if kind != "turn":
             return predict(x0, p0, *models.motion(kind, dt, self.order, dim, q, omega))
         f, qm, jac = turn.turn_model(x0, dt, dim, q, self.turn_cap)
@@ -293,6 +299,14 @@ class IMM:
 
     def labels(self, arrays: Rows, rows: np.ndarray) -> ModeProbabilities:
         return ModeProbabilities([name for name, *_ in self.modes], arrays.mode_prob[rows])
+
+
+def cv_noise(q: float, dv_cap: float, dt: np.ndarray) -> np.ndarray:
+    """A CV mode's white acceleration per row of dt: q, but at most `dv_cap` / |dt|, so
+    that the velocity it lets change over a step (q |dt|, one sigma per axis) stays within
+    what an aircraft can do whatever the step (docs/accuracy.md, "Beyond 5 s")."""
+    at = np.abs(np.asarray(dt, dtype=float))
+    return np.minimum(q, dv_cap / np.maximum(at, 1e-300))
 
 
 def _posterior(arrays: Rows, rows: np.ndarray, c: np.ndarray, loglik: np.ndarray,

@@ -86,7 +86,8 @@ KINDS = {"cv": 0, "ca": 1, "ct": 2, "turn": 3}  # as `imm_kernel` reads them
 def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The IMM's constants as arrays (as `IMM.transition` reads them): sojourns (M,), the
     normalised destinations of a mode left (M, M), the kinds (`KINDS`), the noise and the
-    turn rate (rad/s; a turn's: its cap) of each mode."""
+    turn rate (rad/s; a turn's: its cap; a CV mode's: the bound of q |dt|, `dv_cap`) of
+    each mode."""
     got = _DESIGNS.get(id(imm))
     if got is None or got[0] is not imm:
         m = len(imm.modes)
@@ -96,8 +97,8 @@ def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
         dest /= np.maximum(dest.sum(1, keepdims=True), 1e-300)
         kinds = np.array([KINDS.get(kind, 0) for _, kind, _, _ in imm.modes], dtype=np.int64)
         qs = np.array([q for _, _, q, _ in imm.modes], dtype=float)
-        ws = np.array([imm.turn_cap if kind == "turn" else w for _, kind, _, w in imm.modes],
-                      dtype=float)
+        ws = np.array([imm.turn_cap if kind == "turn" else imm.dv_cap if kind == "cv" else w
+                       for _, kind, _, w in imm.modes], dtype=float)
         got = _DESIGNS[id(imm)] = (imm, tau, dest, kinds, qs, ws)
     return got[1:]
 

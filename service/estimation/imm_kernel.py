@@ -102,7 +102,8 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
             elif kinds[j] == 3:  # the turn at its state's own rate, at most ws[j]
                 _predict_turn(xp[j], pp[j], d, h, ws[j], qs[j], wk[0], tv, tc)
             else:
-                _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j], wk[0], wv)
+                _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j],
+                         ws[j] if kinds[j] == 0 else 0.0, wk[0], wv)
         _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
         if shared:
             noise(pol, sig, org, const, mean, spread, d, rr[0], mats, nvec)
@@ -196,13 +197,15 @@ def _mix(mx, mp, w, dest, kinds, j, s, d, x0, p0, dv):  # pragma: no cover - com
 
 
 @njit(**JIT)
-def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
+def _predict(x, p, s, order, d, h, qn, cap, tmp, wv):  # pragma: no cover - compiled
     """x (n, B), P (n, n, B), their first s = order d components, over each row's dt in
     place: F = kron(Phi, I_d), Phi[a, a + k] = dt^k / k!, Q = q^2 kron(C, I_d) with
     C[a, e] = |dt|^(k + 1) / ((o-1-a)! (o-1-e)! k), k = 2 o - 1 - a - e (the continuous
-    white noise of density q^2 |dt|, as `models.noise_terms`)."""
+    white noise of density q^2 |dt|, as `models.noise_terms`); q = qn, at most cap / |dt|
+    when cap > 0 (`imm.cv_noise`)."""
     b = x.shape[1]
     pw, g, g2 = wv[0], wv[1], wv[2]  # dt^k / k!; |dt|^k for k = 1 .. 3 and 4 .. 6
+    q2 = wv[3, 0]  # each row's q^2
     for q in range(b):
         t = h[q]
         pw[0, q], pw[1, q], pw[2, q] = 1.0, t, 0.5 * t * t
@@ -211,6 +214,8 @@ def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
         a3 = a2 * at
         g[0, q], g[1, q], g[2, q] = at, a2, a3
         g2[0, q], g2[1, q], g2[2, q] = a3 * at, a3 * a2, a3 * a3
+        qe = min(qn, cap / max(at, 1e-300)) if cap > 0.0 else qn
+        q2[q] = qe * qe
     for a in range(order):  # x <- F x (block a reads blocks c >= a, not yet changed)
         for k in range(d):
             for c in range(a + 1, order):
@@ -236,10 +241,9 @@ def _predict(x, p, s, order, d, h, qn, tmp, wv):  # pragma: no cover - compiled
             if k == el:
                 n1 = 2 * order - 1 - a - e
                 den = float(_FACT[order - 1 - a] * _FACT[order - 1 - e] * n1)
-                qq = qn * qn / den
                 for q in range(b):
                     gk = g[n1, q] if n1 < 3 else g2[n1 - 3, q]  # |dt|^(n1 + 1)
-                    p[r, col, q] += qq * gk
+                    p[r, col, q] += q2[q] / den * gk
             for q in range(b):
                 p[col, r, q] = p[r, col, q]
 
