@@ -105,9 +105,9 @@ def parser() -> argparse.ArgumentParser:
                    help="imm (default): IMM of a quiet CV, a nominal CV (--q), a CA and "
                         "three manoeuvre modes (coordinated turns at 3 deg/s both ways, a "
                         "55 m/s^2 CV) on converted measurements; cv: CMKF, nearly-constant "
-                        "velocity; ca: "
-                        "CMKF, nearly-constant acceleration; ekf: EKF on polar measurements, "
-                        "CV (baseline); vdf: variable-dimension CV/CA (scenario C's method)")
+                        "velocity; ca: CMKF, nearly-constant acceleration; ekf: EKF on polar "
+                        "measurements, CV (baseline); vdf: variable-dimension CV/CA "
+                        "(scenario C's method)")
     p.add_argument("--imm-ct-q", type=float, default=defaults.IMM_CT_Q,
                    help="IMM: the turn modes' noise as a multiple of --q (with --imm-turn)")
     p.add_argument("--imm-turn", type=float, default=defaults.IMM_TURN_DEG,
