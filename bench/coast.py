@@ -37,7 +37,9 @@ def main(argv: list[str] | None = None) -> None:
     tracker = Tracker(TrackerConfig(filter=bench.spec("default", args.period),
                                     sensors=SensorModels(pd=sc.pd)))
     imm, flight = tracker.updater, next(f for f in sc.flights if f.name == args.aircraft)
-    for s in sc:
+    scans = list(sc)
+    seen = {round(s.t, 6): sc.flights.index(flight) in s.origin.tolist() for s in scans}
+    for s in scans:
         tracker.step(Unlabelled.of(s.sensor, s.t, [
             Measurement(s.sensor, "", s.t, 3, True, tuple(d), (sc.sr, sc.sa, sc.sa),
                         s.sensor_pos, None) for d in s.dets.tolist()]))
@@ -49,7 +51,7 @@ def main(argv: list[str] | None = None) -> None:
         rows = np.array([arrays.ids.index(track)])
         print(f"track {track} of {args.aircraft} (seed {args.seed}, {args.period:g} s scans), "
               f"last updated at {arrays.t[rows[0]]:g} s; detected at the next scans: "
-              + ", ".join(f"{t:g} s {'yes' if flight_seen(sc, args.aircraft, t) else 'no'}"
+              + ", ".join(f"{t:g} s {'yes' if seen.get(round(t, 6)) else 'no'}"
                           for t in (s.t + args.period, s.t + 2 * args.period)))
         for k in (1, 2):
             t = s.t + k * args.period
@@ -66,12 +68,6 @@ def main(argv: list[str] | None = None) -> None:
             print(f"  {t:6g} s  mixture                    {np.linalg.norm(mix - true):7.0f} m off")
         return
     raise SystemExit(f"no scan at {args.after} s")
-
-
-def flight_seen(sc: Manoeuvres, name: str, t: float) -> bool:
-    """Whether the aircraft was detected at the scan of instant t."""
-    i = [f.name for f in sc.flights].index(name)
-    return any(abs(s.t - t) < 1e-9 and i in s.origin.tolist() for s in sc)
 
 
 if __name__ == "__main__":

@@ -123,7 +123,7 @@ class IMM:
     mode_conversion: bool = defaults.IMM_MODE_R  # True: each mode's own R (ablation)
     gate_wide: float = defaults.IMM_GATE_WIDE  # association's prior of the widest mode
     turn_cap: float = defaults.IMM_TURN_CAP  # rad/s: a "turn" mode's rate at most
-    dv_cap: float = 0.0  # m/s: a CV mode's q |dt| at most (0: unbounded; `ModeSet`'s 275)
+    dv_cap: float = defaults.IMM_WIDE_DV  # m/s: a CV mode's q |dt| at most (0: unbounded)
     order: int = 3
 
     @property
