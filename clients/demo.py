@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import subprocess
 import sys
 import webbrowser
 
 from zenoh_track.clients.procs import stop_all
-from zenoh_track.wire import free_port
+from zenoh_track.wire import STOP_GRACE, add_version, free_port, missing_extra, on_signals
 
 # s: the most the service may take to come up: its first start on a machine compiles the
 # filter kernels (docs/operations.md), longer than the feed's own wait on a busy machine
@@ -39,10 +38,6 @@ def _alive(service: subprocess.Popen, endpoint: str) -> bool:
     return False
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="track-demo", description=__doc__)
     p.add_argument("--scenario", default="swarm",
@@ -54,19 +49,25 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--web", action="store_true",
                    help="show the live map in a browser (track-web) instead of the terminal")
     p.add_argument("--port", type=int, default=8080, help="track-web's port with --web")
+    add_version(p)
     args = p.parse_args(argv)
+    on_signals(interrupt=True)  # a stop ends the children too (the finally blocks below)
+    if args.web:
+        try:
+            import aiohttp  # noqa: F401 - track-web's, checked before anything starts
+        except ImportError as exc:
+            missing_extra(exc, "web", "track-demo --web")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     py = sys.executable
     service = subprocess.Popen([py, "-m", "zenoh_track", "-l", endpoint, "--clock", "realtime",
                                 "--blend", "1"])
-    signal.signal(signal.SIGTERM, _interrupt)  # stop the children on SIGTERM too
     try:
         if not _alive(service, endpoint):
-            stop_all([service], timeout=10)
+            stop_all([service], timeout=STOP_GRACE)
             sys.exit("track-demo: track-service did not start")
-    except KeyboardInterrupt:
-        stop_all([service], timeout=10)
-        return
+    except BaseException:
+        stop_all([service], timeout=STOP_GRACE)
+        raise
     feed_args = {"swarm": ["--targets", str(args.targets), "--duration", str(args.duration)],
                  "crossing": [], "multisensor": ["--radars", "3"]}.get(
                      args.scenario, ["--runs", str(args.runs)])
@@ -87,10 +88,8 @@ def main(argv: list[str] | None = None) -> None:
         else:
             subprocess.run([py, "-m", "zenoh_track.clients.display.display", "-e", endpoint],
                            check=False)
-    except KeyboardInterrupt:
-        pass
-    finally:  # every child stopped at once, within one 10 s bound
-        stop_all([web, feed, service], timeout=10)
+    finally:  # every child stopped at once, within the one bound of a stop
+        stop_all([web, feed, service], timeout=STOP_GRACE)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import uuid
 from collections.abc import Callable, Generator, Iterator
+from contextlib import nullcontext
+from functools import partial
 from typing import TYPE_CHECKING, Any, Literal
 
 import pytest
@@ -41,7 +43,8 @@ def unique_ns() -> str:
 
 
 def start(node: pytest.Item | pytest.Collector | None, *args: str, ns: str | None = None,
-          clock: str | None = "lockstep", wait: float = WAIT) -> ServiceProcess:
+          clock: str | None = "lockstep", wait: float = WAIT,
+          config: pytest.Config | None = None) -> ServiceProcess:
     """A ServiceProcess of these options, alive (or the test fails with its log)."""
     from zenoh_track.clients.lib import ServiceProcess
 
@@ -49,11 +52,22 @@ def start(node: pytest.Item | pytest.Collector | None, *args: str, ns: str | Non
     if node is not None:
         node.stash.setdefault(STARTED, []).append(svc)
     try:
-        svc.wait(wait)
+        svc.wait(wait, notice=None if config is None else partial(say, config))
     except RuntimeError as exc:
         svc.stop()
         pytest.fail(str(exc), pytrace=False)
     return svc
+
+
+def say(config: pytest.Config, line: str) -> None:
+    """A line on the terminal now, through pytest's capture (a first start's compile is
+    half a minute of silence otherwise)."""
+    capture = config.pluginmanager.getplugin("capturemanager")
+    reporter = config.pluginmanager.getplugin("terminalreporter")
+    if reporter is None:
+        return
+    with capture.global_and_fixture_disabled() if capture else nullcontext():
+        reporter.write_line(f"[zenoh_track] {line}")
 
 
 @pytest.hookimpl(wrapper=True)
@@ -111,7 +125,8 @@ def track_service_factory(request: pytest.FixtureRequest
 
     def factory(*args: str, ns: str | None = None, clock: str | None = "lockstep",
                 wait: float = WAIT) -> ServiceProcess:
-        svc = start(request.node, *args, ns=ns, clock=clock, wait=wait)
+        svc = start(request.node, *args, ns=ns, clock=clock, wait=wait,
+                    config=request.config)
         started.append(svc)
         return svc
 
@@ -161,7 +176,8 @@ def service_proc(*args: str, clock: str | None = "lockstep", ns: str | None = No
     `cv_service = service_proc("--filter", "cv", scope="module")`."""
     @pytest.fixture(scope=scope)
     def fixture(request: pytest.FixtureRequest) -> Iterator[ServiceProcess]:
-        svc = start(request.node if scope == "function" else None, *args, ns=ns, clock=clock)
+        svc = start(request.node if scope == "function" else None, *args, ns=ns, clock=clock,
+                    config=request.config)
         yield svc
         svc.stop()
 

@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 import ctypes
 import logging
-import signal
 import sys
-import threading
 import uuid
+from typing import Any
 
 from . import __version__, defaults
 from .adapter import TrackService
@@ -19,7 +18,7 @@ from .tracking import frame
 from .tracking.display import DisplayConfig
 from .tracking.plot_association import SensorModels
 from .tracking.tracker import SCAN_ASSOCIATORS, Tracker, TrackerConfig
-from .wire import Keys, add_zenoh_args, fail, open_session, read_file
+from .wire import Keys, add_zenoh_args, fail, on_signals, open_session, read_file
 
 
 def steady_malloc() -> None:
@@ -236,20 +235,41 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    stop = on_signals()  # first: before Zenoh or anything else starts a thread
     steady_malloc()  # before Zenoh starts its threads
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     tracker = Tracker(tracker_config(args))
     # lockstep drops nothing: BLOCK puts wait for a slow subscriber. Opened before the
     # kernels are compiled: a refused or unreachable router is said at once
-    session = open_session(args, serve=True, block=args.clock == "lockstep",
-                           admin=True, stamp=True)
+    with stop.interrupting():
+        session = open_session(args, serve=True, block=args.clock == "lockstep",
+                               admin=True, stamp=True)
+    try:
+        with stop.interrupting():  # stopped while starting: nothing taken, nothing to save
+            svc = start(args, session, tracker)
+    except SystemExit:
+        session.close()
+        raise
+    logging.getLogger("track-service").info("running: ns=%s clock=%s", args.ns, args.clock)
+    print(f"track-service {__version__}: ns={args.ns} clock={args.clock} rate={args.rate} Hz",
+          flush=True)
+    stop.wait()
+    # the worker stops, the final checkpoint is written, then the session closes; a close
+    # that blocks on data queued for a vanished peer (lockstep BLOCK) is cut short by the
+    # stop's deadline (wire.STOP_GRACE)
+    svc.close()
+    session.close()
+
+
+def start(args: argparse.Namespace, session: Any, tracker: Tracker) -> TrackService:
+    """The kernels ready (lockstep) or compiling (realtime), the state file read back, the
+    service started."""
     # the compiled kernels: a realtime service is alive at once on their NumPy forms and
     # takes the compiled ones when ready (a machine's first start compiles them in a child
     # process); lockstep outputs are a function of the inputs alone, so it waits for them
-    jit.prepare([imm_jit, frame], wait=args.clock == "lockstep", slow=lambda: print(
-        "track-service: compiling the filter kernels (the first start on this machine "
-        "only)...", file=sys.stderr, flush=True))
+    jit.prepare([imm_jit, frame], wait=args.clock == "lockstep", say=lambda line: print(
+        f"track-service: {line}", file=sys.stderr, flush=True))
     svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),
@@ -260,19 +280,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.state:
         svc.state = StateFile(args.state, args.state_period)
         print(f"track-service: {svc.state.restore(svc)}", file=sys.stderr, flush=True)
-    svc.start()
-    done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
-    logging.getLogger("track-service").info("running: ns=%s clock=%s", args.ns, args.clock)
-    print(f"track-service {__version__}: ns={args.ns} clock={args.clock} rate={args.rate} Hz",
-          flush=True)
-    done.wait()
-    # closing can block on data queued for a peer that vanished (lockstep BLOCK waits
-    # up to wire.BLOCK_WAIT_US): give it a few seconds, then exit regardless
-    closer = threading.Thread(target=lambda: (svc.close(), session.close()), daemon=True)
-    closer.start()
-    closer.join(timeout=5.0)
+    return svc.start()
 
 
 if __name__ == "__main__":

@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 
 from . import __version__
 from .wire import DEFAULT_ENDPOINT
-from .wire.cli import open_or_exit, read_file
+from .wire.cli import add_version, open_or_exit, read_file
+from .wire.stopping import on_signals
 
 PROG = "track-router"
 
@@ -31,6 +30,7 @@ def parser() -> argparse.ArgumentParser:
                         "when neither this nor the config file gives one)")
     p.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
                    help="another router to connect to (repeatable)")
+    add_version(p)
     return p
 
 
@@ -55,17 +55,16 @@ def router_config(args: argparse.Namespace):  # -> zenoh.Config
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    stop = on_signals(interrupt=True)  # a stop while the router opens: at once
     if args.config:
         read_file(args.config, "the Zenoh configuration", prog=PROG)
     session = open_or_exit(lambda: router_config(args), prog=PROG,
                            what=f" {args.config}" if args.config else "")
-    done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
+    stop.interrupt = False
     listen = json.loads(router_config(args).get_json("listen/endpoints"))
     print(f"{PROG} {__version__}: router {session.info.zid()} listening on "
           f"{', '.join(map(str, listen))} (zenoh {zenoh_version()})", flush=True)
-    done.wait()
+    stop.wait()
     session.close()
     sys.exit(0)
 

@@ -44,7 +44,7 @@ from zenoh_track.clients.display.display_model import (
     fmt_int,
     fmt_t,
 )
-from zenoh_track.wire import Keys, add_zenoh_args, open_session, unpack
+from zenoh_track.wire import Keys, add_zenoh_args, on_signals, open_session, unpack
 
 STATUS_STYLE = {"confirmed": "green", "tentative": "yellow", "coasting": "bright_black"}
 HELP = ("s sort · 1-0 column · r reverse · / filter · c clear · n/p page · g/G first/last "
@@ -304,6 +304,7 @@ def text(pic: Picture, args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    on_signals(interrupt=True)
     table = Table(sort=args.sort, reverse=args.reverse, filter=args.filter,
                   page=max(args.page - 1, 0), page_size=args.rows or 40)
     session = open_session(args, log=True)

@@ -31,6 +31,7 @@ from zenoh_track.clients.evaluation.collect import Collected, run_through_servic
 from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
 from zenoh_track.clients.feeds import scenarios
 from zenoh_track.clients.intercept.intercept_report import summary_line
+from zenoh_track.wire import add_version, need, on_signals
 
 START = {"display": 3.0, "radar3d": 20.0, "maneuver": 20.0}  # s: after initiation
 # service options per scenario: scenario C's target has no process noise, only two
@@ -343,7 +344,11 @@ def main(argv: list[str] | None = None) -> None:
     evaluate_plots.add_args(p)
     evaluate_heldout.add_args(p)
     add_quiet_arg(p)
+    add_version(p)
     args = p.parse_args(argv)
+    on_signals(interrupt=True)
+    if args.plot:
+        need("matplotlib", "plot", "track-eval --plot")
     if args.scenario in evaluate_plots.SCENARIOS:
         return evaluate_plots.run(args)
     if args.scenario == "defaults":

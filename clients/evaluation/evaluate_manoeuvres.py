@@ -31,7 +31,7 @@ from zenoh_track.clients.evaluation import manoeuvre_score as ms
 from zenoh_track.clients.evaluation.collect import lockstep_service
 from zenoh_track.clients.feeds import feed, feed_plots
 from zenoh_track.clients.feeds.manoeuvres import CLASSES, SLOW_CLASSES
-from zenoh_track.wire import Keys, peer_config, unpack, wait_for_tracker
+from zenoh_track.wire import Keys, add_version, on_signals, peer_config, unpack, wait_for_tracker
 
 A_MAX = 7 * 9.80665  # m/s^2: the largest manoeuvre of the scenario
 SIGMA = 1.5e-3 * 36_000.0  # m: the radar's cross-range noise at the aircraft's distance
@@ -138,11 +138,13 @@ def parser() -> argparse.ArgumentParser:
                    help="also RMSE and NEES while manoeuvring by scans since each onset "
                         "(where the NEES comes from: docs/accuracy.md)")
     p.add_argument("--json", action="store_true", help="print the summaries as JSON")
+    add_version(p)
     return p
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parser().parse_args(argv)
+    on_signals(interrupt=True)
     out: dict[str, Any] = {}
     form = "labelled" if args.labelled else f"Pd {args.pd:g}, {args.clutter:g} clutter a scan"
     for period in args.period or [1.0, 2.0, 4.0, 5.0]:

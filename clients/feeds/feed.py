@@ -28,6 +28,7 @@ from zenoh_track.wire import (
     Keys,
     add_zenoh_args,
     f64_bin,
+    on_signals,
     open_session,
     pack,
     wait_for_tracker,
@@ -218,6 +219,7 @@ def delivered(session: zenoh.Session, keys: Keys, trackers: int,
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    on_signals(interrupt=True)
     session = open_session(args, block=True, stamp=True)  # block, never drop; stamped
     try:
         if args.trackers and not wait_for_tracker(session, Keys(args.ns), args.trackers):

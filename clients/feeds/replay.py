@@ -28,7 +28,15 @@ import zenoh
 from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
 from zenoh_track.clients.feeds.feed import delivered
 from zenoh_track.clients.record.recording import Channel, Recording
-from zenoh_track.wire import BLOCK_WAIT_US, Keys, add_zenoh_args, open_session, wait_for_tracker
+from zenoh_track.wire import (
+    BLOCK_WAIT_US,
+    Keys,
+    add_zenoh_args,
+    need,
+    on_signals,
+    open_session,
+    wait_for_tracker,
+)
 
 INPUTS = ("meas/**", "plots/**", "scan/**", "clock", "truth/**")  # a feed's keys under <ns>/
 
@@ -177,6 +185,9 @@ def replay(session: zenoh.Session, rec: Recording, channels: dict[int, Channel],
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    on_signals(interrupt=True)
+    if args.plot:
+        need("matplotlib", "plot", "track-replay --plot")
     if args.speed <= 0:
         raise SystemExit("track-replay: --speed must be > 0")
     remap = remapper(args.remap)

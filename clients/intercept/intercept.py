@@ -55,7 +55,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import signal
 import sys
 import threading
 import time
@@ -88,6 +87,7 @@ from zenoh_track.wire import (
     MSGPACK_ENCODING,
     Keys,
     add_zenoh_args,
+    on_signals,
     open_session,
     pack,
     unpack,
@@ -299,8 +299,7 @@ class Interceptors:
         """Block until done(until), `timeout` s, `idle` s without a frame (after the first
         one), or `stop` is set. Returns done(until). Frames after `until` are ignored.
 
-        `stop` is not polled: whoever sets it must then call wake() (from another thread
-        than this one; a signal handler runs in the main thread: see main())."""
+        `stop` is not polled: whoever sets it must then call wake() (see main())."""
         deadline = None if timeout is None else time.monotonic() + timeout
         with self.cond:
             if until is not None:
@@ -383,26 +382,16 @@ def main(argv: list[str] | None = None) -> None:
               pn_form=args.pn_form,
               hold=not args.no_hold)
     ic = Interceptors(law, name=args.name)
-    stop = threading.Event()
-
-    def on_signal(*_: Any) -> None:
-        stop.set()
-        ic.wake()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
+    stop = on_signals()
+    threading.Thread(target=lambda: (stop.wait(), ic.wake()), name="intercept-stop",
+                     daemon=True).start()
     session = open_session(args)
     try:
         ic.attach(session, Keys(args.ns), targets=args.target or None,
                   like=args.targets_like, truth=args.truth,
                   token=args.instance or uuid.uuid4().hex[:8])
         print("track-intercept: ready", file=sys.stderr, flush=True)
-        # wait on another thread: the signal handlers run in this one, where one could
-        # come between the waiter's look at `stop` and its wait, and its wake be lost
-        waiter = threading.Thread(target=ic.wait, name="intercept-wait", kwargs={
-            "until": args.until, "idle": args.idle or None, "stop": stop})
-        waiter.start()
-        waiter.join()
+        ic.wait(until=args.until, idle=args.idle or None, stop=stop.event)
         ic.detach()
         rows = ic.results()
         summ = ic.summary(rows)

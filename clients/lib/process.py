@@ -7,13 +7,17 @@ import os
 import subprocess
 import sys
 import tempfile
-from collections.abc import Mapping
+import time
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import TracebackType
 
 from zenoh_track.clients.lib.session import Client, connect
 from zenoh_track.clients.procs import stop
 from zenoh_track.wire import DEFAULT_NS, Keys, free_port
+
+NOTICE_POLL = 1.0  # s between two looks at a starting service's log
+START_NOTES = ("track-service: compiling", "track-service: kernels")  # what a start says
 
 
 class ServiceProcess:
@@ -58,20 +62,33 @@ class ServiceProcess:
         except OSError:
             return ""
 
-    def wait(self, timeout: float = 30.0) -> Client:
+    def wait(self, timeout: float = 30.0,
+             notice: Callable[[str], None] | None = None) -> Client:
         """Its `client` (a Client of its namespace) once it is alive; RuntimeError with
-        the end of its log when it exits or stays silent for `timeout` s."""
+        the end of its log when it exits or stays silent for `timeout` s. `notice` is
+        given each line the service writes about its start meanwhile (a first start's
+        compile of the kernels, with its progress)."""
         if self.client is None:
             self.client = connect(self.endpoint, ns=self.ns)
-        try:
-            self.client.wait_for_service(timeout=timeout)
-        except TimeoutError:
+        deadline = time.monotonic() + timeout
+        told = 0
+        while True:
+            try:
+                self.client.wait_for_service(timeout=min(NOTICE_POLL, timeout))
+                return self.client
+            except TimeoutError:
+                pass
+            if notice is not None:
+                lines = [ln for ln in self.log().splitlines() if ln.startswith(START_NOTES)]
+                for line in lines[told:]:
+                    notice(line)
+                told = len(lines)
             code = self.proc.poll()
-            state = f"exited with status {code}" if code is not None else \
-                f"not alive after {timeout:g} s"
-            raise RuntimeError(f"track-service {' '.join(self.args)}: {state}; its log:\n"
-                               f"{self.log()[-3000:]}") from None
-        return self.client
+            if code is not None or time.monotonic() >= deadline:
+                state = f"exited with status {code}" if code is not None else \
+                    f"not alive after {timeout:g} s"
+                raise RuntimeError(f"track-service {' '.join(self.args)}: {state}; its "
+                                   f"log:\n{self.log()[-3000:]}") from None
 
     def feed(self, *args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
         """Run `track-feed ARGS` against it (its endpoint and namespace); raises

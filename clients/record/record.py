@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import os
 import queue
-import signal
 import sys
 import threading
 import time
@@ -27,7 +26,7 @@ import zenoh
 
 from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
 from zenoh_track.clients.record.recording import RecordingWriter
-from zenoh_track.wire import Keys, add_zenoh_args, open_session, stamp_ns
+from zenoh_track.wire import Keys, Stop, add_zenoh_args, on_signals, open_session, stamp_ns
 
 POLL = 0.2  # s: how often the writer looks at the stop conditions when no sample comes
 
@@ -86,12 +85,9 @@ class Recorder:
             sub.undeclare()
 
 
-def record(args: argparse.Namespace, out: Any) -> tuple[int, RecordingWriter]:
+def record(args: argparse.Namespace, out: Any, stop: Stop) -> tuple[int, RecordingWriter]:
     keys = Keys(args.ns)
     keyexprs = distinct(args.keyexprs or [f"{keys.ns}/**"])
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
     writer = RecordingWriter(out, keys.ns, keyexprs, args.scene_hz, args.scene_marker)
     with open_session(args, log=True) as session:
         rec = Recorder(session, keyexprs)
@@ -138,9 +134,10 @@ def record(args: argparse.Namespace, out: Any) -> tuple[int, RecordingWriter]:
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    stop = on_signals()  # the file is finished on the way out
     start = time.monotonic()
     with open(args.output, "wb") as out:
-        received, writer = record(args, out)
+        received, writer = record(args, out, stop)
         writer.finish(received)
     size = os.path.getsize(args.output) / 1e6
     print(f"track-record: {received} samples received, {writer.written} written on "

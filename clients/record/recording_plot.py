@@ -16,7 +16,7 @@ import numpy as np
 
 from zenoh_track.clients.lib.frames import NO_STATUS, Frame
 from zenoh_track.clients.record.recording import Recording
-from zenoh_track.wire import unpack
+from zenoh_track.wire import need, unpack
 
 MAX_LABELS = 30  # tracks labelled by id when there are at most this many
 
@@ -66,11 +66,9 @@ def rates(rec: Recording, channels: set[int]) -> tuple[float, dict[str, np.ndarr
 
 
 def plot(path: str, out: str, channels: set[int] | None = None) -> None:
-    try:
-        import matplotlib
-    except ImportError:
-        raise SystemExit("track-replay --plot needs matplotlib "
-                         "(pip install 'zenoh-track-service[plot]')") from None
+    need("matplotlib", "plot", "track-replay --plot")
+    import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -19,17 +19,23 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import signal
 import sys
 from importlib import resources
 from typing import Any
 
 import zenoh
-from aiohttp import WSMsgType, web
+
+from zenoh_track.wire import CHUNK, Keys, Stop, add_zenoh_args, fail, on_signals, open_session
+
+try:
+    from aiohttp import WSMsgType, web
+except ImportError as exc:
+    from zenoh_track.wire import missing_extra
+
+    missing_extra(exc, "web", "track-web")
 
 from zenoh_track.clients.web.web_frames import FrameHub
 from zenoh_track.clients.web.web_link import Link
-from zenoh_track.wire import CHUNK, Keys, add_zenoh_args, fail, open_session
 
 WINDOW = 2  # frames in flight to one browser (unanswered)
 HEALTH_PERIOD = 1.0  # s between health messages
@@ -184,7 +190,7 @@ class WebServer:
         self.link.close()
 
 
-async def serve(args: argparse.Namespace) -> None:
+async def serve(args: argparse.Namespace, stop: Stop) -> None:
     session = open_session(args, log=True)
     try:
         server = WebServer(session, Keys(args.ns), args.origin, args.trail)
@@ -199,10 +205,7 @@ async def serve(args: argparse.Namespace) -> None:
         host = f"[{args.host}]" if ":" in args.host else args.host
         print(f"track-web: http://{host}:{args.port}/ (ns {args.ns})", file=sys.stderr,
               flush=True)
-        stop = asyncio.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            server.loop.add_signal_handler(sig, stop.set)
-        await stop.wait()
+        await asyncio.get_running_loop().run_in_executor(None, stop.wait)
     finally:
         await runner.cleanup()
         server.close()
@@ -221,8 +224,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--trail", type=float, default=TRAIL,
                    help="seconds of history behind each track (default %(default)s)")
     args = p.parse_args(argv)
+    stop = on_signals()
     try:
-        asyncio.run(serve(args))
+        asyncio.run(serve(args, stop))
     except OSError as exc:
         fail(f"cannot serve on {args.host}:{args.port}: {exc.strerror or exc} (another "
              "program on that port? choose another with --port)", "track-web")

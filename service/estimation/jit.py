@@ -21,15 +21,19 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from types import ModuleType
 
 __all__ = ["prepare", "ready", "state"]
 
 log = logging.getLogger(__name__)
+FIRST_COMPILE = 30.0  # s: a first compile of the service's kernels on two cores (bench_start.py)
+ORPHAN_POLL = 0.2  # s: how often the compiling child checks that its service still runs
 _ready = threading.Event()
 _state = "plain"  # plain -> compiling -> compiled, or failed: <why>
 _lock = threading.Lock()
@@ -47,21 +51,14 @@ def state() -> str:
 
 
 def prepare(modules: Sequence[ModuleType], wait: bool = False,
-            slow: Callable[[], None] | None = None) -> None:
+            say: Callable[[str], None] | None = None) -> None:
     """Compile the kernels of `modules` in a child process (a machine's first start) or
     find them in the cache, then load them here and let them serve, returning at once;
-    or, with `wait`, compile or load them here before returning (`slow` is called if that
-    lasts more than a second: a first start). Idempotent."""
+    or, with `wait`, compile or load them here before returning, telling `say` what it
+    does when that lasts more than a second (a first start). Idempotent."""
     global _thread, _state
     if wait:
-        note = threading.Timer(1.0, slow) if slow is not None else None
-        if note is not None:
-            note.start()
-        try:
-            load(modules)
-        finally:
-            if note is not None:
-                note.cancel()
+        load(modules, say)
         return
     with _lock:
         if _thread is None and not _ready.is_set():
@@ -72,19 +69,35 @@ def prepare(modules: Sequence[ModuleType], wait: bool = False,
             _thread.start()
 
 
-def load(modules: Sequence[ModuleType]) -> None:
-    """Compile or load the kernels of `modules` in this process, now (benchmarks and
-    tests that call the kernels directly)."""
+def load(modules: Sequence[ModuleType], say: Callable[[str], None] | None = None) -> None:
+    """Compile or load the kernels of `modules` in this process, now. With `say`, a
+    compile that lasts over a second is announced once, with its expected length, and
+    each module's end is told as it comes (a first start is silent for no one)."""
     global _state
-    for module in modules:
-        module.warm()
+    start = time.monotonic()
+    note = None
+    if say is not None:
+        note = threading.Timer(1.0, say, args=(
+            f"compiling the filter kernels, the first start on this machine only (about "
+            f"{FIRST_COMPILE:.0f} s on two cores; then cached)...",))
+        note.daemon = True
+        note.start()
+    try:
+        for k, module in enumerate(modules, 1):
+            module.warm()
+            if say is not None and note is not None and note.finished.is_set():
+                say(f"kernels {k}/{len(modules)} ready ({module.__name__.rsplit('.', 1)[-1]},"
+                    f" {time.monotonic() - start:.0f} s)")
+    finally:
+        if note is not None:
+            note.cancel()
     _state = "compiled"
     _ready.set()
 
 
 def _compile_and_load(names: list[str]) -> None:
     global _state
-    child = subprocess.run([sys.executable, "-m", __name__, *names],
+    child = subprocess.run([sys.executable, "-m", __name__, str(os.getpid()), *names],
                            capture_output=True, text=True)
     if child.returncode != 0:  # NumPy goes on serving; say why once
         lines = (child.stderr or "").strip().splitlines() or [f"exit {child.returncode}"]
@@ -98,6 +111,15 @@ def _compile_and_load(names: list[str]) -> None:
         log.warning("compiled kernels unavailable, NumPy serves: %s", exc)
 
 
-if __name__ == "__main__":  # the child: warm each module named
-    for name in sys.argv[1:]:
+def _orphaned(parent: int) -> None:
+    """In the child: exit as soon as the service that started it is gone (stopped or
+    killed), so a stop never leaves a compile running behind it."""
+    while os.getppid() == parent:
+        time.sleep(ORPHAN_POLL)
+    os._exit(1)
+
+
+if __name__ == "__main__":  # the child: warm each module named, while its parent lives
+    threading.Thread(target=_orphaned, args=(int(sys.argv[1]),), daemon=True).start()
+    for name in sys.argv[2:]:
         importlib.import_module(name).warm()

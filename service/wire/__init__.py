@@ -6,7 +6,7 @@ and the standard library (Zenoh is imported when a session is opened), so a disp
 a feed can be written against it without the estimation code (tests/test_layers.py).
 """
 
-from .cli import CONNECT_TIMEOUT, fail, open_or_exit, read_file
+from .cli import CONNECT_TIMEOUT, add_version, fail, missing_extra, need, open_or_exit, read_file
 from .codec import (
     MSGPACK_ENCODING,
     REASON_CODES,
@@ -54,6 +54,7 @@ from .session import (
     zenoh_config,
 )
 from .singles import Singles, parse_singles
+from .stopping import STOP_GRACE, Stop, on_signals
 
 __all__ = [
     "BLOCK_WAIT_US", "BOUNDS", "CHUNK", "CONNECT_RETRY", "DEFAULT_ENDPOINT", "DEFAULT_NS",
@@ -66,4 +67,5 @@ __all__ = [
     "listen_config", "peer_config", "quick_retry", "stamp_ns", "stamping",
     "reason_code", "unpack",
     "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
+    "add_version", "missing_extra", "need", "STOP_GRACE", "Stop", "on_signals",
 ]

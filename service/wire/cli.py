@@ -5,11 +5,14 @@ Shared by the service and every client (stdlib only; Zenoh imported when opening
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
+
+from .. import __version__
 
 CONNECT_TIMEOUT = 5.0  # s: how long a program keeps trying to reach its router or peer
 EXIT_USAGE = 2  # exit status of an operator mistake
@@ -28,6 +31,30 @@ def fail(message: str, prog: str | None = None) -> NoReturn:
     """Print `<prog>: <message>` on stderr and exit with status 2."""
     print(f"{prog or prog_name()}: {message}", file=sys.stderr, flush=True)
     raise SystemExit(EXIT_USAGE)
+
+
+def missing_extra(exc: ImportError, extra: str, prog: str | None = None) -> NoReturn:
+    """An optional dependency that is not installed: one line naming the extra, exit 2."""
+    what = exc.name or str(exc)
+    fail(f"needs {what}, from the '{extra}' extra: pip install 'zenoh-track-service[{extra}]'"
+         f" (in a clone: pip install -e '.[{extra}]')", prog)
+
+
+def need(module: str, extra: str, prog: str | None = None) -> None:
+    """Check before the work starts that an optional dependency is there (else
+    `missing_extra`)."""
+    import importlib
+
+    try:
+        importlib.import_module(module)
+    except ImportError as exc:
+        missing_extra(exc, extra, prog)
+
+
+def add_version(parser: argparse.ArgumentParser) -> None:
+    """`--version`: the product's version (one source: `zenoh_track.__version__`)."""
+    parser.add_argument("--version", action="version",
+                        version=f"%(prog)s {__version__} (zenoh-track-service)")
 
 
 def read_file(path: str, what: str, binary: bool = False,

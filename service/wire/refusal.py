@@ -151,8 +151,10 @@ def speaks_tls(sock: socket.socket, host: str) -> bool:
 
 
 def probe(endpoint: str, tls: dict | None = None, auth: dict | None = None,
-          timeout: float = PROBE_TIMEOUT) -> tuple[bool, str]:
-    """(reached, cause) for one endpoint: `reached` False when nothing answered there."""
+          timeout: float = PROBE_TIMEOUT, mode: str = "client") -> tuple[bool, str]:
+    """(reached, cause) for one endpoint: `reached` False when nothing answered there.
+    A client's endpoint is its router; a peer's is another peer (a service, say), and
+    what does not answer there is named as such."""
     parts = split_endpoint(endpoint)
     if parts is None or parts[0] not in ("tcp", "tls"):
         return False, "no answer"
@@ -162,10 +164,15 @@ def probe(endpoint: str, tls: dict | None = None, auth: dict | None = None,
     except socket.gaierror:
         return False, f"unknown host {host} (check -e/--connect)"
     except ConnectionRefusedError:
+        if mode != "client":
+            return False, (f"nothing listens at {proto}/{host}:{port} (is the service or "
+                           "peer there running? check -e/--connect)")
         return False, (f"router unreachable: connection refused at {host}:{port} (is the "
                        "router running? check -e/--connect)")
     except OSError as exc:
         why = "no answer" if isinstance(exc, TimeoutError) else exc.strerror or str(exc)
+        if mode != "client":
+            return False, f"no answer at {proto}/{host}:{port}: {why} (check -e/--connect)"
         return False, f"router unreachable: {why} at {host}:{port} (check -e/--connect)"
     with sock:
         if proto == "tls":
@@ -187,7 +194,8 @@ def why_refused(conf: Any, endpoints: list[str]) -> tuple[bool, str]:
             return None
 
     tls, auth = get("transport/link/tls") or {}, get("transport/auth/usrpwd") or {}
-    found = [(e, *probe(e, tls, auth)) for e in endpoints]
+    mode = get("mode") or "peer"
+    found = [(e, *probe(e, tls, auth, mode=mode)) for e in endpoints]
     reached = [f for f in found if f[1]]
     shown = reached or found
     if len(shown) == 1:

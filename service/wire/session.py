@@ -8,7 +8,7 @@ import json
 import socket
 from typing import Any
 
-from .cli import CONNECT_TIMEOUT, open_or_exit
+from .cli import CONNECT_TIMEOUT, add_version, open_or_exit
 from .keys import DEFAULT_NS, Keys
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -23,6 +23,7 @@ CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_
 
 def add_zenoh_args(parser: argparse.ArgumentParser, ns: bool = True) -> None:
     """Zenoh options in the style of the zenoh-python examples."""
+    add_version(parser)
     g = parser.add_argument_group("zenoh")
     g.add_argument("--mode", choices=("peer", "client", "router"), help="session mode")
     g.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
