@@ -56,6 +56,10 @@ class Outcome:
         return not self.problems
 
 
+def default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def group_alive(pgid: int) -> bool:
     try:
         os.killpg(pgid, 0)
@@ -107,8 +111,10 @@ def run(start: Start, delay_hint: float, warm_cache: str, workdir: Path,
     delay = rng.uniform(0.0, delay_hint + AFTER_BANNER)
     session = feed = seen = None
     t0 = time.monotonic()
+    # a supervisor's child: SIGINT not ignored, even when this runs as a background job
+    # (whose children inherit an ignored SIGINT, which the service then keeps ignoring)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=default_sigint)
     banner: list[float] = []
 
     def read_banner() -> None:

@@ -107,3 +107,18 @@ def test_importing_the_plugin_is_cheap():
     code = ("import sys, zenoh_track.clients.pytest_plugin, zenoh_track.clients.pytest_enable\n"
             "assert not {'zenoh', 'numpy'} & set(sys.modules), sorted(sys.modules)\n")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.slow
+def test_a_first_start_says_it_compiles_the_kernels(pytester, monkeypatch, tmp_path):
+    """A fresh kernel cache: the fixture's wait tells the terminal what the service is
+    doing and how far it is, through pytest's output capture."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "kernels"))
+    pytester.makeconftest(ENABLE)
+    pytester.makepyfile(test_x="def test_x(track_service):\n    assert track_service.client\n")
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", timeout=600)
+    result.assert_outcomes(passed=1)
+    result.stdout.fnmatch_lines([
+        "*[[]zenoh_track[]] track-service: compiling the filter kernels, the first start on "
+        "this machine only (about * s on two cores; then cached)...",
+        "*[[]zenoh_track[]] track-service: kernels 2/2 ready*"])

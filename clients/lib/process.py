@@ -18,6 +18,7 @@ from zenoh_track.wire import DEFAULT_NS, Keys, free_port
 
 NOTICE_POLL = 1.0  # s between two looks at a starting service's log
 START_NOTES = ("track-service: compiling", "track-service: kernels")  # what a start says
+COMPILE_WAIT = 600.0  # s: the longest a first start's compile may take on a busy machine
 
 
 class ServiceProcess:
@@ -65,9 +66,10 @@ class ServiceProcess:
     def wait(self, timeout: float = 30.0,
              notice: Callable[[str], None] | None = None) -> Client:
         """Its `client` (a Client of its namespace) once it is alive; RuntimeError with
-        the end of its log when it exits or stays silent for `timeout` s. `notice` is
-        given each line the service writes about its start meanwhile (a first start's
-        compile of the kernels, with its progress)."""
+        the end of its log when it exits or stays silent for `timeout` s (a first
+        start's compile of the kernels may take up to COMPILE_WAIT). `notice` is given
+        each line the service writes about its start meanwhile (that compile, with its
+        progress)."""
         if self.client is None:
             self.client = connect(self.endpoint, ns=self.ns)
         deadline = time.monotonic() + timeout
@@ -75,14 +77,17 @@ class ServiceProcess:
         while True:
             try:
                 self.client.wait_for_service(timeout=min(NOTICE_POLL, timeout))
-                return self.client
+                alive = True
             except TimeoutError:
-                pass
-            if notice is not None:
-                lines = [ln for ln in self.log().splitlines() if ln.startswith(START_NOTES)]
-                for line in lines[told:]:
-                    notice(line)
-                told = len(lines)
+                alive = False
+            lines = [ln for ln in self.log().splitlines() if ln.startswith(START_NOTES)]
+            if lines and not told:  # compiling: silence is not the measure any more
+                deadline = max(deadline, time.monotonic() + COMPILE_WAIT)
+            for line in lines[told:] if notice is not None else ():
+                notice(line)
+            told = len(lines)
+            if alive:
+                return self.client
             code = self.proc.poll()
             if code is not None or time.monotonic() >= deadline:
                 state = f"exited with status {code}" if code is not None else \
