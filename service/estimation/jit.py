@@ -32,7 +32,8 @@ from types import ModuleType
 __all__ = ["prepare", "ready", "state"]
 
 log = logging.getLogger(__name__)
-FIRST_COMPILE = 30.0  # s: a first compile of the service's kernels on two cores (bench_start.py)
+FIRST_COMPILE = 35.0  # s: a lockstep first start to its banner, measured on a 2-core machine
+SAY_AFTER = 5.0  # s: longer than loading them from a warm cache takes on a busy machine
 ORPHAN_POLL = 0.2  # s: how often the compiling child checks that its service still runs
 _ready = threading.Event()
 _state = "plain"  # plain -> compiling -> compiled, or failed: <why>
@@ -55,7 +56,7 @@ def prepare(modules: Sequence[ModuleType], wait: bool = False,
     """Compile the kernels of `modules` in a child process (a machine's first start) or
     find them in the cache, then load them here and let them serve, returning at once;
     or, with `wait`, compile or load them here before returning, telling `say` what it
-    does when that lasts more than a second (a first start). Idempotent."""
+    does when that lasts more than SAY_AFTER (a first start). Idempotent."""
     global _thread, _state
     if wait:
         load(modules, say)
@@ -71,13 +72,13 @@ def prepare(modules: Sequence[ModuleType], wait: bool = False,
 
 def load(modules: Sequence[ModuleType], say: Callable[[str], None] | None = None) -> None:
     """Compile or load the kernels of `modules` in this process, now. With `say`, a
-    compile that lasts over a second is announced once, with its expected length, and
+    compile that lasts over SAY_AFTER is announced once, with its expected length, and
     each module's end is told as it comes (a first start is silent for no one)."""
     global _state
     start = time.monotonic()
     note = None
     if say is not None:
-        note = threading.Timer(1.0, say, args=(
+        note = threading.Timer(SAY_AFTER, say, args=(
             f"compiling the filter kernels, the first start on this machine only (about "
             f"{FIRST_COMPILE:.0f} s on two cores; then cached)...",))
         note.daemon = True
