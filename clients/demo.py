@@ -43,7 +43,7 @@ def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def main(argv: list[str] | None = None) -> None:
+def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-demo", description=__doc__)
     p.add_argument("--scenario", default="swarm",
                    choices=("swarm", "display", "radar3d", "maneuver", "crossing",
@@ -54,7 +54,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--web", action="store_true",
                    help="show the live map in a browser (track-web) instead of the terminal")
     p.add_argument("--port", type=int, default=8080, help="track-web's port with --web")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parser().parse_args(argv)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     py = sys.executable
     service = subprocess.Popen([py, "-m", "zenoh_track", "-l", endpoint, "--clock", "realtime",
