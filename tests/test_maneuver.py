@@ -1,6 +1,6 @@
 """Scenario C through the real service, reduced to 20 runs: VDF reproduces the paper's
 behaviour; the service without options (its default IMM) beats it in the turns without
-costing much on the straight leg, and is consistent in the turns (issue 14)."""
+costing much on the straight leg, and is consistent in the turns."""
 
 from __future__ import annotations
 
