@@ -199,6 +199,9 @@ def lay_out_package() -> None:
     Done when MkDocs loads this hook, before mkdocstrings looks for its paths."""
     package = ROOT / "build" / "docs-src" / "zenoh_track"
     package.mkdir(parents=True, exist_ok=True)
+    for link in package.iterdir():
+        if not link.exists():  # its module is gone from the source tree
+            link.unlink()
     for source in [*(ROOT / "service").iterdir(), ROOT / "clients"]:
         if source.name == "__pycache__":
             continue
