@@ -1,4 +1,4 @@
-"""How the default IMM was chosen (docs/accuracy.md, "The default filter"): candidate
+"""How the default IMM was chosen (docs/explanation/filters.md): candidate
 designs run in-process (the tracker of the service, without Zenoh: the same figures as
 `track-eval` through the service) on scenarios A (one run), B (100 runs) and C (20 runs),
 against the targets of `track-eval defaults`.

@@ -203,11 +203,10 @@ def test_a_turn_ending_in_a_missed_scan_keeps_its_track():
 
 def test_a_detection_passed_over_by_a_hair_gets_a_second_chance():
     """The standard-rate aircraft of seed 23 at 10 s scans (an en-route radar's;
-    docs/accuracy.md, "A second chance"): a detection of it scores a hair below a miss;
-    its branch waits beside the miss and the next scan takes it: the aircraft is held at
-    every scan with one id (without the second look: a scan not held and a second id).
-    (The case of before, a 4 g aircraft of seed 2 at 5 s, is held without a second
-    chance since the widest mode's noise is bounded: `defaults.IMM_WIDE_DV`.)"""
+    docs/explanation/association.md, "Doubtful updates wait a scan"): a detection of it
+    scores a hair below a miss; its branch waits beside the miss and the next scan takes
+    it: the aircraft is held at every scan with one id (without the second look: a scan
+    not held and a second id)."""
     def run(second_look: float | None) -> tuple[Tracker, object]:
         tracker = Tracker() if second_look is None else \
             Tracker(TrackerConfig(second_look=second_look))
