@@ -147,3 +147,16 @@ def test_a_renamed_option_or_a_broken_link_fails_the_build(tmp_path, broken, say
     result = build(config, tmp_path / "site")
     assert result.returncode != 0
     assert says in result.stderr
+
+
+def test_the_results_figures_are_drawn_from_the_benchmarks_output(tmp_path):
+    """docs/results/draw.py reads every data file it names and draws each figure the results
+    pages show."""
+    out = subprocess.run([sys.executable, str(DOCS / "results" / "draw.py"), "--out",
+                          str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    drawn = sorted(p.name for p in tmp_path.glob("*.png"))
+    shown = sorted(set(re.findall(r"figures/(results_\w+\.png)", "".join(
+        (DOCS / page).read_text() for page in ("accuracy.md", "performance.md")))))
+    assert drawn == shown
+    assert all((tmp_path / name).stat().st_size > 10_000 for name in drawn)
