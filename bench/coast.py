@@ -1,6 +1,6 @@
 """Where each mode of the default IMM puts one aircraft of the `manoeuvres` scenario after
-its track's last update (diagnosis of a scan not held, docs/accuracy.md "Targets of issue
-30"): the track nearest the aircraft at `--after`, each mode's mixed prediction one and
+its track's last update (diagnosis of a scan not held, docs/accuracy.md "What is not
+met, and why"): the track nearest the aircraft at `--after`, each mode's mixed prediction one and
 two scans later, its predicted probability and its distance from the truth.
 
     python bench/coast.py --period 4 --seed 4 --aircraft 7g-s-0 --after 68

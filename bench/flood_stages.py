@@ -1,6 +1,6 @@
 """Where the service's CPU goes in the single-message flood of `--throughput`: each
 thread's CPU and the worker's stages, per message, from the feed's start to the last
-reply (diagnosis; the figures of docs/performance.md, issue 26, "Single messages").
+reply (diagnosis; docs/performance.md, "Single messages against the echo floor").
 
     python bench/flood_stages.py [--targets 5000] [--duration 20]
 

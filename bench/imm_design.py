@@ -1,7 +1,7 @@
-"""How the default IMM was chosen (docs/accuracy.md, "The default filter"): candidate
+"""How the default IMM was chosen (docs/explanation/filters.md): candidate
 designs run in-process (the tracker of the service, without Zenoh: the same figures as
 `track-eval` through the service) on scenarios A (one run), B (100 runs) and C (20 runs),
-against the targets of issue 14.
+against the targets of `track-eval defaults`.
 
     python bench/imm_design.py                 # every candidate (~2 min)
     python bench/imm_design.py default old     # some of them
@@ -54,7 +54,7 @@ CANDIDATES = {
     "quiet-0.03": lambda: ModeSet(quiet_q=0.03).imm(),
     "ca-0.3": lambda: ModeSet(ca_q=0.3).imm(),
     "ca-sojourn-30": lambda: ModeSet(manoeuvre_sojourn=30.0).imm(),
-    # issue 14's straight legs (docs/accuracy.md, "What is not met, and why")
+    # C's straight legs (docs/accuracy.md, "What is not met, and why")
     "quiet-3000s": lambda: variant(sojourn=(3000.0, 600.0, 10.0)),
     "quiet-20000s": lambda: variant(sojourn=(20000.0, 600.0, 10.0)),
     "mid-0.3": lambda: IMM((("quiet", "cv", 0.003, 0.0), ("mid", "cv", 0.3, 0.0),

@@ -1,4 +1,4 @@
-"""Issue 14's straight legs: is the default IMM conservative on scenario C because of the
+"""C's straight legs: is the default IMM conservative on scenario C because of the
 IMM (its mixing, R, initiation), or because of the model it approximates? In-process (the
 service's tracker without Zenoh, as `bench/imm_design.py`), 20 runs of C unless told.
 
@@ -157,7 +157,7 @@ def window(c: dict[str, np.ndarray], key: str, lo: float, hi: float) -> np.ndarr
 
 
 def leak(runs: int, seed: int) -> None:
-    """Hypotheses 1-4 of issue 14's straight leg, per 40-s window of C's first leg."""
+    """Hypotheses 1-4 of C's straight leg, per 40-s window of C's first leg."""
     edges = np.arange(20.0, 381.0, 40.0)
     never = IMM((QUIET, CA), (1e12, 1e12), initial=(0.7, 0.3))
     rows: list[tuple[str, IMM | None, Callable[[], dict[str, np.ndarray]]]] = [

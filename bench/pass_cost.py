@@ -2,7 +2,7 @@
 stage (bench/bench_capacity.py --pass-cost [K ...]).
 
 A `TrackService` (no flags: the default IMM, realtime clock) on a real Zenoh session that
-listens on loopback; a second session in this process puts the feed's messages
+listens on loopback; another Zenoh session in this process puts the feed's messages
 (`<ns>/meas/radar1/swarm-NNNNNN`, the swarm feed's form: t, r, az, el, sr, saz, sel, seq)
 into the service's FIFO channel, and a consumer process subscribes to a sample of the
 `tracks/` ids (`tracks/swarm-$*0`, one in ten, as bench_capacity.py's latency sample;

@@ -334,7 +334,7 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
         "single-model filter core) on as many rows, same run; frame: ms per frame at N "
         "tracks (every track predicted to the instant + pack_frame); meas/s/core: rows one "
         "core could apply per second beside 30 frames per second; records: us per row of "
-        "the record path (parse_scan + Tracker.track, as before issue 13's one pass), x: "
+        "the record path (parse_scan + Tracker.track, row by row instead of one pass), x: "
         "its ratio to check + apply")
 
 

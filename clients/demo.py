@@ -38,7 +38,7 @@ def _alive(service: subprocess.Popen, endpoint: str) -> bool:
     return False
 
 
-def main(argv: list[str] | None = None) -> None:
+def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-demo", description=__doc__)
     p.add_argument("--scenario", default="swarm",
                    choices=("swarm", "display", "radar3d", "maneuver", "crossing",
@@ -50,7 +50,11 @@ def main(argv: list[str] | None = None) -> None:
                    help="show the live map in a browser (track-web) instead of the terminal")
     p.add_argument("--port", type=int, default=8080, help="track-web's port with --web")
     add_version(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parser().parse_args(argv)
     on_signals(interrupt=True)  # a stop ends the children too (the finally blocks below)
     if args.web:
         try:

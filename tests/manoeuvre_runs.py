@@ -1,5 +1,5 @@
 """One run of the `manoeuvres` scenario through an in-process `Tracker`, scored as
-`track-eval manoeuvres` scores it (tests of issue 30's traced cases)."""
+`track-eval manoeuvres` scores it (the tests of traced cases)."""
 
 from __future__ import annotations
 

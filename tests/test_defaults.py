@@ -1,5 +1,5 @@
 """The service without options on scenarios A and B, through the real service (lockstep,
-Zenoh on loopback), reduced from `track-eval defaults` (issue 14; scenario C is in
+Zenoh on loopback), reduced from `track-eval defaults` (scenario C is in
 tests/test_maneuver.py): near the best filter of each scenario and consistent."""
 
 from __future__ import annotations

@@ -172,7 +172,7 @@ def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
     """The frame predicts the IMM's combined estimate with one model (F of CA on the
     combined state). The IMM's own predicted mean, the mixture of its modes' predictions,
     differs from it exactly by (mu_CA - c_CA) a_CA dt^2 / 2 in position and
-    (mu_CA - c_CA) a_CA dt in velocity (docs/performance.md, "Frame cost"), less each turn
+    (mu_CA - c_CA) a_CA dt in velocity (the frame's draw, service/tracking/frame.py), less each turn
     mode's c_j (F_CT - F_CV) x0_j: the CV modes hold no acceleration, and mixing keeps the
     mean. |c_CA - mu_CA| <= 1 - exp(-dt / 10 s) with the default sojourns (the CA mode's,
     10 s, beside its onset of the manoeuvre modes)."""

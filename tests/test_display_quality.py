@@ -1,6 +1,6 @@
 """Scenario A through the real service (CA filter, exact 1 Hz positions, 30 Hz frames):
 rate-limited correction blending removes the visible jumps at little cost in frame
-error, a 1 s lag with smoothing cuts the error (issue 5's targets)."""
+error, a 1 s lag with smoothing cuts the error (docs/accuracy.md, scenario A's targets)."""
 
 from __future__ import annotations
 

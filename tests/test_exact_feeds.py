@@ -43,8 +43,9 @@ def test_jittered_positions_stated_exact_stay_stable(feed, sigma):
     e, e_lin = errors(got, pos, ts, 10.0, 121.0), errors(lin, pos, ts, 10.0, 121.0)
     assert np.isfinite(e).all() and len(e) == AIRCRAFT * 55  # every held-out instant drawn
     rms, rms_lin = np.sqrt(np.mean(e ** 2)), np.sqrt(np.mean(e_lin ** 2))
-    # the target (issue 33): 0.8 x linear's RMS. Measured (`track-eval heldout --runs 1
-    # --aircraft 500 --duration 120`): sigma 0 and absent 0.74 x; the piecewise model 5.8 x
+    # the target (docs/accuracy.md, "Exact positions"): 0.8 x linear's RMS. Measured
+    # (`track-eval heldout --runs 1 --aircraft 500 --duration 120`): sigma 0 and absent
+    # 0.74 x; the piecewise model 5.8 x
     rms_ratio = 0.8
     assert rms <= rms_ratio * rms_lin
     assert np.percentile(e, 95) <= np.percentile(e_lin, 95)

@@ -1,4 +1,4 @@
-"""The per-scan shortcuts of issue 11 give the same bits as the plain steps they replace:
+"""The per-scan shortcuts give the same bits as the plain steps they replace:
 the Kalman update's fused contractions, the all-Cartesian conversion, the gate's
 prediction of the position rows, the lazily cut gatings, the conversion at the point
 taken with a batch's rows, the columns of a batch and the track ids of a scan."""

@@ -1,6 +1,6 @@
 """Scenario C through the real service, reduced to 20 runs: VDF reproduces the paper's
 behaviour; the service without options (its default IMM) beats it in the turns without
-costing much on the straight leg, and is consistent in the turns (issue 14)."""
+costing much on the straight leg, and is consistent in the turns."""
 
 from __future__ import annotations
 
@@ -57,7 +57,7 @@ def test_default_beats_vdf_in_turns_and_stays_close_to_it_when_straight(reports)
 def test_default_is_consistent_in_the_turns_and_not_optimistic_when_straight(reports):
     # measured (20 runs, seed 3): NEES 4.02 slow turn, 3.93 fast turn (interval
     # [2.86, 5.33]); 1.55 and 1.96 on the straight legs: conservative, below the
-    # interval (docs/accuracy.md, "The default filter", explains why)
+    # interval (docs/explanation/filters.md, "What the default gives up", explains why)
     default = reports["default"]
     lo, hi = default["nees_interval"]
     for name in ("slow turn", "fast turn"):

@@ -188,7 +188,7 @@ def test_eval_prints_where_the_nees_comes_from(capsys):
 @pytest.mark.slow
 def test_jpda_holds_every_aircraft_with_one_track(capsys):
     """The same through the service with `--associator jpda`: no track break at 1 to 5 s
-    (its speed gate; docs/accuracy.md, "JPDA with the IMM")."""
+    (its speed gate; docs/explanation/association.md)."""
     track_eval.main(["manoeuvres", "--runs", "1", "--per-class", "1", "--config", "default",
                      "--service-arg=--associator=jpda", "--json"])
     out = json.loads(capsys.readouterr().out)

@@ -113,10 +113,10 @@ def test_a_track_spread_wide_by_a_detected_scan_is_deleted_only_when_missed():
 
 def test_a_jpda_track_weighs_no_detection_beyond_the_fastest_target():
     """The speed gate (`JPDAAssociator.reachable`): a detection farther from a track's
-    last position than the fastest target flies meanwhile takes no weight. Before it, the
-    standard-rate aircraft of seed 9 at 4 s (docs/accuracy.md, "JPDA with the IMM") was
-    missed twice in its turn, its track spread over false detections kilometres out in
-    the widest mode's gate and was deleted, and the aircraft started a second track."""
+    last position than the fastest target flies meanwhile takes no weight. Without it, the
+    standard-rate aircraft of seed 9 at 4 s (docs/explanation/association.md) is missed
+    twice in its turn, its track spreads over false detections kilometres out in the
+    widest mode's gate and is deleted, and the aircraft starts a second track."""
     got = manoeuvre_runs.fly(Tracker(TrackerConfig(associator="jpda")), 4.0, 9)
     assert all(a.breaks == 0 for a in got), [(a.name, a.ids) for a in got if a.breaks]
 
@@ -124,10 +124,10 @@ def test_a_jpda_track_weighs_no_detection_beyond_the_fastest_target():
 @pytest.mark.parametrize("gated, held", [(True, 49), (False, 45)])
 def test_a_gnn_track_takes_no_detection_beyond_the_fastest_target(gated, held):
     """The same speed gate under GNN: the slow helicopter of seed 6 at 4 s scans
-    (docs/accuracy.md, "Slow and tight flyers"), missed at 168 and 172 s, is held at
-    every scan; without the gate (the associator's `reachable` taking every pair) its
-    coasting track takes a false detection 4 km out in its widest mode's gate and shows
-    it there for scans (two before the widest mode's noise was bounded, four since)."""
+    (docs/explanation/association.md), missed at 168 and 172 s, is held at every scan;
+    without the gate (the associator's `reachable` taking every pair) its coasting track
+    takes a false detection 4 km out in its widest mode's gate and shows it there for
+    four scans."""
     tracker = Tracker()
     if not gated:
         tracker.scan_associator.reachable = lambda *args: None

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from zenoh_track import __version__
+
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -52,16 +54,18 @@ def note_pid(request):
         with open({str(pids)!r}, "a") as f:
             f.write(f"{{svc.proc.pid}}\\n")
 """)
-    readme = doc_blocks(ROOT / "README.md")[0]
-    assert "def test_my_feed_confirms_a_track(track)" in readme
-    pytester.makepyfile(test_doc=first, test_wrong=wrong, test_readme=readme,
-                        test_marker="import pytest\n\n" + marker)
+    # the tutorials' feed and its test, as a newcomer copies them
+    my_radar = doc_blocks(ROOT / "docs" / "tutorials" / "first-tracks.md")[0]
+    tutorial = doc_blocks(ROOT / "docs" / "tutorials" / "your-feed.md")
+    assert tutorial[0] == ENABLE and "def test_my_radar_makes_one_confirmed_track" in tutorial[1]
+    pytester.makepyfile(test_doc=first, test_wrong=wrong, my_radar=my_radar,
+                        test_tutorial=tutorial[1], test_marker="import pytest\n\n" + marker)
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "-rA", timeout=600)
     result.assert_outcomes(passed=4, failed=1)
     out = result.stdout.str()
     assert "FAILED test_wrong.py::test_wrong_position" in out
     assert re.search(r"track-service test[0-9a-f]+ log", out), out[-3000:]
-    assert "track-service 0.1.0: ns=test" in out  # the service's own first line
+    assert f"track-service {__version__}: ns=test" in out  # the service's own first line
     started = [int(p) for p in pids.read_text().split()]
     assert len(started) == 4 and not any(alive(p) for p in started)
 

@@ -1,6 +1,6 @@
 """The second look (tracking.second_look): a confirmed track's doubtful detection waits one
 scan, and the next scan chooses between taking it and having missed. The default filter
-(the IMM), unlabelled 3-D detections every 4 s, as in issue 30's breaks at 4 s."""
+(the IMM), unlabelled 3-D detections every 4 s, as in the manoeuvres scenario's breaks at 4 s."""
 
 from __future__ import annotations
 
@@ -190,11 +190,11 @@ def test_a_confident_detection_beyond_reach_is_weighed_by_the_next_scan(reach):
 
 
 def test_a_turn_ending_in_a_missed_scan_keeps_its_track():
-    """The traced break of issue 30 at 4 s (docs/accuracy.md, "Far detections weighed
-    too"): a 4 g turn ends as a scan is missed, and the track takes a false detection
-    1.8 km off with confidence (its wide manoeuvre mode still allows the turn); the
-    aircraft's detections at the next scan put it back. Before, the aircraft started a
-    second track there and was not held at 2 of its 46 scans."""
+    """A traced case at 4 s (the manoeuvres scenario, docs/accuracy.md "Manoeuvres"): a
+    4 g turn ends as a scan is missed, and the track takes a false detection 1.8 km off
+    with confidence (its wide manoeuvre mode still allows the turn); the aircraft's
+    detections at the next scan put it back. Without the second look the aircraft starts
+    a second track there and is not held at 2 of its 46 scans."""
     tracker = Tracker()
     aircraft = manoeuvre_runs.aircraft(tracker, 4.0, 12, "4g-0")
     assert aircraft.breaks == 0 and aircraft.held == aircraft.scans
@@ -203,11 +203,10 @@ def test_a_turn_ending_in_a_missed_scan_keeps_its_track():
 
 def test_a_detection_passed_over_by_a_hair_gets_a_second_chance():
     """The standard-rate aircraft of seed 23 at 10 s scans (an en-route radar's;
-    docs/accuracy.md, "A second chance"): a detection of it scores a hair below a miss;
-    its branch waits beside the miss and the next scan takes it: the aircraft is held at
-    every scan with one id (without the second look: a scan not held and a second id).
-    (The case of before, a 4 g aircraft of seed 2 at 5 s, is held without a second
-    chance since the widest mode's noise is bounded: `defaults.IMM_WIDE_DV`.)"""
+    docs/explanation/association.md, "Doubtful updates wait a scan"): a detection of it
+    scores a hair below a miss; its branch waits beside the miss and the next scan takes
+    it: the aircraft is held at every scan with one id (without the second look: a scan
+    not held and a second id)."""
     def run(second_look: float | None) -> tuple[Tracker, object]:
         tracker = Tracker() if second_look is None else \
             Tracker(TrackerConfig(second_look=second_look))

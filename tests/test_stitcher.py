@@ -83,10 +83,10 @@ def test_a_target_beside_a_tracked_one_starts_its_own_track():
 
 def test_a_4g_aircraft_at_10_s_keeps_one_track():
     """A 4 g aircraft of seed 11 at 10 s scans (a long-range radar's; docs/accuracy.md,
-    "Lost and found", "Beyond 5 s"): its track used to lose it in the turn (the widest
-    mode's gate kilometres wide over 10 s) and the stitcher gave the new track its id;
-    with that mode's noise bounded (`defaults.IMM_WIDE_DV`) the one track holds it, with
-    or without continuation (unbounded: a second id without it)."""
+    "Beyond 5 s"): with the widest mode's noise bounded (`defaults.IMM_WIDE_DV`) the one
+    track holds it through the turn, with or without continuation; unbounded, that
+    mode's gate grows kilometres wide over 10 s, the track loses the aircraft and a second
+    id takes it (which continuation would give the lost track's id)."""
     import dataclasses
 
     from zenoh_track.tracking.display import DISPLAY_COLUMNS

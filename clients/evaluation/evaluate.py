@@ -302,11 +302,7 @@ def plot_display(collected: dict[str, Collected], outdir: str,
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> None:
-    argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["manoeuvres"]:  # its own options (clients/evaluation/evaluate_manoeuvres.py)
-        evaluate_manoeuvres.main(argv[1:])
-        return
+def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
     p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *evaluate_plots.SCENARIOS,
                                         "defaults", "heldout", "manoeuvres"],
@@ -345,7 +341,15 @@ def main(argv: list[str] | None = None) -> None:
     evaluate_heldout.add_args(p)
     add_quiet_arg(p)
     add_version(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["manoeuvres"]:  # its own options (clients/evaluation/evaluate_manoeuvres.py)
+        evaluate_manoeuvres.main(argv[1:])
+        return
+    args = parser().parse_args(argv)
     on_signals(interrupt=True)
     if args.plot:
         need("matplotlib", "plot", "track-eval --plot")

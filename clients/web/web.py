@@ -212,7 +212,7 @@ async def serve(args: argparse.Namespace, stop: Stop) -> None:
         session.close()
 
 
-def main(argv: list[str] | None = None) -> None:
+def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-web", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_zenoh_args(p)
@@ -223,7 +223,11 @@ def main(argv: list[str] | None = None) -> None:
                    help="geodetic origin of the ENU frame: positions also in lat/lon")
     p.add_argument("--trail", type=float, default=TRAIL,
                    help="seconds of history behind each track (default %(default)s)")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parser().parse_args(argv)
     stop = on_signals()
     try:
         asyncio.run(serve(args, stop))
