@@ -132,3 +132,8 @@ NEW_TIMELINE = 10  # ... unless this many such inputs come in a row: a new timel
 
 # ---------------------------------------------------------------- state file (--state)
 STATE_PERIOD = 1.0  # s: a checkpoint of the track table this often (and at SIGTERM/SIGINT)
+
+# ---------------------------------------------------------------- the machine's cores
+KERNEL_THREADS = 0  # threads of the compiled IMM update over row blocks (0: every core)
+PARALLEL_ROWS = 2048  # rows of a pass below which one thread does it all (its hand-over
+# costs tens of microseconds; 2,048 rows of the six-mode IMM about 8 ms)

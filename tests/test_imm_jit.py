@@ -15,7 +15,7 @@ import pytest
 from reference.record import track
 
 from zenoh_track import defaults
-from zenoh_track.estimation import imm_jit
+from zenoh_track.estimation import blocks, imm_jit
 from zenoh_track.estimation.catalog import FilterSpec
 from zenoh_track.estimation.imm import ModeSet
 from zenoh_track.estimation.measurements import MeasurementBatch
@@ -140,3 +140,37 @@ def test_the_service_calls_only_the_warmed_kernels():
     out = subprocess.run([sys.executable, "-c", WARMED_ONLY], capture_output=True, text=True,
                          check=True, timeout=300)
     assert out.stdout.split("\n")[-2] == "[True, True, True]", out.stdout + out.stderr
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_a_pass_on_several_threads_is_the_same_bits(monkeypatch, threads):
+    """The rows split over threads at multiples of BLOCK (`estimation.blocks`): every
+    output and every store row written the same to the bit as on one thread."""
+    monkeypatch.setattr(defaults, "PARALLEL_ROWS", imm_jit.BLOCK)
+    rng, count = np.random.default_rng(11), 5 * imm_jit.BLOCK + 7
+    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm")))
+    for t in range(3):
+        track(tracker, measurements(count, float(t), 3, rng))
+    arrays = tracker.store.layout(3)
+    rows = arrays.live()[0][::-1]
+    batch = MeasurementBatch.of(measurements(count, 3.5, 3, rng)[::-1], 3)
+    dt = batch.t - arrays.t[rows]
+    alone, split = copy.deepcopy(arrays), copy.deepcopy(arrays)
+    one = imm_jit.step(tracker.updater, alone, rows, dt, batch, threads=1)
+    many = imm_jit.step(tracker.updater, split, rows, dt, batch, threads=threads)
+    assert len(blocks.parts(count, imm_jit.BLOCK, threads)) == threads
+    for a, b in zip(one, many, strict=True):
+        assert np.array_equal(a, b)
+    for name in ("mode_x", "mode_p", "mode_prob"):
+        assert np.array_equal(getattr(alone, name), getattr(split, name)), name
+    assert one[3].all()
+
+
+@pytest.mark.parametrize("k", [1, 39, 40, 41, 4096, 4099, 100_000])
+@pytest.mark.parametrize("threads", [1, 2, 3, 8])
+def test_the_parts_of_a_pass_cover_it_at_block_edges(k, threads):
+    parts = blocks.parts(k, imm_jit.BLOCK, threads)
+    assert parts[0][0] == 0 and parts[-1][1] == k
+    assert all(hi == lo for (_, hi), (lo, _) in zip(parts, parts[1:], strict=False))
+    assert all(lo % imm_jit.BLOCK == 0 for lo, _ in parts)
+    assert len(parts) <= max(1, min(threads, k // defaults.PARALLEL_ROWS))

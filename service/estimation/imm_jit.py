@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import blocks
 from .measurements import MeasurementBatch
 
 if TYPE_CHECKING:
@@ -51,23 +52,31 @@ def applies(imm: IMM) -> bool:
 
 
 def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
-         batch: MeasurementBatch) -> Result:
+         batch: MeasurementBatch, threads: int | None = None) -> Result:
     """`IMM.update` of `rows` of `arrays` over their own dt with the measurements of
     `batch` (converted by the CMKF): writes the modes' posteriors and probabilities of the
     rows whose result is finite in place and returns the combined x (N, n), P (N, n, n),
-    the NIS of the mixture's prediction and the mask of finite rows."""
+    the NIS of the mixture's prediction and the mask of finite rows. A large pass runs
+    in parts on `threads` threads (default: `blocks.cores()`), the same bits."""
     k, n = len(rows), arrays.n
     xn, pn = np.empty((k, n)), np.empty((k, n, n))
     nis, ok = np.empty(k), np.empty(k, dtype=np.bool_)
-    if k:
-        tau, dest, kinds, qs, ws = design(imm)
-        kernel(k)(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
-                  np.ascontiguousarray(rows, dtype=np.int64),
-                  _writable(dt, k),
-                  tau, dest, kinds, qs, ws, not imm.mode_conversion,
-                  np.ascontiguousarray(batch.polar),
-                  np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
-                  np.ascontiguousarray(batch.origin.T), xn, pn, nis, ok)
+    if not k:
+        return xn, pn, nis, ok
+    tau, dest, kinds, qs, ws = design(imm)
+    update = kernel(k)  # one kernel for every part: each block the same rows, the same bits
+    rows, dt = np.ascontiguousarray(rows, dtype=np.int64), _writable(dt, k)
+    polar, values = np.ascontiguousarray(batch.polar), batch.values.T
+    sigmas, origin = batch.sigmas.T, batch.origin.T
+
+    def part(lo: int, hi: int) -> None:  # rows lo..hi, distinct store rows from the others'
+        update(arrays.mode_x, arrays.mode_p, arrays.mode_prob, rows[lo:hi], dt[lo:hi],
+               tau, dest, kinds, qs, ws, not imm.mode_conversion, polar[lo:hi],
+               np.ascontiguousarray(values[:, lo:hi]), np.ascontiguousarray(sigmas[:, lo:hi]),
+               np.ascontiguousarray(origin[:, lo:hi]), xn[lo:hi], pn[lo:hi], nis[lo:hi],
+               ok[lo:hi])
+
+    blocks.over_rows(k, BLOCK, part, threads)
     return xn, pn, nis, ok
 
 
