@@ -123,7 +123,10 @@ class Client:
                                       consolidation=zenoh.ConsolidationMode.NONE,
                                       timeout=timeout):
             if reply.ok is not None:
-                body = unpack(reply.ok.payload.to_bytes())
+                try:
+                    body = unpack(reply.ok.payload.to_bytes())
+                except ValueError:
+                    continue  # not a status this version reads
                 if isinstance(body, dict):
                     out.append(body)
         return sorted(out, key=lambda s: str(s.get("instance", "")))
