@@ -127,3 +127,28 @@ def test_a_new_timeline_starts_the_merge_afresh() -> None:
         m.add(frame("a", n, A), n / RATE)
     (f,) = m.add(frame("a", 0, A), 3.0)  # a replay again from t = 0
     assert f.t == 0.0
+
+
+def test_a_picture_or_any_view_of_it_kept_is_never_overwritten() -> None:
+    """The merge reuses the memory of pictures nobody holds any more, and only theirs."""
+    m = Merge()
+    m.add(frame("a", 0, A), 0.0, draw=False)
+    m.add(frame("b", 0, B), 0.0, draw=False)
+    kept = m.ready(0.0)[0]
+    column = kept.pos[:, 0]  # a view of a picture, the picture itself kept too
+    column_only = None
+    blocks = set()
+    for n in range(1, 40):
+        m.add(frame("a", n, A), n / RATE)
+        (pic,) = m.add(frame("b", n, B), n / RATE)
+        blocks.add(id(pic.pos.base))
+        if n == 5:
+            column_only = pic.vel[:, 0] * 0 + pic.pos[:, 0]  # a copy, then a view alone
+            view = pic.pos[:, 0]
+            want = view.copy()
+        del pic
+    np.testing.assert_array_equal(kept.pos[:, 0], 0.0)
+    np.testing.assert_array_equal(column, 0.0)
+    np.testing.assert_array_equal(view, want)
+    np.testing.assert_allclose(column_only, 50.0 / RATE)
+    assert len(blocks) <= 4  # the rest reused

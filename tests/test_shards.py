@@ -16,8 +16,9 @@ import threading
 import time
 
 import pytest
-from test_compose import ROUTER, ROOT
-from test_web import WebProc, browser, page_text, poll  # noqa: F401 (the fixture)
+from test_compose import ROOT, ROUTER
+from test_web import WebProc, page_text, poll
+from test_web import browser as browser  # the fixture
 
 from zenoh_track.clients import ServiceProcess, connect
 from zenoh_track.clients.lib.frames import Frame
@@ -155,7 +156,7 @@ def test_every_viewer_shows_the_union_of_the_instances_then_loses_a_killed_one(n
                or len(f) != TARGETS]
         assert not bad, bad[:5]
         ts = [f.t for f in library]
-        assert all(b > a for a, b in zip(ts, ts[1:])), "pictures out of order"
+        assert all(b > a for a, b in zip(ts, ts[1:], strict=False)), "pictures out of order"
         for ids, count, line in runs:
             assert ids == dep.ids and count == TARGETS, (count, sorted(dep.ids ^ ids))
             assert f"{n} of {n} instances serve the picture" in line, line
