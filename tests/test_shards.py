@@ -9,7 +9,9 @@ killed: its tracks leave every viewer within the documented time, the others' st
 from __future__ import annotations
 
 import asyncio
+import os
 import re
+import signal
 import subprocess
 import sys
 import threading
@@ -195,5 +197,35 @@ def test_every_viewer_shows_the_union_of_the_instances_then_loses_a_killed_one(n
     finally:
         if web is not None:
             web.stop()
+        client.close()
+        dep.close()
+
+
+def test_a_frozen_instance_leaves_after_stale_seconds_and_comes_back():
+    """SIGSTOP: its connection stays open and its token up, its frames stop; its tracks
+    leave the picture after STALE s, its token at the end of Zenoh's lease; SIGCONT: its
+    tracks are back with its next frames."""
+    dep = Deployment(2)
+    client = connect(dep.endpoint, mode="client", ns=dep.ns)
+    try:
+        pic = client.picture()
+        pic.wait_for(lambda f: set(f.id_list) == dep.ids, timeout=90)
+        keep = dep.ids - dep.of("shard-1")
+        victim = dep.shards[1].proc
+        frozen = time.monotonic()
+        os.kill(victim.pid, signal.SIGSTOP)
+        pic.wait_for(lambda f: set(f.id_list) == keep, timeout=30)
+        left = time.monotonic() - frozen
+        assert STALE - 0.1 < left < GONE_WITHIN, left
+        pic.wait_for(lambda f: "shard-1" not in pic.alive, timeout=30)
+        token = time.monotonic() - frozen
+        assert set(pic.latest().id_list) == keep
+        os.kill(victim.pid, signal.SIGCONT)
+        thawed = time.monotonic()
+        pic.wait_for(lambda f: set(f.id_list) == dep.ids, timeout=30)
+        back = time.monotonic() - thawed
+        print(f"\nshard-1 stopped: its tracks left after {left:.2f} s, its token after "
+              f"{token:.2f} s; continued: back after {back:.2f} s")
+    finally:
         client.close()
         dep.close()
