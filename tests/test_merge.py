@@ -88,7 +88,7 @@ def test_the_hold_draws_an_instant_a_slow_instance_has_not_reached() -> None:
     assert len(m.add(frame("b", 0, B), 0.0)[0]) == len(B)
     assert len(m.add(frame("a", 0, A), 0.0)[0]) == len(A) + len(B)  # 0 drawn again
     assert m.add(frame("a", 1, A), 0.01) == []  # b has not drawn 1/30 s yet
-    assert m.deadline() == pytest.approx(0.26)
+    assert m.deadline(0.01) == pytest.approx(0.26)
     assert m.ready(0.2) == []
     (late,) = m.ready(0.3)
     assert late.t == 1 / RATE and sorted(late.id_list) == sorted(A + B)

@@ -107,15 +107,14 @@ class Merge:
         """The instances whose frames are held (the names in the frames)."""
         return tuple(sorted(n for n, q in self.held.items() if q))
 
-    def deadline(self) -> float | None:
-        """When the next instant's hold ends (the caller's `wall`), None when nothing
-        waits; call `ready` then."""
-        if self.hold is None:
+    def deadline(self, wall: float) -> float | None:
+        """When the next instant's hold ends (the caller's clock), None when nothing
+        waits for it; call `ready` then."""
+        part = self._taking_part(wall)
+        t = self._next(part)
+        if self.hold is None or t is None:
             return None
-        t = self._next(self.held)
-        if t is None:
-            return None
-        return min(w for q in self.held.values() for f, w in q if f.t == t) + self.hold
+        return min(w for q in part.values() for f, w in q if f.t == t) + self.hold
 
     def ready(self, wall: float) -> list[Frame]:
         """The pictures complete at `wall` (or held past `hold`), in order."""
@@ -183,16 +182,16 @@ def union(t: float, frames: list[Frame], spare: list[np.ndarray] | None = None) 
     added to it otherwise. A new block of that size every picture made glibc give the
     memory back and fault it in again: a third of the merge's cost."""
     n = sum(len(f) for f in frames)
+    blocks = [] if spare is None else spare
     block = None
-    for i in range(len(spare or ())):
-        if spare[i].size == 57 * n and _refs(spare, i) == _UNSHARED:  # type: ignore[index]
-            block = spare.pop(i)  # type: ignore[union-attr]
+    for i in range(len(blocks)):
+        if blocks[i].size == 57 * n and _refs(blocks, i) == _UNSHARED:
+            block = blocks.pop(i)
             break
     if block is None:
         block = np.empty(57 * n, np.uint8)
-    if spare is not None:
-        spare.append(block)
-        del spare[:-SPARE]
+    blocks.append(block)
+    del blocks[:-SPARE]
     floats = block[:56 * n].view(np.float64)
     pos, vel = floats[:3 * n].reshape(n, 3), floats[3 * n:6 * n].reshape(n, 3)
     sigma, codes = floats[6 * n:], block[56 * n:]

@@ -45,8 +45,10 @@ class Picture:
         self.on_frame = on_frame
         self._latest: Frame | None = None
         self._closed = False
-        self._timer: threading.Timer | None = None
-        self._cond = threading.Condition(threading.RLock())
+        lock = threading.RLock()
+        self._cond = threading.Condition(lock)  # readers wait on it for pictures
+        self._wake = threading.Condition(lock)  # the hold's thread waits on it
+        threading.Thread(target=self._hold, name="picture-hold", daemon=True).start()
         session = client.session
         # the tokens first (their history: the instances alive now), then a late
         # joiner's picture: every instance's latest frame at once, before the
@@ -88,13 +90,24 @@ class Picture:
             self.received += 1
             self._emit(self.merge.add(frame, time.monotonic(), draw))
 
-    def _due(self) -> None:
+    def _hold(self) -> None:
+        """Draw an instant whose hold has ended while no frame came to draw it."""
         with self._cond:
-            self._timer = None
-            self._emit(self.merge.ready(time.monotonic()))
+            while not self._closed:
+                now = time.monotonic()
+                due = self.merge.deadline(now)
+                if due is None:
+                    self._wake.wait()
+                elif due > now:
+                    self._wake.wait(due - now + 1e-3)
+                else:
+                    pictures = self.merge.ready(now)
+                    self._emit(pictures)
+                    if not pictures:  # nothing to draw after all: look again later
+                        self._wake.wait(self.merge.hold or 0.1)
 
     def _emit(self, pictures: list[Frame]) -> None:
-        """Queue the pictures drawn (under the lock), and time the next instant's hold."""
+        """Queue the pictures drawn (under the lock), and wake the hold's thread."""
         for frame in pictures:
             if len(self.queue) == self.queue.maxlen:
                 self.dropped += 1
@@ -104,11 +117,7 @@ class Picture:
                 self.on_frame(frame)
         if pictures:
             self._cond.notify_all()
-        due = self.merge.deadline()
-        if due is not None and self._timer is None and not self._closed:
-            self._timer = threading.Timer(max(due - time.monotonic(), 0.0) + 1e-3, self._due)
-            self._timer.daemon = True
-            self._timer.start()
+        self._wake.notify()  # an instant may wait for its hold now
 
     def latest(self) -> Frame | None:
         """The newest picture, None before the first."""
@@ -158,9 +167,8 @@ class Picture:
                 sub.undeclare()
             with self._cond:
                 self._closed = True
-                if self._timer is not None:
-                    self._timer.cancel()
                 self._cond.notify_all()
+                self._wake.notify_all()
 
     def __enter__(self) -> Picture:
         return self
