@@ -102,6 +102,7 @@ class RecordingWriter:
         self.scene_next = -math.inf
         self.scene_channel: int | None = None
         self.merge = Merge()  # the frames of every instance into one picture
+        self.scene_t = -math.inf  # the instant of the latest scene
         self.scenes = 0
         self.display_prefix = self.keys.display("")
         self.last_display: dict[str, bytes] = {}  # track id -> latest display/ payload
@@ -147,8 +148,10 @@ class RecordingWriter:
         except ValueError:
             return  # not a frame this version can read: no picture for it
         for pic in self.merge.add(frame, log / 1e9):
-            if pic.t < self.scene_next - 1e-6:
+            again = pic.t == self.scene_t  # drawn again: an instance's first frame came
+            if pic.t < self.scene_next - 1e-6 and not again:
                 continue
+            self.scene_t = pic.t
             self.scene_next = pic.t + self.scene_period  # type: ignore[operator]
             status = {}
             for tid in pic.id_list:
