@@ -141,13 +141,15 @@ def run_plots_through_service(feed_argv: list[str], service_args: list[str],
     expect: dict[float, int] = {}
     arrived = threading.Condition()
 
+    merge = Merge(hold=None, stale=None)  # the client library's picture: every instant
+
     def on_frame(s: Any) -> None:
-        m = unpack(s.payload.to_bytes())
-        t = round(m["t"], 6)
-        if t in needed:
-            with arrived:
-                expect[t] = len(m["ids"])
-                arrived.notify_all()
+        for pic in merge.add(Frame.from_payload(s.payload.to_bytes()), time.monotonic()):
+            t = round(pic.t, 6)
+            if t in needed:
+                with arrived:
+                    expect[t] = len(pic)
+                    arrived.notify_all()
 
     def on_display(s: Any) -> None:
         if s.kind == zenoh.SampleKind.PUT:
