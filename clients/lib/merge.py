@@ -1,7 +1,7 @@
 """One picture from the frames of several track-service instances (a sharded deployment:
 each instance publishes on `<ns>/frame` the tracks it holds, its name in `instance`).
 
-The rule, for every client (docs/protocol.md, "Several instances"; docs/howto-shard.md):
+The rule, for every client (docs/protocol.md §12; docs/howto-shard.md):
 
 - Each instance's frames are held apart. Display instant t is drawn once every
   instance taking part holds a frame at t or later (an instance that skipped t, having
