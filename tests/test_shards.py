@@ -3,8 +3,9 @@ N realtime `track-service` instances splitting the labelled targets by the last 
 their id (deploy/README.md), a realtime swarm feed; then for 30 s every viewer shows the
 exact union of the instances' tracks at every picture it draws: the client library's
 `Picture`, `track-display --once` run again and again, `track-web` (every frame sent to
-a websocket client, and the count the page draws in chromium). Then one instance is
-killed: its tracks leave every viewer within the documented time, the others' stay."""
+a websocket client, and the count the page draws in chromium); a late joiner's first
+picture holds them all. Then one instance is killed: its tracks leave every viewer
+within the documented time, the others' stay."""
 
 from __future__ import annotations
 
@@ -170,6 +171,14 @@ def test_every_viewer_shows_the_union_of_the_instances_then_loses_a_killed_one(n
         print(f"\n{n} instances, {WINDOW:g} s: {len(library)} pictures of the library, "
               f"{len(runs)} track-display --once, {len(sent)} track-web frames, "
               f"{len(counts)} counts drawn in chromium: all {TARGETS} tracks, every one")
+
+        # a late joiner's first picture (every instance's reply to its query, drawn before
+        # its subscription) holds every instance's tracks
+        joined: list[Frame] = []
+        late = client.picture(on_frame=joined.append)
+        assert set(joined[0].id_list) == dep.ids and len(joined[0]) == TARGETS
+        assert sorted(joined[0].instances) == [f"shard-{k}" for k in range(n)]
+        late.close()
 
         # one instance killed: its tracks leave every viewer, the others' stay
         victim = dep.shards[1]
