@@ -174,7 +174,9 @@ _UNSHARED = _refs([np.empty(1)], 0)  # a block that only its list holds, counted
 
 def union(t: float, frames: list[Frame], spare: list[np.ndarray] | None = None) -> Frame:
     """The rows of `frames` (of distinct instances) as one frame at t: each frame's
-    positions moved on to t by its velocities; sigma and status as drawn.
+    positions moved on to t by its velocities (not beyond NEW_TIMELINE: instances that far
+    apart are not on one timeline, and their rows are taken as drawn); sigma and status
+    as drawn.
 
     The columns share one block (7 float64 and one status byte a row: 640 kB at 10,000
     tracks), taken from `spare` when one there of the right size is referenced by
@@ -199,7 +201,7 @@ def union(t: float, frames: list[Frame], spare: list[np.ndarray] | None = None) 
     start = 0
     for f in frames:
         end = start + len(f)
-        if f.t != t and end > start:
+        if f.t != t and end > start and abs(t - f.t) <= NEW_TIMELINE:
             np.multiply(f.vel, t - f.t, out=pos[start:end])
             pos[start:end] += f.pos
         else:
