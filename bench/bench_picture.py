@@ -4,9 +4,12 @@ beside the service's own encoding of it (`zenoh_track.adapter.encode.pack_frame`
 plain per-track reading (`zenoh_track.wire.decode_frame`), at N tracks; then, live, one
 publisher putting N-track frames at 30 Hz for D seconds through Zenoh on loopback to a
 Picture read in the same Python process: frames received of those sent, dropped, and the
-time from put to the reader holding the decoded frame.
+time from put to the reader holding the decoded frame. With `--instances K`: the cost of
+one picture of N tracks drawn from K instances' frames (each of N / K tracks: K decodes
+and the merge, `clients.lib.merge.Merge`) beside the decode of one frame of N.
 
     python bench/bench_picture.py [--sizes 1000 10000 100000] [--live 10000] [--duration 5]
+    python bench/bench_picture.py --sizes 10000 --instances 4 --live 0
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import numpy as np
 import zenoh
 
 from zenoh_track.adapter.encode import pack_frame
-from zenoh_track.clients import Client, Frame
+from zenoh_track.clients import Client, Frame, Merge
 from zenoh_track.wire import (
     MSGPACK_ENCODING,
     decode_frame,
@@ -51,6 +54,13 @@ def best(repeat: int, fn, *args) -> float:
     return 1e3 * statistics.median(times)
 
 
+def cpu(fn, *args) -> float:
+    """The process's CPU time of one call of fn(*args), ms."""
+    t0 = time.process_time()
+    fn(*args)
+    return 1e3 * (time.process_time() - t0)
+
+
 def micro(sizes: list[int]) -> None:
     print(f"{'tracks':>8} {'encode ms':>10} {'decode ms':>10} {'dec/enc':>8} "
           f"{'budget %':>9} {'wire rows ms':>13} {'rows/dec':>9}")
@@ -66,6 +76,72 @@ def micro(sizes: list[int]) -> None:
     print("  encode: the service's pack_frame of the columns; decode: Frame.from_payload "
           "(the Picture's decoding); budget: decode time as a share of a 30 Hz frame "
           "period; wire rows: wire.decode_frame (per-track dicts), the plain reference")
+
+
+def shards(n: int, k: int, steps: int, late: bool) -> list[list[bytes]]:
+    """Each instant's frames of K instances holding N / K tracks each (`late`: the first
+    instance's frames one period behind)."""
+    ids, pos, vel, sigma, codes = columns(n)
+    names = unpack(ids)
+    out = []
+    for s in range(steps):
+        out.append([pack_frame(2.5 + (s - (late and j == 0)) / RATE,
+                               pack([names[i] for i in rows]), pos[rows], vel[rows],
+                               sigma[rows], codes[rows], f"shard-{j}")
+                    for j, rows in enumerate(np.array_split(np.arange(n), k))])
+    return out
+
+
+def draw(instants: list[list[bytes]], kept: list[Frame | None]) -> int:
+    """Decode and merge every frame as a Picture does (the first instant: a late
+    joiner's replies), keeping the latest picture in kept[0]; the pictures drawn."""
+    m, drawn = Merge(hold=None), 0
+    for s, payloads in enumerate(instants):
+        for j, body in enumerate(payloads):
+            pics = m.add(Frame.from_payload(body), s / RATE, draw=s > 0)
+            if not s and j == len(payloads) - 1:
+                pics = m.ready(0.0)
+            if pics:
+                kept[0], drawn = pics[-1], drawn + len(pics)
+    return drawn
+
+
+def decode(bodies: list[bytes], kept: list[Frame | None]) -> None:
+    """Decode every frame, keeping the latest in kept[0]."""
+    for body in bodies:
+        kept[0] = Frame.from_payload(body)
+
+
+def merged(sizes: list[int], k: int, repeat: int = 21, steps: int = 60) -> None:
+    """Per display instant: K frames of N / K tracks decoded and merged into one picture
+    (what a client of K instances does), against one frame of N decoded; the instances'
+    frames come in turn, the last completes the instant. Also with one instance a frame
+    period behind (its rows moved on to the instant). Both keep their latest picture, as
+    a viewer does; a new payload every instant, as a client gets them."""
+    print(f"{'tracks':>8} {'one frame ms':>13} {f'{k} merged ms':>12} {'ratio':>6} "
+          f"{'one behind ms':>14} {'ratio':>6}")
+    for n in sizes:
+        ids, pos, vel, sigma, codes = columns(n)
+        wholes = [pack_frame(2.5 + s / RATE, ids, pos, vel, sigma, codes, "one")
+                  for s in range(steps)]
+        aligned, behind = shards(n, k, steps, False), shards(n, k, steps, True)
+        kept: list[Frame | None] = [None]
+        assert draw(aligned, kept) == steps and len(kept[0]) == n  # type: ignore[arg-type]
+        assert draw(behind, kept) == steps and len(kept[0]) == n  # type: ignore[arg-type]
+        runs: list[tuple[float, float, float]] = []
+        for _ in range(repeat):  # interleaved, in CPU time: other processes do not count
+            runs.append((cpu(decode, wholes, kept) / steps, cpu(draw, aligned, kept) / steps,
+                         cpu(draw, behind, kept) / steps))
+        dec, mer, lag = (statistics.median(r[i] for r in runs) for i in range(3))
+        ratio = statistics.median(r[1] / r[0] for r in runs)
+        ratio_lag = statistics.median(r[2] / r[0] for r in runs)
+        print(f"{n:>8,} {dec:>13.3f} {mer:>12.3f} {ratio:>6.2f} {lag:>14.3f} "
+              f"{ratio_lag:>6.2f}")
+    print(f"  one frame: Frame.from_payload of N tracks; {k} merged: {k} frames of N/{k} "
+          f"decoded and merged into the picture of the instant (Merge.add); one behind: "
+          f"the same with one instance's frames a period late (moved on to the instant); "
+          f"CPU ms per display instant (runs of {steps} instants), medians of {repeat} "
+          f"interleaved runs; ratio: the median of each run's ratio to one frame")
 
 
 def live(n: int, duration: float) -> None:
@@ -122,8 +198,12 @@ def main() -> None:
     p.add_argument("--sizes", type=int, nargs="+", default=[1000, 10_000, 100_000])
     p.add_argument("--live", type=int, default=10_000, help="tracks of the live run (0: none)")
     p.add_argument("--duration", type=float, default=5.0)
+    p.add_argument("--instances", type=int, default=0,
+                   help="also the picture of N tracks merged from this many instances")
     args = p.parse_args()
     micro(args.sizes)
+    if args.instances:
+        merged(args.sizes, args.instances)
     if args.live:
         live(args.live, args.duration)
 

@@ -14,6 +14,7 @@ if TYPE_CHECKING:
         Client,
         Feed,
         Frame,
+        Merge,
         Picture,
         Rejected,
         ServiceProcess,
@@ -21,8 +22,8 @@ if TYPE_CHECKING:
         session_config,
     )
 
-__all__ = ["TLS", "Client", "Feed", "Frame", "Picture", "Rejected", "ServiceProcess",
-           "connect", "session_config"]
+__all__ = ["TLS", "Client", "Feed", "Frame", "Merge", "Picture", "Rejected",
+           "ServiceProcess", "connect", "session_config"]
 
 
 def __getattr__(name: str) -> Any:

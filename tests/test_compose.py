@@ -23,7 +23,7 @@ import zenoh
 from conftest import Collector
 
 from zenoh_track import __main__ as service_cli
-from zenoh_track.clients import ServiceProcess
+from zenoh_track.clients import Client, ServiceProcess
 from zenoh_track.clients.feeds import feed as feed_cli
 from zenoh_track.clients.procs import stop
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker
@@ -259,6 +259,8 @@ def test_loopback_mirror_tracks_every_target_once():
         display = Collector(session, keys.space("display"))
         frames = Collector(session, keys.frame)
         assert wait_for_tracker(session, keys, len(SHARDS), timeout=20), "shards not up"
+        pictures: list = []  # the client library's merge of the shards' frames
+        picture = Client(session, ns, own=False).picture(on_frame=pictures.append)
         feed = services["feed"]
         subprocess.run([sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm",
                        "--targets",
@@ -298,6 +300,15 @@ def test_loopback_mirror_tracks_every_target_once():
         # while each shard's frame holds only its own tracks
         last = [set(b["ids"]) for b in frames.bodies() if abs(b["t"] - duration) < 1e-9]
         assert len(last) == 2 and not last[0] & last[1] and last[0] | last[1] == names, last
+        # the library's picture: one per instant, every shard's tracks in each once both
+        # shards hold all of theirs (lockstep: the instants wait for both)
+        picture.wait_for(lambda f: f.t >= t_last, timeout=20)
+        picture.close()
+        whole = next(k for k, f in enumerate(pictures) if set(f.id_list) == names)
+        assert all(set(f.id_list) == names and len(f) == n_targets
+                   for f in pictures[whole:]), [len(f) for f in pictures[whole:]]
+        ts = [f.t for f in pictures[whole:]]
+        assert ts == sorted(set(ts)) and ts[-1] >= t_last
     finally:
         if session is not None:
             session.close()

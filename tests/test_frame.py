@@ -19,7 +19,7 @@ from zenoh_track.tracking.deleter import UpdateTimeDeleter
 from zenoh_track.tracking.display import predicted_at
 from zenoh_track.tracking.status import status_codes
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
-from zenoh_track.wire import STATUSES, pack
+from zenoh_track.wire import STATUSES, pack, unpack
 
 
 def reference(tracker: Tracker, t: float) -> dict[str, tuple]:
@@ -136,6 +136,8 @@ def test_pack_frame_is_msgpack_of_the_same_map_whatever_the_arrays_layout():
     assert pack_frame(0.0, pack([]), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
                       np.zeros(0, np.uint8)) == pack({"t": 0.0, "ids": [], "pos": b"",
                                                       "vel": b"", "sigma": b"", "status": b""})
+    assert pack_frame(2.5, pack(ids), pos, vel, sigma, status, "shard-a") == pack(
+        {**unpack(want), "instance": "shard-a"})
 
 
 def test_update_time_deleter_takes_the_tracks_the_plain_rule_takes():

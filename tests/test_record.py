@@ -115,6 +115,28 @@ def test_frames_give_a_foxglove_scene_at_the_asked_rate():
     assert rotate_x(q) == pytest.approx((0.0, 1.0, 0.0))  # +x turned to the velocity
 
 
+def test_the_scene_of_several_instances_holds_every_instance_s_tracks():
+    """Two instances' frames, each with its own tracks, arriving in either order: every
+    instant's scene holds both (the client library's merge on the receive times; the
+    first instant is drawn again when the second instance's first frame comes)."""
+    out = io.BytesIO()
+    w = RecordingWriter(out, "ns1", ["ns1/**"], scene_hz=2.0)
+    for k in range(31):
+        bodies = [pack({**unpack(frame(k / 30, [name], [float(k), 0.0, 0.0],
+                                       [30.0, 0.0, 0.0], [1.0])), "instance": inst})
+                  for name, inst in (("a0", "shard-a"), ("b1", "shard-b"))]
+        for body in bodies if k % 2 else bodies[::-1]:
+            w.write("ns1/frame", "put", MP, body, 10 + 2 * k, None)
+    w.finish(received=62)
+    rec = Recording(io.BytesIO(out.getvalue()))
+    last: dict[int, list[str]] = {}  # the last scene of each instant
+    for _, ch, m in rec.reader.iter_messages(log_time_order=True):
+        if ch.topic == TOPIC:
+            last[m.publish_time] = sorted(e["id"] for e in json.loads(m.data)["entities"])
+    assert sorted(last) == [0, 500_000_000, 1_000_000_000]
+    assert all(ids == ["a0", "b1"] for ids in last.values()), last
+
+
 def rotate_x(q: dict[str, float]) -> tuple[float, float, float]:
     """The unit x vector rotated by quaternion q."""
     x, y, z, w = q["x"], q["y"], q["z"], q["w"]

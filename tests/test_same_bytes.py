@@ -84,6 +84,8 @@ class Outputs:
                     body = unpack(payload) if payload else None
                     if key.split("/")[1] == "errors":
                         del body["t_wall"]  # the wall time of the rejection
+                    elif key.split("/")[1] == "frame":
+                        assert body.pop("instance")  # a random name per run
                     floats: list[np.ndarray] = []
                     h.update(f"{key}\0{kind}\0{shape(body, floats)}\0".encode())
                     x = np.concatenate(floats) if floats else np.zeros(0)

@@ -44,6 +44,7 @@ from zenoh_track.clients.display.display_model import (
     fmt_int,
     fmt_t,
 )
+from zenoh_track.clients.lib import Client
 from zenoh_track.wire import Keys, add_zenoh_args, on_signals, open_session, unpack
 
 STATUS_STYLE = {"confirmed": "green", "tentative": "yellow", "coasting": "bright_black"}
@@ -71,8 +72,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 class Picture:
-    """The Zenoh side: frames, track updates, liveliness and status into a Table and a
-    Health, under one lock."""
+    """The Zenoh side: the picture of every instance (the client library's merge),
+    track updates, liveliness and status into a Table and a Health, under one lock."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, table: Table) -> None:
         self.session, self.keys = session, keys
@@ -82,21 +83,23 @@ class Picture:
         self.statuses = 0
         self.stop = threading.Event()
         self.subs = [
-            session.declare_subscriber(keys.frame, self._on_frame),
             session.declare_subscriber(keys.space("tracks"), self._on_track),
             session.liveliness().declare_subscriber(keys.alive("*"), self._on_token,
                                                     history=True),
         ]
+        self.client = Client(session, keys.ns, own=False)
+        # asks every instance for its latest frame at once: the table is full at once
+        # even when a lockstep picture is paused
+        self.picture = self.client.picture(maxlen=1, on_frame=self._on_frame)
         threading.Thread(target=self._catch_up, daemon=True).start()
         threading.Thread(target=self._poll_status, daemon=True).start()
 
-    def _on_frame(self, s: zenoh.Sample) -> None:
-        try:
-            frame = Frame.decode(unpack(s.payload.to_bytes()))
-        except (ValueError, KeyError, TypeError):
-            return  # not a frame this version reads: the table keeps the last one
+    def _on_frame(self, frame: Frame) -> None:
+        """A picture drawn (frames that are not frames are left out by the library: the
+        table keeps the last one)."""
         with self.lock:
             self.table.on_frame(frame)
+            self.health.serving = frame.instances
             self.health.frame_walls.append(time.monotonic())
         self.got_frame.set()
 
@@ -120,34 +123,30 @@ class Picture:
                 self.health.alive.discard(name)
 
     def _catch_up(self) -> None:
-        """The latest frame and every track's state at once: a paused lockstep picture
-        may publish nothing for long."""
-        for reply in self.session.get(self.keys.frame, timeout=5):
-            if reply.ok is not None:
-                self._on_frame(reply.ok)
-        for reply in self.session.get(self.keys.space("tracks"), timeout=5):
+        """Every track's state at once: a paused lockstep picture may publish nothing
+        for long."""
+        for reply in self.session.get(self.keys.space("tracks"), target=zenoh.QueryTarget.ALL,
+                                      timeout=5):
             if reply.ok is not None:
                 self._on_track(reply.ok)
 
     def _poll_status(self, period: float = 1.0) -> None:
+        """Every instance's status, once a period."""
         while not self.stop.is_set():
             asked = time.monotonic()
-            for reply in self.session.get(self.keys.status, timeout=period * 0.9):
-                if reply.ok is None:
-                    continue
-                try:
-                    status = unpack(reply.ok.payload.to_bytes())
-                except ValueError:
-                    continue
-                if isinstance(status, dict):
-                    with self.lock:
-                        self.health.on_status(status)
-                        self.statuses += 1
-                break  # one service's view is enough for the line
+            try:
+                statuses = self.client.statuses(timeout=period * 0.9)
+            except (ValueError, zenoh.ZError):
+                statuses = []
+            if statuses:
+                with self.lock:
+                    self.health.on_statuses(statuses)
+                    self.statuses += 1
             self.stop.wait(max(period - (time.monotonic() - asked), 0.0))
 
     def close(self) -> None:
         self.stop.set()
+        self.client.close()
         for sub in self.subs:
             sub.undeclare()
 

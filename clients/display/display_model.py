@@ -134,44 +134,75 @@ class Table:
 
 @dataclass
 class Health:
-    """The service as the display sees it: liveliness tokens, the latest `status`
-    replies (rates from consecutive ones) and the frames arriving."""
+    """The service as the display sees it: liveliness tokens, the instances whose tracks
+    the picture holds (`serving`), the latest `status` reply of each instance (rates from
+    consecutive ones) and the frames arriving."""
 
     alive: set[str] = field(default_factory=set)  # instance names
-    status: dict[str, Any] | None = None
-    status_wall: float | None = None
-    rejects_per_s: float | None = None
-    frames_per_s: float | None = None
+    serving: tuple[str, ...] = ()  # the instances in the latest picture
+    statuses: dict[str, dict[str, Any]] = field(default_factory=dict)  # by instance
+    walls: dict[str, float] = field(default_factory=dict)
+    rates: dict[str, tuple[float, float]] = field(default_factory=dict)  # rejects, frames /s
     frame_walls: list[float] = field(default_factory=list)
 
+    @property
+    def status(self) -> dict[str, Any] | None:
+        """One instance's status (the first by name), None before any."""
+        return self.statuses[min(self.statuses)] if self.statuses else None
+
+    @property
+    def rejects_per_s(self) -> float | None:
+        return sum(r[0] for r in self.rates.values()) if self.rates else None
+
     def on_status(self, status: dict[str, Any], wall: float | None = None) -> None:
+        """One instance's reply (its rates from its previous reply)."""
         wall = time.monotonic() if wall is None else wall
-        prev, prev_wall = self.status, self.status_wall
-        if prev is not None and prev_wall is not None and wall > prev_wall and \
-                prev.get("instance") == status.get("instance"):
+        name = str(status.get("instance", ""))
+        prev, prev_wall = self.statuses.get(name), self.walls.get(name)
+        if prev is not None and prev_wall is not None and wall > prev_wall:
             dt = wall - prev_wall
-            self.rejects_per_s = max(
-                status.get("meas_rejected", 0) - prev.get("meas_rejected", 0), 0) / dt
-            self.frames_per_s = max(
-                status.get("frames_published", 0) - prev.get("frames_published", 0), 0) / dt
-        self.status, self.status_wall = status, wall
+            self.rates[name] = (
+                max(status.get("meas_rejected", 0) - prev.get("meas_rejected", 0), 0) / dt,
+                max(status.get("frames_published", 0) - prev.get("frames_published", 0), 0)
+                / dt)
+        self.statuses[name], self.walls[name] = status, wall
+
+    def on_statuses(self, statuses: list[dict[str, Any]], wall: float | None = None) -> None:
+        """Every instance's reply to one query: instances that no longer answer are
+        forgotten."""
+        for st in statuses:
+            self.on_status(st, wall)
+        names = {str(st.get("instance", "")) for st in statuses}
+        for gone in set(self.statuses) - names:
+            self.statuses.pop(gone)
+            self.walls.pop(gone, None)
+            self.rates.pop(gone, None)
 
     def line(self, ns: str) -> tuple[str, bool]:
-        """The health line, and whether all is well (a tracker alive)."""
+        """The health line, and whether all is well (a tracker alive, and every
+        instance alive in the picture once the picture holds any)."""
         if not self.alive:
             return f"no tracker alive on '{ns}'", False
-        s = self.status or {}
         names = ", ".join(sorted(self.alive))
-        parts = [f"tracker {names} alive"]
-        if s:
-            parts += [f"{s.get('clock', '?')} {s.get('rate', 0):g} Hz",
-                      f"up {fmt_duration(s.get('uptime_s', 0.0))}",
-                      f"accepted {fmt_int(s.get('meas_accepted', 0))}",
-                      f"rejected {fmt_int(s.get('meas_rejected', 0))}"
-                      + (f" ({self.rejects_per_s:,.1f}/s)" if self.rejects_per_s is not None
+        if len(self.alive) == 1 and len(self.serving) <= 1:
+            parts = [f"tracker {names} alive"]
+        else:
+            parts = [f"{len(self.serving)} of {len(self.alive)} instances serve the "
+                     f"picture ({names} alive)"]
+        ok = not self.serving or set(self.alive) <= set(self.serving)
+        if self.statuses:
+            all_ = list(self.statuses.values())
+            first = self.status or {}
+            total = {k: sum(st.get(k, 0) for st in all_) for k in (
+                "meas_accepted", "meas_rejected", "frames_published", "queue")}
+            frames = [r[1] for r in self.rates.values()]
+            parts += [f"{first.get('clock', '?')} {first.get('rate', 0):g} Hz",
+                      f"up {fmt_duration(max(st.get('uptime_s', 0.0) for st in all_))}",
+                      f"accepted {fmt_int(total['meas_accepted'])}",
+                      f"rejected {fmt_int(total['meas_rejected'])}"
+                      + (f" ({self.rejects_per_s:,.1f}/s)" if self.rates else ""),
+                      f"frames {fmt_int(total['frames_published'])}"
+                      + (f" ({' · '.join(f'{f:,.1f}' for f in frames)}/s)" if frames
                          else ""),
-                      f"frames {fmt_int(s.get('frames_published', 0))}"
-                      + (f" ({self.frames_per_s:,.1f}/s)" if self.frames_per_s is not None
-                         else ""),
-                      f"queue {fmt_int(s.get('queue', 0))}"]
-        return " · ".join(parts), True
+                      f"queue {fmt_int(total['queue'])}"]
+        return " · ".join(parts), ok

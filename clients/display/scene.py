@@ -20,8 +20,6 @@ import json
 import math
 from typing import Any
 
-from zenoh_track.clients.lib.frames import Frame
-
 SCHEMA_NAME = "foxglove.SceneUpdate"
 TOPIC = "/scene"
 FRAME_ID = "enu"
@@ -128,10 +126,3 @@ def scene_update(t: float, ids: list[str], pos: list[float], vel: list[float],
     msg = {"deletions": [{"timestamp": stamp, "type": DELETE_ALL, "id": ""}],
            "entities": entities}
     return json.dumps(msg, separators=(",", ":")).encode()
-
-
-def frame_arrays(msg: dict[str, Any]) -> tuple[list[str], list[float], list[float],
-                                                list[float]]:
-    """ids, pos, vel, sigma of a decoded `frame` message (flat float lists)."""
-    f = Frame.decode(msg)
-    return f.id_list, f.pos.ravel().tolist(), f.vel.ravel().tolist(), f.sigma.tolist()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import sys
 import threading
+import time
 import uuid
 from dataclasses import dataclass, field
 from typing import Any
@@ -16,8 +17,8 @@ import zenoh
 from zenoh_track.clients.feeds import feed, feed_plots, scenarios
 from zenoh_track.clients.intercept.guidance import Law
 from zenoh_track.clients.intercept.intercept import Interceptors
-from zenoh_track.clients.lib import ServiceProcess
-from zenoh_track.wire import Keys, decode_frame, peer_config, unpack, wait_for_tracker
+from zenoh_track.clients.lib import Frame, Merge, ServiceProcess
+from zenoh_track.wire import Keys, peer_config, unpack, wait_for_tracker
 from zenoh_track.wire.cli import open_or_exit
 
 
@@ -69,11 +70,15 @@ def run_through_service(scenario: str, runs: int, seed: int, service_args: list[
                 out.tracks[(m["id"], round(m["t"], 6))] = m
                 arrived.notify_all()
 
+    # the frames of every instance of the namespace (-e: a sharded service, say), merged
+    # as every client merges them; lockstep: each instant waits for every instance
+    merge = Merge(hold=None, stale=None)
+
     def on_frame(s: Any) -> None:
-        m = unpack(s.payload.to_bytes())
-        out.frames.append((m["t"], decode_frame(m)))
-        if m["t"] >= t_end:
-            done.set()
+        for pic in merge.add(Frame.from_payload(s.payload.to_bytes()), time.monotonic()):
+            out.frames.append((pic.t, pic.rows()))
+            if pic.t >= t_end:
+                done.set()
 
     session = (zenoh.open(peer_config(endpoint)) if proc else  # -e: a running service
                open_or_exit(lambda: peer_config(endpoint), prog="track-eval"))
@@ -136,13 +141,15 @@ def run_plots_through_service(feed_argv: list[str], service_args: list[str],
     expect: dict[float, int] = {}
     arrived = threading.Condition()
 
+    merge = Merge(hold=None, stale=None)  # the client library's picture: every instant
+
     def on_frame(s: Any) -> None:
-        m = unpack(s.payload.to_bytes())
-        t = round(m["t"], 6)
-        if t in needed:
-            with arrived:
-                expect[t] = len(m["ids"])
-                arrived.notify_all()
+        for pic in merge.add(Frame.from_payload(s.payload.to_bytes()), time.monotonic()):
+            t = round(pic.t, 6)
+            if t in needed:
+                with arrived:
+                    expect[t] = len(pic)
+                    arrived.notify_all()
 
     def on_display(s: Any) -> None:
         if s.kind == zenoh.SampleKind.PUT:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import sys
 import threading
+import time
 import uuid
 from typing import Any
 
@@ -28,10 +29,10 @@ import numpy as np
 import zenoh
 
 from zenoh_track.clients.evaluation.collect import lockstep_service
+from zenoh_track.clients.lib import Frame, Merge
 from zenoh_track.wire import (
     MSGPACK_ENCODING,
     Keys,
-    decode_frame,
     pack,
     peer_config,
     unpack,
@@ -176,16 +177,18 @@ def run_service(ts: np.ndarray, pos: np.ndarray, sigma: float | None,
     t_end = ts[-1] if len(ts) % 2 == 0 else ts[-2]
     done = threading.Event()
 
+    merge = Merge(hold=None, stale=None)  # the client library's picture: every instant
+
     def on_frame(s: Any) -> None:
-        m = unpack(s.payload.to_bytes())
-        k = slot.get(round(m["t"], 6))
-        if k is not None:
-            for tr in decode_frame(m):
-                i = index.get(tr["id"])
-                if i is not None:
-                    out[i, k] = tr["pos"][:3]
-        if m["t"] >= t_end - 1e-6:
-            done.set()
+        for pic in merge.add(Frame.from_payload(s.payload.to_bytes()), time.monotonic()):
+            k = slot.get(round(pic.t, 6))
+            if k is not None:
+                for row, tid in enumerate(pic.id_list):
+                    i = index.get(tid)
+                    if i is not None:
+                        out[i, k] = pic.pos[row]
+            if pic.t >= t_end - 1e-6:
+                done.set()
 
     session = zenoh.open(peer_config(endpoint))
     try:

@@ -31,6 +31,7 @@ from zenoh_track.clients.evaluation import manoeuvre_score as ms
 from zenoh_track.clients.evaluation.collect import lockstep_service
 from zenoh_track.clients.feeds import feed, feed_plots
 from zenoh_track.clients.feeds.manoeuvres import CLASSES, SLOW_CLASSES
+from zenoh_track.clients.lib import Frame, Merge
 from zenoh_track.wire import Keys, add_version, on_signals, peer_config, unpack, wait_for_tracker
 
 A_MAX = 7 * 9.80665  # m/s^2: the largest manoeuvre of the scenario
@@ -60,16 +61,16 @@ def through_service(feed_argv: list[str], options: list[str],
     states: ms.States = {}
     arrived = threading.Condition()
 
+    merge = Merge(hold=None, stale=None)  # the client library's picture: every instant
+
     def on_frame(s: Any) -> None:
-        m = unpack(s.payload.to_bytes())
-        t = round(m["t"], 6)
-        if t in needed:
-            n = len(m["ids"])
-            pos = np.frombuffer(m["pos"], "<f8").reshape(n, 3)
-            status = np.frombuffer(m.get("status", b"\x01" * n), np.uint8)
-            with arrived:
-                shown[t] = {k: pos[i].copy() for i, k in enumerate(m["ids"]) if status[i] != 0}
-                arrived.notify_all()
+        for pic in merge.add(Frame.from_payload(s.payload.to_bytes()), time.monotonic()):
+            t = round(pic.t, 6)
+            if t in needed:  # the established tracks (a frame without status: all)
+                with arrived:
+                    shown[t] = {k: pic.pos[i].copy() for i, k in enumerate(pic.id_list)
+                                if pic.codes[i] != 0}
+                    arrived.notify_all()
 
     def on_states(s: Any) -> None:
         m = unpack(s.payload.to_bytes())

@@ -23,7 +23,10 @@ class Frame:
 
     `pos`, `vel`: (N, 3) m and m/s; `sigma`: (N,) m; `codes`: (N,) uint8 indices into
     `wire.STATUSES` (NO_STATUS where the frame has no status bin); `status` their names
-    ("-" for none). The arrays are read-only views of the message's bytes."""
+    ("-" for none). The arrays are read-only views of the message's bytes.
+
+    `instance`: the service that drew it ("" when the frame does not say); a merged
+    picture (`merge.Merge`) holds the rows of every instance in `instances`."""
 
     t: float
     id_list: list[str]  # the ids as the message holds them
@@ -31,6 +34,8 @@ class Frame:
     vel: F64
     sigma: F64
     codes: npt.NDArray[np.uint8]
+    instance: str = ""
+    instances: tuple[str, ...] = ()
 
     @cached_property
     def ids(self) -> npt.NDArray[np.str_]:
@@ -61,6 +66,18 @@ class Frame:
         return {"id": track_id, "pos": self.pos[i], "vel": self.vel[i],
                 "sigma": float(self.sigma[i]), "status": str(self.status[i])}
 
+    def rows(self) -> list[dict[str, Any]]:
+        """Every track as a dict {id, pos, vel, sigma, status} of plain floats (the rows of
+        `wire.decode_frame`; no `status` when the frame has none)."""
+        pos, vel, sigma = self.pos.tolist(), self.vel.tolist(), self.sigma.tolist()
+        out = [{"id": i, "pos": p, "vel": v, "sigma": s}
+               for i, p, v, s in zip(self.id_list, pos, vel, sigma, strict=True)]
+        for row, name, code in zip(out, self.status.tolist(), self.codes.tolist(),
+                                   strict=True):
+            if code < NO_STATUS:
+                row["status"] = name
+        return out
+
     def confirmed(self) -> npt.NDArray[np.bool_]:
         """The rows of confirmed tracks (a mask)."""
         return self.codes == STATUSES.index("confirmed")  # type: ignore[no-any-return]
@@ -82,8 +99,10 @@ class Frame:
         raw = msg.get("status")
         codes = np.frombuffer(raw, np.uint8) if isinstance(raw, bytes) and len(raw) == n \
             else np.full(n, NO_STATUS, np.uint8)
+        instance = msg.get("instance", "")
+        instance = instance if isinstance(instance, str) else ""
         return cls(float(msg["t"]), ids, cols[0].reshape(n, 3), cols[1].reshape(n, 3), cols[2],
-                   codes)
+                   codes, instance, (instance,))
 
     @classmethod
     def from_payload(cls, payload: bytes) -> Frame:

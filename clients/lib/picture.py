@@ -1,5 +1,6 @@
 """The service's picture as NumPy columns: every `frame` decoded once (`Frame`), the
-latest kept, and a bounded queue that drops the oldest frame for a slow reader."""
+frames of several instances merged into one picture per display instant (`merge.Merge`),
+the latest kept, and a bounded queue that drops the oldest picture for a slow reader."""
 
 from __future__ import annotations
 
@@ -10,36 +11,75 @@ from collections.abc import Callable, Iterator
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
+import zenoh
+
 from zenoh_track.clients.lib.frames import Frame
+from zenoh_track.clients.lib.merge import HOLD, STALE, Merge
 
 if TYPE_CHECKING:
     from zenoh_track.clients.lib.session import Client
 
 
 class Picture:
-    """Subscribes `<ns>/frame` (and asks the service for its latest frame at once).
+    """Subscribes `<ns>/frame` and the instances' liveliness tokens, and asks every
+    instance for its latest frame at once: one picture per display instant, whatever
+    the number of instances (`merge.Merge`: `hold`, `stale`).
 
-    `latest()`: the newest frame; `next(timeout)` and iteration: the queued frames in
-    order, at most `maxlen` of them (the oldest dropped and counted in `dropped`);
-    `wait_for(condition)`: the first frame for which `condition(frame)` holds."""
+    `latest()`: the newest picture; `next(timeout)` and iteration: the pictures in
+    order, at most `maxlen` of them queued (the oldest dropped and counted in
+    `dropped`); `wait_for(condition)`: the first picture for which `condition(frame)`
+    holds; `on_frame(frame)`, if given, is called with each picture under the Picture's
+    lock (keep it short). `alive`: the instances whose tokens are up; `serving`: those
+    in the latest picture."""
 
-    def __init__(self, client: Client, maxlen: int = 64) -> None:
+    def __init__(self, client: Client, maxlen: int = 64,
+                 on_frame: Callable[[Frame], Any] | None = None, hold: float | None = HOLD,
+                 stale: float | None = STALE) -> None:
         self.keys = client.keys
         self.queue: deque[Frame] = deque(maxlen=maxlen)
-        self.dropped = 0  # frames dropped from the queue for a slow reader
+        self.dropped = 0  # pictures dropped from the queue for a slow reader
         self.bad = 0  # payloads on `frame` that were not frames
-        self.received = 0
+        self.received = 0  # frames received (of every instance)
+        self.merge = Merge(hold, stale)
+        self.alive: set[str] = set()
+        self.on_frame = on_frame
         self._latest: Frame | None = None
         self._closed = False
-        self._cond = threading.Condition()
-        # a late joiner's picture: the latest frame at once (before the subscription, so
-        # that every frame that follows is newer)
-        for reply in client.session.get(self.keys.frame, timeout=2.0):
+        lock = threading.RLock()
+        self._cond = threading.Condition(lock)  # readers wait on it for pictures
+        self._wake = threading.Condition(lock)  # the hold's thread waits on it
+        threading.Thread(target=self._hold, name="picture-hold", daemon=True).start()
+        session = client.session
+        # the tokens first (their history: the instances alive now), then a late
+        # joiner's picture: every instance's latest frame at once, before the
+        # subscription, so that every frame that follows is newer
+        self._subs = [session.liveliness().declare_subscriber(
+            self.keys.alive("*"), self._on_token, history=True)]
+        for reply in session.get(self.keys.frame, target=zenoh.QueryTarget.ALL,
+                                 consolidation=zenoh.ConsolidationMode.NONE, timeout=2.0):
             if reply.ok is not None:
-                self._on_frame(reply.ok)
-        self._sub = client.session.declare_subscriber(self.keys.frame, self._on_frame)
+                self._on_frame(reply.ok, draw=False)
+        with self._cond:
+            self._emit(self.merge.ready(time.monotonic()))
+        self._subs.append(session.declare_subscriber(self.keys.frame, self._on_frame))
 
-    def _on_frame(self, sample: Any) -> None:
+    @property
+    def serving(self) -> tuple[str, ...]:
+        """The instances whose tracks the latest picture holds."""
+        with self._cond:
+            return () if self._latest is None else self._latest.instances
+
+    def _on_token(self, sample: Any) -> None:
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(name)
+                self.merge.alive(name)
+            else:
+                self.alive.discard(name)
+                self._emit(self.merge.gone(name, time.monotonic()))
+
+    def _on_frame(self, sample: Any, draw: bool = True) -> None:
         try:
             frame = Frame.from_payload(sample.payload.to_bytes())
         except ValueError:
@@ -48,19 +88,44 @@ class Picture:
             return
         with self._cond:
             self.received += 1
+            self._emit(self.merge.add(frame, time.monotonic(), draw))
+
+    def _hold(self) -> None:
+        """Draw an instant whose hold has ended while no frame came to draw it."""
+        with self._cond:
+            while not self._closed:
+                now = time.monotonic()
+                due = self.merge.deadline(now)
+                if due is None:
+                    self._wake.wait()
+                elif due > now:
+                    self._wake.wait(due - now + 1e-3)
+                else:
+                    pictures = self.merge.ready(now)
+                    self._emit(pictures)
+                    if not pictures:  # nothing to draw after all: look again later
+                        self._wake.wait(self.merge.hold or 0.1)
+
+    def _emit(self, pictures: list[Frame]) -> None:
+        """Queue the pictures drawn (under the lock), and wake the hold's thread."""
+        for frame in pictures:
             if len(self.queue) == self.queue.maxlen:
                 self.dropped += 1
             self.queue.append(frame)
             self._latest = frame
+            if self.on_frame is not None:
+                self.on_frame(frame)
+        if pictures:
             self._cond.notify_all()
+        self._wake.notify()  # an instant may wait for its hold now
 
     def latest(self) -> Frame | None:
-        """The newest frame received, None before the first."""
+        """The newest picture, None before the first."""
         with self._cond:
             return self._latest
 
     def next(self, timeout: float | None = None) -> Frame:
-        """The oldest queued frame, waiting up to `timeout` s (None: for ever) for one;
+        """The oldest queued picture, waiting up to `timeout` s (None: for ever) for one;
         TimeoutError after that, StopIteration once closed."""
         with self._cond:
             if not self._cond.wait_for(lambda: self.queue or self._closed, timeout):
@@ -77,9 +142,9 @@ class Picture:
                 return
 
     def wait_for(self, condition: Callable[[Frame], Any], timeout: float = 30.0) -> Frame:
-        """The latest frame once `condition(frame)` is true of it, waiting for new frames
-        (never polling on a timer); TimeoutError with the last frame's time after
-        `timeout` s."""
+        """The latest picture once `condition(frame)` is true of it, waiting for new
+        pictures (never polling on a timer); TimeoutError with the last picture's time
+        after `timeout` s."""
         deadline = time.monotonic() + timeout
         with self._cond:
             while True:
@@ -98,10 +163,12 @@ class Picture:
 
     def close(self) -> None:
         if not self._closed:
-            self._sub.undeclare()
+            for sub in self._subs:
+                sub.undeclare()
             with self._cond:
                 self._closed = True
                 self._cond.notify_all()
+                self._wake.notify_all()
 
     def __enter__(self) -> Picture:
         return self

@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 import zenoh
 
+from zenoh_track.clients.lib.merge import HOLD, STALE
 from zenoh_track.wire import (
     DEFAULT_NS,
     Keys,
@@ -26,6 +27,7 @@ from zenoh_track.wire.cli import zenoh_reason
 
 if TYPE_CHECKING:
     from zenoh_track.clients.lib.feed import Feed
+    from zenoh_track.clients.lib.frames import Frame
     from zenoh_track.clients.lib.picture import Picture
 
 
@@ -86,11 +88,13 @@ class Client:
         self._opened.append(feed)
         return feed
 
-    def picture(self, maxlen: int = 64) -> Picture:
-        """A Picture of `frame`: at most `maxlen` frames queued for `next`/iteration."""
+    def picture(self, maxlen: int = 64, on_frame: Callable[[Frame], Any] | None = None,
+                hold: float | None = HOLD, stale: float | None = STALE) -> Picture:
+        """A Picture of `frame`, every instance's merged: at most `maxlen` pictures queued
+        for `next`/iteration; `on_frame`, `hold`, `stale` as `Picture`'s."""
         from zenoh_track.clients.lib.picture import Picture
 
-        pic = Picture(self, maxlen)
+        pic = Picture(self, maxlen, on_frame, hold, stale)
         self._opened.append(pic)
         return pic
 
@@ -110,10 +114,28 @@ class Client:
                     return body
         raise TimeoutError(f"no reply to {self.keys.status} within {timeout:g} s")
 
+    def statuses(self, timeout: float = 5.0) -> list[dict[str, Any]]:
+        """The counters of every instance of the namespace, one map each (sorted by
+        `instance`): all replies, none consolidated away (every instance answers on
+        the same key)."""
+        out = []
+        for reply in self.session.get(self.keys.status, target=zenoh.QueryTarget.ALL,
+                                      consolidation=zenoh.ConsolidationMode.NONE,
+                                      timeout=timeout):
+            if reply.ok is not None:
+                try:
+                    body = unpack(reply.ok.payload.to_bytes())
+                except ValueError:
+                    continue  # not a status this version reads
+                if isinstance(body, dict):
+                    out.append(body)
+        return sorted(out, key=lambda s: str(s.get("instance", "")))
+
     def tracks(self, timeout: float = 5.0) -> dict[str, dict[str, Any]]:
         """The current state of every track, by id (`get <ns>/tracks/**`)."""
         out: dict[str, dict[str, Any]] = {}
-        for reply in self.session.get(self.keys.tracks("**"), timeout=timeout):
+        for reply in self.session.get(self.keys.tracks("**"), target=zenoh.QueryTarget.ALL,
+                                      timeout=timeout):
             if reply.ok is not None:
                 out[str(reply.ok.key_expr).rsplit("/", 1)[1]] = unpack(
                     reply.ok.payload.to_bytes())

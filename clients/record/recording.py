@@ -10,7 +10,8 @@ the sample when it has one, else the payload's `t` (simulation seconds, as ns), 
 receive time. A metadata record `zenoh-track` names the namespace, the protocol version,
 the package version and the key expressions recorded; `zenoh-track-end` the counts.
 The display channel (`/scene`, foxglove.SceneUpdate in JSON: clients/display/scene.py) is
-derived from the `frame` samples.
+derived from the `frame` samples, every instance's merged into one picture as the client
+library merges them (`Merge`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from mcap.well_known import SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
 from zenoh_track.clients.display import scene
+from zenoh_track.clients.lib.frames import Frame
+from zenoh_track.clients.lib.merge import Merge
 from zenoh_track.wire import MSGPACK_ENCODING, PROTOCOL_VERSION, Keys, unpack
 
 META = "zenoh-track"
@@ -98,6 +101,8 @@ class RecordingWriter:
         self.scene_marker = scene_marker
         self.scene_next = -math.inf
         self.scene_channel: int | None = None
+        self.merge = Merge()  # the frames of every instance into one picture
+        self.scene_t = -math.inf  # the instant of the latest scene
         self.scenes = 0
         self.display_prefix = self.keys.display("")
         self.last_display: dict[str, bytes] = {}  # track id -> latest display/ payload
@@ -136,33 +141,38 @@ class RecordingWriter:
             self._scene(payload, log)
 
     def _scene(self, payload: bytes, log: int) -> None:
+        """The scene of the picture: every instance's frames merged as a live client
+        merges them (`Merge`, on the receive times), at most `scene_hz` a second."""
         try:
-            msg = unpack(payload)
-            t = float(msg["t"])
-            arrays = scene.frame_arrays(msg)
-        except (ValueError, KeyError, TypeError, struct.error):
+            frame = Frame.from_payload(payload)
+        except ValueError:
             return  # not a frame this version can read: no picture for it
-        if t < self.scene_next - 1e-6:
-            return
-        self.scene_next = t + self.scene_period  # type: ignore[operator]
-        status = {}
-        for tid in arrays[0]:
-            raw = self.last_display.get(tid)
-            if raw is not None:
-                try:
-                    status[tid] = unpack(raw).get("status")
-                except (ValueError, AttributeError):
-                    pass
-        body = scene.scene_update(t, *arrays, status, marker=self.scene_marker)
-        if self.scene_channel is None:
-            sid = self.writer.register_schema(scene.SCHEMA_NAME, SchemaEncoding.JSONSchema,
-                                              scene.SCHEMA_BYTES)
-            self.scene_channel = self.writer.register_channel(
-                topic=scene.TOPIC, message_encoding="json", schema_id=sid,
-                metadata={"derived_from": self.keys.frame})
-        self.writer.add_message(self.scene_channel, self._log_time(log), body,
-                                payload_time_ns(payload) or log)
-        self.scenes += 1
+        for pic in self.merge.add(frame, log / 1e9):
+            again = pic.t == self.scene_t  # drawn again: an instance's first frame came
+            if pic.t < self.scene_next - 1e-6 and not again:
+                continue
+            self.scene_t = pic.t
+            self.scene_next = pic.t + self.scene_period  # type: ignore[operator]
+            status = {}
+            for tid in pic.id_list:
+                raw = self.last_display.get(tid)
+                if raw is not None:
+                    try:
+                        status[tid] = unpack(raw).get("status")
+                    except (ValueError, AttributeError):
+                        pass
+            body = scene.scene_update(pic.t, pic.id_list, pic.pos.ravel().tolist(),
+                                      pic.vel.ravel().tolist(), pic.sigma.tolist(), status,
+                                      marker=self.scene_marker)
+            if self.scene_channel is None:
+                sid = self.writer.register_schema(scene.SCHEMA_NAME,
+                                                  SchemaEncoding.JSONSchema, scene.SCHEMA_BYTES)
+                self.scene_channel = self.writer.register_channel(
+                    topic=scene.TOPIC, message_encoding="json", schema_id=sid,
+                    metadata={"derived_from": self.keys.frame})
+            self.writer.add_message(self.scene_channel, self._log_time(log), body,
+                                    max(int(round(pic.t * 1e9)), 0))
+            self.scenes += 1
 
     def finish(self, received: int) -> None:
         self.writer.add_metadata(META_END, {

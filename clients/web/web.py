@@ -34,6 +34,7 @@ except ImportError as exc:
 
     missing_extra(exc, "web", "track-web")
 
+from zenoh_track.clients.lib import Frame as Columns
 from zenoh_track.clients.web.web_frames import FrameHub
 from zenoh_track.clients.web.web_link import Link
 
@@ -87,14 +88,14 @@ class WebServer:
         self.app.on_shutdown.append(self._close_browsers)
         self.health_task = self.loop.create_task(self._health())
 
-    def _frame_from_zenoh(self, payload: bytes) -> None:
+    def _frame_from_zenoh(self, frame: Columns) -> None:
         try:
-            self.loop.call_soon_threadsafe(self._frame, payload)
+            self.loop.call_soon_threadsafe(self._frame, frame)
         except RuntimeError:  # the loop has closed: shutting down
             pass
 
-    def _frame(self, payload: bytes) -> None:
-        self.hub.put(payload)
+    def _frame(self, frame: Columns) -> None:
+        self.hub.put(frame)
         for b in self.browsers:
             b.wake.set()
 

@@ -66,19 +66,20 @@ class Frame:
 
 
 class FrameHub:
-    """The latest `frame` payload and, made on demand, its browser form: frames that
-    arrive while no browser is ready are never decoded (latest frame wins)."""
+    """The latest picture and, made on demand, its browser form: pictures that arrive
+    while no browser is ready are never recast (latest picture wins)."""
 
     def __init__(self) -> None:
         self.seq = 0
         self.bad = 0  # payloads that were not a frame
-        self.raw: bytes | None = None
+        self.raw: bytes | Columns | None = None
         self.frame: Frame | None = None
         self.ids: list[str] = []
         self.ids_seq = 0
         self.ids_block = b""
 
-    def put(self, payload: bytes) -> None:
+    def put(self, payload: bytes | Columns) -> None:
+        """A `frame` payload, or a picture the client library drew (`Picture`)."""
         self.raw = payload
         self.seq += 1
 
@@ -92,8 +93,8 @@ class FrameHub:
             self.raw = None
         return self.frame
 
-    def decode(self, payload: bytes, seq: int) -> Frame:
-        cols = Columns.from_payload(payload)
+    def decode(self, payload: bytes | Columns, seq: int) -> Frame:
+        cols = payload if isinstance(payload, Columns) else Columns.from_payload(payload)
         ids, pos, vel, sigma = cols.id_list, cols.pos, cols.vel, cols.sigma
         codes = np.where(cols.codes >= NO_STATUS, UNKNOWN_STATUS, cols.codes).astype(np.uint8)
         if ids != self.ids:

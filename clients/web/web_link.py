@@ -1,8 +1,9 @@
 """The Zenoh side of `track-web`: the frames, the service's health, the sensors and the
 interceptors, gathered from the key space (docs/protocol.md) for the web server.
 
-Zenoh calls the callbacks on its own threads; the frame goes to the server's event loop
-(`on_frame`), everything else is kept here under a lock and read as JSON-ready dicts.
+Zenoh calls the callbacks on its own threads; the picture (every instance's frames merged
+by the client library's `Picture`) goes to the server's event loop (`on_frame`),
+everything else is kept here under a lock and read as JSON-ready dicts.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Any
 
 import zenoh
 
+from zenoh_track.clients.lib import Client, Frame
 from zenoh_track.wire import Keys, decode_map, unpack
 
 SENSOR_REFRESH = 2.0  # s: a sensor's position is read again at most this often
@@ -36,7 +38,7 @@ class Link:
     """Subscriptions and queries of one namespace for the web page."""
 
     def __init__(self, session: zenoh.Session, keys: Keys,
-                 on_frame: Callable[[bytes], None]) -> None:
+                 on_frame: Callable[[Frame], None]) -> None:
         self.session, self.keys = session, keys
         self.lock = threading.Lock()
         self.alive: set[str] = set()
@@ -46,21 +48,9 @@ class Link:
         self.services: list[dict[str, Any]] = []
         self.last_rejected: dict[str, tuple[float, int]] = {}  # instance: (wall, count)
         self.stopping = threading.Event()
-        self.frames = 0  # frames received by the subscription
+        self.serving: tuple[str, ...] = ()  # the instances in the latest picture
         meas_prefix = f"{keys.ns}/meas/"
         plots_prefix = f"{keys.ns}/plots/"
-
-        def frame(sample: zenoh.Sample) -> None:
-            self.frames += 1
-            on_frame(sample.payload.to_bytes())
-
-        def catch_up() -> None:
-            """The latest instant at once (a paused lockstep picture may have no next
-            one for long): the service answers get <ns>/frame; a frame that came by the
-            subscription meanwhile is newer."""
-            for reply in session.get(keys.frame, target=zenoh.QueryTarget.ALL, timeout=5):
-                if reply.ok is not None and not self.frames:
-                    on_frame(reply.ok.payload.to_bytes())
 
         def measurement(sample: zenoh.Sample) -> None:
             key = str(sample.key_expr)
@@ -68,7 +58,6 @@ class Link:
             self._sensor(key[len(prefix):].split("/", 1)[0], sample)
 
         self.subs = [
-            session.declare_subscriber(keys.frame, frame),
             session.declare_subscriber(keys.space("meas"), measurement),
             session.declare_subscriber(keys.plots("*"), measurement),
             session.declare_subscriber(keys.display("interceptor-$*"), self._interceptor),
@@ -78,10 +67,25 @@ class Link:
         self.poller = threading.Thread(target=self._poll, name="track-web-status",
                                        daemon=True)
         self.poller.start()
-        threading.Thread(target=catch_up, name="track-web-catch-up", daemon=True).start()
+
+        def picture(frame: Frame) -> None:
+            self.serving = frame.instances
+            on_frame(frame)
+
+        # the picture of every instance, merged by the client library; it asks each
+        # instance for its latest frame at once (a paused lockstep picture may have no
+        # next instant for long)
+        self.client = Client(session, keys.ns, own=False)
+        self.picture = self.client.picture(maxlen=1, on_frame=picture)
+
+    @property
+    def frames(self) -> int:
+        """Frames received (of every instance)."""
+        return self.picture.received
 
     def close(self) -> None:
         self.stopping.set()
+        self.client.close()
         for sub in self.subs:
             sub.undeclare()
         self.poller.join(timeout=5)
@@ -179,6 +183,7 @@ class Link:
     def health(self) -> dict[str, Any]:
         with self.lock:
             return {"type": "health", "alive": sorted(self.alive), "services": self.services,
+                    "serving": list(self.serving),
                     "sensors": sorted(self.sensors.values(), key=lambda s: s["id"])}
 
     def extra(self) -> list[dict[str, Any]]:

@@ -132,18 +132,23 @@ def pack_displays(t: float, ids: Sequence[str], pos: np.ndarray, vel: np.ndarray
 
 
 def pack_frame(t: float, ids: bytes, pos: np.ndarray, vel: np.ndarray,
-               sigma: np.ndarray, status: np.ndarray) -> bytes:
-    """The `frame` body {t, ids, pos, vel, sigma, status} with `ids` already packed (it
-    changes only when tracks come or go), the arrays as little-endian float64 bins and
-    `status` one byte per track (an index into wire.STATUSES): one `bytes.join` of the
-    headers and the arrays' own buffers (at 100,000 tracks a frame is 7 MB: one copy of
-    each part into a body that is not zeroed first; an array not already contiguous in
-    the wire's type is converted first)."""
-    parts: list[Any] = [pack_map_header(6), pack("t"), pack(float(t)), pack("ids"), ids]
+               sigma: np.ndarray, status: np.ndarray, instance: str | None = None) -> bytes:
+    """The `frame` body {t, ids, pos, vel, sigma, status[, instance]} with `ids` already
+    packed (it changes only when tracks come or go), the arrays as little-endian float64
+    bins and `status` one byte per track (an index into wire.STATUSES): one `bytes.join`
+    of the headers and the arrays' own buffers (at 100,000 tracks a frame is 7 MB: one
+    copy of each part into a body that is not zeroed first; an array not already
+    contiguous in the wire's type is converted first). `instance`: the liveliness name
+    of the service that drew it, which clients merge the frames of several instances by
+    (docs/protocol.md, "Several instances")."""
+    parts: list[Any] = [pack_map_header(6 if instance is None else 7), pack("t"),
+                        pack(float(t)), pack("ids"), ids]
     for key, col, dtype in (("pos", pos, "<f8"), ("vel", vel, "<f8"), ("sigma", sigma, "<f8"),
                             ("status", status, "u1")):
         col = np.ascontiguousarray(col, dtype=dtype)  # a no-op when it already is
         parts += (pack(key), _bin_header(col.nbytes), col.reshape(-1).view(np.uint8))
+    if instance is not None:
+        parts += (pack("instance"), pack(instance))
     return b"".join(parts)
 
 

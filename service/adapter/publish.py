@@ -56,11 +56,13 @@ class Publisher:
     """Everything the service puts. `anytime` (frames on the wall clock, `Clock.anytime`):
     display keys may drop under congestion (a stale frame is worthless) and frames go out
     from a thread of their own; `tracks/`, `states`, deletions and errors never drop.
-    `per_target_display` False: no `display/<id>` even when someone listens."""
+    `per_target_display` False: no `display/<id>` even when someone listens. `instance`
+    (the liveliness name) goes into every frame: clients merge several instances' frames
+    by it."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, anytime: bool,
-                 per_target_display: bool) -> None:
-        self.session, self.keys = session, keys
+                 per_target_display: bool, instance: str | None = None) -> None:
+        self.session, self.keys, self.instance = session, keys, instance
         self.per_target_display = per_target_display
         self.count = Counters()
         self.log_after = 0.0  # wall time before which no rejection is logged
@@ -209,7 +211,8 @@ class Publisher:
         snap = self._finite(snap)
         if snap.ids is not self.frame_ids[0]:
             self.frame_ids = (snap.ids, pack(snap.ids))
-        frame = pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma, snap.codes)
+        frame = pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma, snap.codes,
+                           self.instance)
         (self.sender or self.pub_frame).put(frame)
         self.latest = (frame, snap)
         if self.wants_display and len(snap.ids):

@@ -81,7 +81,7 @@ class TrackService:
         self.tracking = Tracking(tracker)
         display = tracker.config.display
         self.clock = make_clock(clock, display.rate, display.lag)
-        self.out = Publisher(session, keys, self.clock.anytime, per_target_display)
+        self.out = Publisher(session, keys, self.clock.anytime, per_target_display, instance)
         self.count = self.out.count
         self.decode = Decoder(keys, noise)
         self.admit = Admit(self.clock, max_jump, reorder)

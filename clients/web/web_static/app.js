@@ -87,7 +87,9 @@ function onText(msg) {
 
 function showHealth(msg) {
   const alive = msg.alive.length ? msg.alive.join(', ') : 'none';
-  const lines = [`tracker alive: ${alive}`];
+  const serving = msg.serving || [];
+  const lines = [`tracker alive: ${alive}`,
+                 `${serving.length} of ${msg.alive.length} instances serve the picture`];
   for (const s of msg.services) {
     lines.push(`${s.instance}: ${s.clock} ${s.tracks} tracks, ` +
                `${s.rejects_per_s.toFixed(1)} rejects/s, ${s.frames_missed} frames missed`);
@@ -95,7 +97,8 @@ function showHealth(msg) {
   if (!msg.services.length) lines.push('no status reply');
   const el = $('health');
   el.textContent = lines.join('\n');
-  el.className = msg.alive.length ? 'ok' : 'down';
+  const missing = msg.alive.some((name) => !serving.includes(name));
+  el.className = !msg.alive.length ? 'down' : (serving.length && missing ? 'warn' : 'ok');
 }
 
 // ---------------------------------------------------------------- drawing
