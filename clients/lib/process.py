@@ -83,8 +83,9 @@ class ServiceProcess:
             lines = [ln for ln in self.log().splitlines() if ln.startswith(START_NOTES)]
             if lines and not told:  # compiling: silence is not the measure any more
                 deadline = max(deadline, time.monotonic() + COMPILE_WAIT)
-            for line in lines[told:] if notice is not None else ():
-                notice(line)
+            if notice is not None:
+                for line in lines[told:]:
+                    notice(line)
             told = len(lines)
             if alive:
                 return self.client

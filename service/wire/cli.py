@@ -12,8 +12,6 @@ import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
 
-from .. import __version__
-
 CONNECT_TIMEOUT = 5.0  # s: how long a program keeps trying to reach its router or peer
 EXIT_USAGE = 2  # exit status of an operator mistake
 ENDPOINT = r"(?:tcp|udp|tls|quic|ws|unixsock-stream)/[^\s\)\]\,]+"
@@ -52,9 +50,16 @@ def need(module: str, extra: str, prog: str | None = None) -> None:
 
 
 def add_version(parser: argparse.ArgumentParser) -> None:
-    """`--version`: the product's version (one source: `zenoh_track.__version__`)."""
+    """`--version`: the installed product's version (whose one source is
+    `zenoh_track.__version__`, read by the build)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        mine = version("zenoh-track-service")
+    except PackageNotFoundError:
+        mine = "(not installed)"
     parser.add_argument("--version", action="version",
-                        version=f"%(prog)s {__version__} (zenoh-track-service)")
+                        version=f"%(prog)s {mine} (zenoh-track-service)")
 
 
 def read_file(path: str, what: str, binary: bool = False,
