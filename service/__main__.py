@@ -12,6 +12,7 @@ import uuid
 
 from . import __version__, defaults
 from .adapter import TrackService
+from .adapter.origin import OriginQueryable
 from .adapter.state import StateFile
 from .estimation import imm_jit, jit
 from .estimation.catalog import FILTERS, FilterSpec
@@ -19,7 +20,16 @@ from .tracking import frame
 from .tracking.display import DisplayConfig
 from .tracking.plot_association import SensorModels
 from .tracking.tracker import SCAN_ASSOCIATORS, Tracker, TrackerConfig
-from .wire import Keys, add_zenoh_args, fail, open_session, read_file
+from .wire import (
+    Keys,
+    Origin,
+    Rejected,
+    add_zenoh_args,
+    fail,
+    open_session,
+    parse_origin,
+    read_file,
+)
 
 
 def steady_malloc() -> None:
@@ -229,13 +239,27 @@ def parser() -> argparse.ArgumentParser:
                    help="refuse an input more than this from the picture's time, unless "
                         f"{defaults.NEW_TIMELINE} such come in a row (a new timeline; "
                         "default %(default)s s)")
+    p.add_argument("--origin", metavar="LAT,LON,ALT",
+                   help="the deployment's geodetic frame: positions are East-North-Up metres "
+                        "about this WGS-84 point (degrees, degrees, metres above the "
+                        "ellipsoid), answered on <ns>/origin to gateways and displays "
+                        "(default: a local frame without geodetic meaning)")
     p.add_argument("--instance", default=None, help="liveliness instance name")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
 
+def origin_option(text: str | None) -> Origin | None:
+    """`--origin`, or one line and exit 2."""
+    try:
+        return None if text is None else parse_origin(text)
+    except Rejected as exc:
+        fail(f"--origin {text}: {exc}")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    origin = origin_option(args.origin)
     steady_malloc()  # before Zenoh starts its threads
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -261,6 +285,7 @@ def main(argv: list[str] | None = None) -> None:
         svc.state = StateFile(args.state, args.state_period)
         print(f"track-service: {svc.state.restore(svc)}", file=sys.stderr, flush=True)
     svc.start()
+    origin_answer = OriginQueryable(session, Keys(args.ns), origin)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
@@ -270,7 +295,8 @@ def main(argv: list[str] | None = None) -> None:
     done.wait()
     # closing can block on data queued for a peer that vanished (lockstep BLOCK waits
     # up to wire.BLOCK_WAIT_US): give it a few seconds, then exit regardless
-    closer = threading.Thread(target=lambda: (svc.close(), session.close()), daemon=True)
+    closer = threading.Thread(target=lambda: (origin_answer.close(), svc.close(),
+                                              session.close()), daemon=True)
     closer.start()
     closer.join(timeout=5.0)
 

@@ -35,6 +35,7 @@ from .keys import (
     Keys,
 )
 from .messages import Measurement, parse_clock, parse_full, parse_measurement
+from .origin import Origin, origin_message, parse_origin, parse_origin_message
 from .plots import MAX_DETECTIONS, PlotScan, bad_rows, parse_plots
 from .scans import LabelledScan, ScanColumns, parse_scan, parse_scan_columns
 from .session import (
@@ -65,5 +66,6 @@ __all__ = [
     "parse_scan", "parse_scan_columns", "parse_singles", "ScanColumns", "Singles", "patient",
     "listen_config", "peer_config", "quick_retry", "stamp_ns", "stamping",
     "reason_code", "unpack",
-    "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
+    "wait_for_tracker", "Origin", "origin_message", "parse_origin", "parse_origin_message",
+    "zenoh_config", "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
 ]
