@@ -133,6 +133,9 @@ def parser() -> argparse.ArgumentParser:
                    help="... or its last PDU is this old (default %(default)s)")
     o.add_argument("--relative", action="store_true",
                    help="relative timestamps (default absolute: the service's clock is UTC)")
+    g.add_argument("--timeout", type=float, default=standard.TIMEOUT, metavar="SECONDS",
+                   help="an entity without a PDU this long is gone (default %(default)s: "
+                        "HBT_TIMEOUT_MPLIER x the 5 s heartbeat)")
     o.add_argument("--tentative", action="store_true",
                    help="send tentative tracks too (default: confirmed and coasting)")
     return p
@@ -189,7 +192,8 @@ class Gateway:
                      "another with --port)", PROG)
             feed = client.feed(args.name, check=False)
             config = InConfig(args.exercise, frozenset(args.accept) if args.accept else None,
-                              own, args.sigma, args.time, args.time_window, args.window)
+                              own, args.sigma, args.time, args.time_window, args.window,
+                              args.timeout)
             self.report = Reporter(session, keys.errors(args.name),
                                    f"udp/{args.group or args.bind}:{args.port}")
             self.inbound = Inbound(self.sock, frame, config,
@@ -253,7 +257,8 @@ class Gateway:
                          "kernel_dropped": kernel_drops(self.inbound.sock)}
         if self.outbound is not None:
             o = self.outbound.counts
-            out["out"] = {"frames": o.frames, "sent": dict(o.sent), "removed": o.removed,
+            out["out"] = {"frames": o.frames, "frames_dropped": self.picture.dropped,
+                          "sent": dict(o.sent), "removed": o.removed,
                           "entities": len(self.outbound.table.index),
                           "no_number": o.no_number, "dr": self.args.dr}
         return out

@@ -57,19 +57,31 @@ def local_axes(ecef: F64) -> tuple[F64, F64]:
     return north, up
 
 
-def body_axes(ecef: F64, vel: F64) -> Rotation:
-    """The body-to-ECEF rotations of entities flying along their velocity, wings level:
-    x forward (the velocity; local North for an entity slower than STILL), y to the right
-    in the local horizontal plane, z = x cross y (down when level)."""
-    north, up = local_axes(ecef)
+def body_matrix(vel: F64, north: F64, up: F64) -> F64:
+    """Body-to-ECEF matrices (N, 3, 3) of entities flying along their velocity, wings
+    level, given each one's local North and Up: x forward (the velocity; North for an
+    entity slower than STILL), y to the right in the local horizontal plane, z = x cross
+    y (down when level)."""
     speed = np.linalg.norm(vel, axis=1, keepdims=True)
     forward = np.where(speed > STILL, vel / np.maximum(speed, STILL), north)
     right = np.cross(forward, up)
     norm = np.linalg.norm(right, axis=1, keepdims=True)
     # straight up or down: the right wing points East of North
     right = np.where(norm > 1e-9, right / np.maximum(norm, 1e-9), np.cross(north, up))
-    down = np.cross(forward, right)
-    return Rotation.from_matrix(np.stack([forward, right, down], axis=2))
+    out: F64 = np.stack([forward, right, np.cross(forward, right)], axis=2)
+    return out
+
+
+def body_axes(ecef: F64, vel: F64) -> Rotation:
+    """`body_matrix` at each entity's own position, as rotations."""
+    return Rotation.from_matrix(body_matrix(vel, *local_axes(ecef)))
+
+
+def angle_between(a: F64, b: F64) -> F64:
+    """The angle (N,) rad of the rotation from each matrix of `a` to that of `b`."""
+    cos = (np.einsum("nij,nij->n", a, b) - 1.0) / 2.0
+    out: F64 = np.arccos(np.clip(cos, -1.0, 1.0))
+    return out
 
 
 def euler_of(rot: Rotation) -> F64:

@@ -16,8 +16,17 @@ import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from zenoh_track.clients.dis import pdu, standard
-from zenoh_track.clients.dis.geodesy import EnuFrame, body_axes, turn_rate
+from zenoh_track.clients.dis.geodesy import (
+    EnuFrame,
+    angle_between,
+    body_matrix,
+    euler_of,
+    local_axes,
+    rotation_of,
+    turn_rate,
+)
 from zenoh_track.clients.lib import Frame
+from zenoh_track.wire import STATUSES
 
 F64 = npt.NDArray[np.float64]
 MAX_NUMBER = 0xFFFE  # entity numbers 1..0xFFFE (0 and 0xFFFF are reserved)
@@ -69,8 +78,12 @@ class Table:
         self.pos0 = np.zeros((0, 3))
         self.vel0 = np.zeros((0, 3))
         self.acc0 = np.zeros((0, 3))
-        self.quat0 = np.zeros((0, 4))
+        self.axes0 = np.zeros((0, 3, 3))  # body-to-ECEF matrix as stated
         self.omega0 = np.zeros((0, 3))
+        # local North and Up where the last PDU was (an entity moves a few km between
+        # PDUs: its Up turns by hundredths of a degree, far below the 3 deg threshold)
+        self.north0 = np.zeros((0, 3))
+        self.up0 = np.zeros((0, 3))
         self.acc = np.zeros((0, 3))  # the track's acceleration, ENU (from `states`)
         self.fresh = np.zeros(0, bool)  # no PDU sent yet
         self.next_number = 1
@@ -96,7 +109,7 @@ class Table:
             self._grow(row + 1)
         self.number[row] = self.next_number
         self.next_number = self.next_number % MAX_NUMBER + 1
-        self.acc[row], self.quat0[row], self.fresh[row] = 0.0, (0.0, 0.0, 0.0, 1.0), True
+        self.acc[row], self.axes0[row], self.fresh[row] = 0.0, np.eye(3), True
         self.index[track_id] = row
         return row
 
@@ -104,8 +117,8 @@ class Table:
         if n <= len(self.number):
             return
         size = max(n, 2 * len(self.number), 64)
-        for name in ("number", "t0", "pos0", "vel0", "acc0", "quat0", "omega0", "acc",
-                     "fresh"):
+        for name in ("number", "t0", "pos0", "vel0", "acc0", "axes0", "omega0", "north0",
+                     "up0", "acc", "fresh"):
             old = getattr(self, name)
             new = np.zeros((size, *old.shape[1:]), old.dtype)
             new[:len(old)] = old
@@ -126,6 +139,7 @@ class Outbound:
         self.algorithm, self.with_acc, self.rotating = standard.DR_ALGORITHMS[config.dr]
         self.table = Table()
         self.counts = OutCounts()
+        self.codes = np.array([STATUSES.index(s) for s in config.statuses], np.uint8)
         self.pending_acc: list[tuple[list[str], F64]] = []  # from `states`, not yet applied
         self._seen: list[str] = []  # the previous frame's ids, and their rows
         self._seen_rows = np.zeros(0, np.int64)
@@ -136,9 +150,9 @@ class Outbound:
 
     def on_frame(self, frame: Frame) -> None:
         """Dead-reckon every entity to the frame's time and send the PDUs due."""
-        cfg, table = self.config, self.table
+        table = self.table
         self.counts.frames += 1
-        shown = np.isin(frame.status, cfg.statuses)
+        shown = np.isin(frame.codes, self.codes)
         ids = [i for i, s in zip(frame.id_list, shown.tolist(), strict=True) if s] \
             if not shown.all() else frame.id_list
         if ids != self._seen:
@@ -163,15 +177,18 @@ class Outbound:
         vel = self.frame.vectors_to_ecef(frame.vel[shown_rows])
         acc = self.frame.vectors_to_ecef(table.acc[rows]) if self.with_acc else \
             np.zeros_like(vel)
-        rot = body_axes(pos, vel)
-        due, cause = self._due(rows, frame.t, pos, rot)
+        fresh = table.fresh[rows]
+        if fresh.any():
+            table.north0[rows[fresh]], table.up0[rows[fresh]] = local_axes(pos[fresh])
+        axes = body_matrix(vel, table.north0[rows], table.up0[rows])
+        due, cause = self._due(rows, frame.t, pos, axes)
         if due.any():
-            self._send(rows[due], frame.t, pos[due], vel[due], acc[due], rot[due],
+            self._send(rows[due], frame.t, pos[due], vel[due], acc[due],
                        np.zeros(0, bool))
             for k, name in enumerate(CAUSES):
                 self.counts.sent[name] += int(np.count_nonzero(cause[due] == k))
 
-    def _due(self, rows: npt.NDArray[np.int64], t: float, pos: F64, rot: Rotation
+    def _due(self, rows: npt.NDArray[np.int64], t: float, pos: F64, axes: F64
              ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64]]:
         """Which entities to send now, and why (an index into CAUSES)."""
         cfg, tb = self.config, self.table
@@ -181,19 +198,22 @@ class Outbound:
             guess += 0.5 * tb.acc0[rows] * dt * dt
         new = tb.fresh[rows]
         off = np.linalg.norm(guess - pos, axis=1) > cfg.pos_threshold
-        stated = Rotation.from_quat(tb.quat0[rows])
-        if self.rotating:
-            stated = stated * Rotation.from_rotvec(tb.omega0[rows] * dt)
-        turned = (stated.inv() * rot).magnitude() > cfg.orient_threshold
+        stated = tb.axes0[rows]
+        if self.rotating:  # body rates: the stated axes turned by omega dt
+            stated = stated @ Rotation.from_rotvec(tb.omega0[rows] * dt).as_matrix()
+        turned = angle_between(stated, axes) > cfg.orient_threshold
         beat = dt[:, 0] >= cfg.heartbeat
         cause = np.select([new, off, turned, beat], [0, 1, 2, 3], -1)
         return cause >= 0, cause
 
     def _send(self, rows: npt.NDArray[np.int64], t: float, pos: F64, vel: F64, acc: F64,
-              rot: Rotation, deactivated: npt.NDArray[np.bool_]) -> None:
-        """Encode and send one Entity State PDU per row; remember what each stated."""
+              deactivated: npt.NDArray[np.bool_]) -> None:
+        """Encode and send one Entity State PDU per row (its orientation along the
+        velocity at its own position); remember what each stated."""
         cfg, tb = self.config, self.table
         n = len(rows)
+        north, up = local_axes(pos)
+        rot = Rotation.from_matrix(body_matrix(vel, north, up))
         out = pdu.entity_state(n)
         pdu.header(out, pdu.ENTITY_STATE, pdu.FAMILY_ENTITY_INFO, cfg.exercise,
                    pdu.timestamp(np.full(n, t), cfg.absolute))
@@ -203,10 +223,9 @@ class Outbound:
         for name, value in zip(("kind", "domain", "country", "category", "subcategory",
                                 "specific", "extra"), cfg.entity_type, strict=True):
             out["entity_type"][name] = value
-        omega = turn_rate(rot, vel, acc)
         out["velocity"], out["location"], out["acceleration"] = vel, pos, acc
-        out["orientation"] = rot.as_euler("ZYX") if n else np.zeros((0, 3))
-        out["angular_velocity"] = omega
+        out["orientation"] = euler_of(rot)
+        out["angular_velocity"] = turn_rate(rot, vel, acc)
         out["dr_algorithm"] = self.algorithm
         if len(deactivated):
             out["appearance"] = np.where(deactivated, pdu.DEACTIVATED, 0)
@@ -220,21 +239,30 @@ class Outbound:
         tb.pos0[rows] = pos
         tb.vel0[rows] = out["velocity"].astype(float)
         tb.acc0[rows] = out["acceleration"].astype(float)
-        tb.quat0[rows] = Rotation.from_euler("ZYX", out["orientation"].astype(float)).as_quat()
+        tb.axes0[rows] = rotation_of(out["orientation"].astype(float)).as_matrix()
         tb.omega0[rows] = out["angular_velocity"].astype(float)
+        tb.north0[rows], tb.up0[rows] = north, up
 
     def _removals(self, present: set[str]) -> None:
         """Tracks gone from the picture: a last PDU with the deactivated bit, then a
         Remove Entity PDU, and their entity numbers freed."""
-        cfg, tb = self.config, self.table
+        tb = self.table
         gone = [i for i in tb.index if i not in present]
         if not gone:
             return
         rows = np.array([tb.index[i] for i in gone], np.int64)
+        rows = rows[~tb.fresh[rows]]  # never sent: nothing to remove
+        if len(rows):
+            self._remove(rows)
+        for i in gone:
+            tb.drop(i)
+        self.counts.removed += len(rows)
+
+    def _remove(self, rows: npt.NDArray[np.int64]) -> None:
+        cfg, tb = self.config, self.table
         t = float(tb.t0[rows].max())
-        vel = tb.vel0[rows]
-        self._send(rows, t, tb.pos0[rows], vel, tb.acc0[rows],
-                   Rotation.from_quat(tb.quat0[rows]), np.ones(len(rows), bool))
+        self._send(rows, t, tb.pos0[rows], tb.vel0[rows], tb.acc0[rows],
+                   np.ones(len(rows), bool))
         rm = pdu.remove_entity(len(rows))
         pdu.header(rm, pdu.REMOVE_ENTITY, pdu.FAMILY_SIMULATION_MANAGEMENT, cfg.exercise,
                    pdu.timestamp(np.full(len(rows), t), cfg.absolute))
@@ -244,9 +272,6 @@ class Outbound:
         rm["request_id"] = tb.number[rows]
         for k in range(len(rows)):
             self.send(rm[k:k + 1].tobytes())
-        for i in gone:
-            tb.drop(i)
-        self.counts.removed += len(gone)
 
 
 class DeadReckoner:
