@@ -274,6 +274,9 @@ def main(argv: list[str] | None = None) -> None:
     jit.prepare([imm_jit, frame], wait=args.clock == "lockstep", slow=lambda: print(
         "track-service: compiling the filter kernels (the first start on this machine "
         "only)...", file=sys.stderr, flush=True))
+    # answered before the liveliness token is declared: a client that sees the service
+    # alive can ask its origin
+    origin_answer = OriginQueryable(session, Keys(args.ns), origin)
     svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),
@@ -285,7 +288,6 @@ def main(argv: list[str] | None = None) -> None:
         svc.state = StateFile(args.state, args.state_period)
         print(f"track-service: {svc.state.restore(svc)}", file=sys.stderr, flush=True)
     svc.start()
-    origin_answer = OriginQueryable(session, Keys(args.ns), origin)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

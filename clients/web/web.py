@@ -27,9 +27,11 @@ from typing import Any
 import zenoh
 from aiohttp import WSMsgType, web
 
+from zenoh_track.clients.lib.origin import OriginConflict, agreed_origin
+from zenoh_track.clients.lib.session import Client
 from zenoh_track.clients.web.web_frames import FrameHub
 from zenoh_track.clients.web.web_link import Link
-from zenoh_track.wire import CHUNK, Keys, add_zenoh_args, fail, open_session
+from zenoh_track.wire import CHUNK, Keys, Origin, add_zenoh_args, fail, open_session
 
 WINDOW = 2  # frames in flight to one browser (unanswered)
 HEALTH_PERIOD = 1.0  # s between health messages
@@ -184,10 +186,21 @@ class WebServer:
         self.link.close()
 
 
+def service_origin(session: zenoh.Session, args: argparse.Namespace) -> list[float] | None:
+    """The service's geodetic origin (`<ns>/origin`); --origin only where it agrees, or
+    where the service states none (one line and exit 2 when it disagrees)."""
+    given = Origin(*args.origin) if args.origin else None
+    try:
+        origin, _ = agreed_origin(Client(session, args.ns, own=False), given, timeout=2.0)
+    except OriginConflict as exc:
+        fail(str(exc), "track-web")
+    return None if origin is None else [origin.lat, origin.lon, origin.alt]
+
+
 async def serve(args: argparse.Namespace) -> None:
     session = open_session(args, log=True)
     try:
-        server = WebServer(session, Keys(args.ns), args.origin, args.trail)
+        server = WebServer(session, Keys(args.ns), service_origin(session, args), args.trail)
     except BaseException:
         session.close()
         raise
@@ -217,7 +230,9 @@ def main(argv: list[str] | None = None) -> None:
                    help="address to serve on (default %(default)s: this machine only)")
     p.add_argument("--port", type=int, default=8080, help="HTTP port (default %(default)s)")
     p.add_argument("--origin", type=parse_origin, metavar="LAT,LON,ALT",
-                   help="geodetic origin of the ENU frame: positions also in lat/lon")
+                   help="geodetic origin of the ENU frame: positions also in lat/lon "
+                        "(default: the service's, track-service --origin; one that differs "
+                        "is refused)")
     p.add_argument("--trail", type=float, default=TRAIL,
                    help="seconds of history behind each track (default %(default)s)")
     args = p.parse_args(argv)
