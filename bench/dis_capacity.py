@@ -155,6 +155,7 @@ def main() -> None:
                     marks["start"] = (time.monotonic(), sent, cpu_seconds(gw_in.pid),
                                       cpu_seconds(plain.pid), cpu_seconds(gw_out.pid),
                                       len(out_times))
+                    out_before = status(client, "dis-out")["out"]
             time.sleep(1.0)
             end = (time.monotonic(), sent, cpu_seconds(gw_in.pid), cpu_seconds(plain.pid),
                    cpu_seconds(gw_out.pid), len(out_times))
@@ -186,9 +187,11 @@ def main() -> None:
           f"{100 * (p1 - p0) / wall:.1f} %, track-dis out {100 * (o1 - o0) / wall:.1f} % of one "
           "core")
     o = s_out["out"]
+    causes = {k: v - out_before["sent"][k] for k, v in o["sent"].items()}
     print(f"out: {o['entities']} entities, {(r1 - r0) / wall:.0f} PDUs per second received "
-          f"({(r1 - r0) / wall / max(o['entities'], 1):.3f} per entity per second), "
-          f"{o['frames']} frames; sent by cause since start {o['sent']}")
+          f"({(r1 - r0) / wall / max(o['entities'], 1):.3f} per entity per second); sent by "
+          f"cause in the last {wall:.0f} s {causes}; {o['frames'] - out_before['frames']} "
+          f"frames ({o['frames_dropped']} dropped since start), {o['removed']} removed")
 
 
 if __name__ == "__main__":
