@@ -108,6 +108,20 @@ def test_own_pdus_never_come_back_bad_input_reported_tracks_end() -> None:
             assert client.status()["meas_accepted"] == 4  # its own PDUs never measured
             poll(lambda: errors)
             assert errors[0]["code"] == "truncated" and errors[0]["count"] == 1
+            # a flood of another version: every datagram counted (read and refused, or
+            # dropped by the kernel), reported in a few messages, the gateway still serving
+            flood = bytes([5]) + es.tobytes()[1:]
+            for _ in range(5000):
+                tx.sendto(flood, ("127.0.0.1", port))
+
+            def flooded() -> dict | None:
+                s = gateway_status(client)["in"]
+                seen = s["rejected"].get("version", 0) + s["kernel_dropped"]
+                reported = sum(e["count"] for e in errors if e["code"] == "version")
+                return s if seen == 5000 and reported == s["rejected"].get("version") else None
+
+            poll(flooded)
+            assert 1 <= sum(e["code"] == "version" for e in errors) <= 10
         finally:
             err = stop(gw)
             sub.undeclare()
