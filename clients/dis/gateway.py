@@ -63,11 +63,12 @@ def site_app(text: str) -> tuple[int, int]:
     return site, app
 
 
-def origin_arg(text: str) -> Origin:
+def origin_option(text: str | None) -> Origin | None:
+    """`--origin`, or one line and exit 2."""
     try:
-        return parse_origin(text)
+        return None if text is None else parse_origin(text)
     except Rejected as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+        fail(f"--origin {text}: {exc}", PROG)
 
 
 def entity_type(text: str) -> tuple[int, ...]:
@@ -81,7 +82,7 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_zenoh_args(p)
-    p.add_argument("--origin", type=origin_arg, metavar="LAT,LON,ALT",
+    p.add_argument("--origin", metavar="LAT,LON,ALT",
                    help="the deployment's geodetic origin; default and normally: the "
                         "service's (track-service --origin); one that differs is refused")
     p.add_argument("--name", default="dis",
@@ -314,9 +315,10 @@ def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
     if not CHUNK.fullmatch(args.name):
         fail(f"--name {args.name!r}: letters, digits, '-' or '_'", PROG)
+    given = origin_option(args.origin)
     session = open_session(args, log=True)
     client = Client(session, args.ns)
-    origin = resolve_origin(client, args.origin)
+    origin = resolve_origin(client, given)
     gateway = Gateway(args, client, EnuFrame(origin))
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: gateway.stop.set())

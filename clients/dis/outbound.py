@@ -133,7 +133,7 @@ class Table:
 class Outbound:
     """Turns each frame of the service into the PDUs due (`send(datagram)` each)."""
 
-    def __init__(self, frame: EnuFrame, config: OutConfig, send: Callable[[bytes], None]
+    def __init__(self, frame: EnuFrame, config: OutConfig, send: Callable[[bytes], object]
                  ) -> None:
         self.frame, self.config, self.send = frame, config, send
         self.algorithm, self.with_acc, self.rotating = standard.DR_ALGORITHMS[config.dr]

@@ -25,16 +25,16 @@ DEACTIVATED = 1 << 23  # appearance bit 23, "State": the entity is deactivated (
 ABSOLUTE = 1  # timestamp's least significant bit: 1 absolute (UTC), 0 relative
 TICKS_PER_HOUR = 2**31  # timestamp units: 3600 s / 2^31 past the hour (6.2.88)
 
-HEADER = np.dtype([
+HEADER_FIELDS = [
     ("version", "u1"), ("exercise", "u1"), ("pdu_type", "u1"), ("family", "u1"),
     ("timestamp", ">u4"), ("length", ">u2"), ("status", "u1"), ("padding", "u1"),
-])
+]
+HEADER = np.dtype(HEADER_FIELDS)
 ENTITY_ID = [("site", ">u2"), ("application", ">u2"), ("entity", ">u2")]
 ENTITY_TYPE = [("kind", "u1"), ("domain", "u1"), ("country", ">u2"), ("category", "u1"),
                ("subcategory", "u1"), ("specific", "u1"), ("extra", "u1")]
 ENTITY_STATE_PDU = np.dtype([
-    *((name, HEADER.fields[name][0]) for name in HEADER.names),
-    *ENTITY_ID, ("force", "u1"), ("variable_count", "u1"),
+    *HEADER_FIELDS, *ENTITY_ID, ("force", "u1"), ("variable_count", "u1"),
     ("entity_type", ENTITY_TYPE), ("alternative_type", ENTITY_TYPE),
     ("velocity", ">f4", (3,)),  # m/s, in the frame the dead-reckoning algorithm names
     ("location", ">f8", (3,)),  # m, geocentric (ECEF, WGS-84)
@@ -46,8 +46,7 @@ ENTITY_STATE_PDU = np.dtype([
     ("capabilities", ">u4"),
 ])
 REMOVE_ENTITY_PDU = np.dtype([
-    *((name, HEADER.fields[name][0]) for name in HEADER.names),
-    ("originating", ENTITY_ID), ("receiving", ENTITY_ID), ("request_id", ">u4"),
+    *HEADER_FIELDS, ("originating", ENTITY_ID), ("receiving", ENTITY_ID), ("request_id", ">u4"),
 ])
 assert HEADER.itemsize == HEADER_SIZE
 assert ENTITY_STATE_PDU.itemsize == 144 and REMOVE_ENTITY_PDU.itemsize == 28
@@ -77,7 +76,9 @@ def timestamp(seconds: npt.ArrayLike, absolute: bool) -> npt.NDArray[np.uint32]:
     one bit, the low bit set for absolute (UTC) time."""
     past = np.mod(np.asarray(seconds, float), 3600.0)
     ticks = np.minimum(np.round(past * (TICKS_PER_HOUR / 3600.0)), TICKS_PER_HOUR - 1)
-    return (ticks.astype(np.uint32) << 1) | np.uint32(ABSOLUTE if absolute else 0)
+    out: npt.NDArray[np.uint32] = (ticks.astype(np.uint32) << 1) | np.uint32(ABSOLUTE if
+                                                                            absolute else 0)
+    return out
 
 
 def seconds_past_hour(stamp: npt.NDArray[np.integer]) -> npt.NDArray[np.float64]:

@@ -54,11 +54,12 @@ def flight() -> FlightA:
 
 
 def send(args: argparse.Namespace) -> None:
-    from zenoh_track.clients.dis.gateway import resolve_origin
+    from zenoh_track.clients.dis.gateway import origin_option, resolve_origin
 
+    given = origin_option(args.origin)
     session = open_session(args, log=True)
     with Client(session, args.ns) as client:
-        frame = EnuFrame(resolve_origin(client, args.origin, wait=args.wait))
+        frame = EnuFrame(resolve_origin(client, given, wait=args.wait))
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
     absolute = args.speed == 1.0  # real time: UTC; faster: the scenario's own clock
@@ -107,13 +108,13 @@ def receive(args: argparse.Namespace) -> None:
 def main(argv: list[str]) -> None:
     p = argparse.ArgumentParser(prog=f"{PROG} {argv[0]}", description=__doc__)
     if argv[0] == "send":
-        from zenoh_track.clients.dis.gateway import address, origin_arg
+        from zenoh_track.clients.dis.gateway import address
 
         add_zenoh_args(p)
         p.add_argument("scenario", choices=("display",), help="scenario A (1 Hz, exact)")
         p.add_argument("--to", type=address, default=("127.0.0.1", standard.PORT),
                        metavar="HOST:PORT", help="destination (default 127.0.0.1:3000)")
-        p.add_argument("--origin", type=origin_arg, metavar="LAT,LON,ALT",
+        p.add_argument("--origin", metavar="LAT,LON,ALT",
                        help="where the scenario is (default: the service's origin)")
         p.add_argument("--runs", type=int, default=1, help="identical bodies (default 1)")
         p.add_argument("--speed", type=float, default=1.0,
