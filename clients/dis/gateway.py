@@ -219,7 +219,8 @@ class Gateway:
                            ("tentative", "confirmed", "coasting") if args.tentative
                            else ("confirmed", "coasting"))
         self.outbound = Outbound(frame, config, lambda data: out.sendto(data, dest))
-        self.picture = self.client.picture(maxlen=256)
+        # about 2 s of frames: a lockstep burst fits, a late gateway takes the newest
+        self.picture = self.client.picture(maxlen=64)
         self.states = self.client.session.declare_subscriber(self.client.keys.states,
                                                              self._states)
         self.threads.append(threading.Thread(target=self._frames, daemon=True))
