@@ -166,6 +166,20 @@ def test_silent_entities_time_out() -> None:
         gw.close()
 
 
+def test_accept_filter_and_arrival_time() -> None:
+    gw = Gateway(window=0.02, accept=frozenset({(1, 1)}), clock="arrival")
+    try:
+        stale = time.time() - 3000.0  # any timestamp: the arrival counts
+        gw.send(states(np.zeros((1, 3)), [1], stale)[0].tobytes(),
+                states(np.zeros((1, 3)), [2], stale, site=2)[0].tobytes())
+        gw.until(2)
+        (t, ids, _), = gw.scans
+        assert ids == ["1-1-1"] and abs(t[0] - time.time()) < 5.0
+        assert gw.inbound.counts.rejected == {"filtered": 1}
+    finally:
+        gw.close()
+
+
 def test_times_absolute_nearest_hour_and_relative_continuous() -> None:
     past = np.array([3599.9])
     assert Clocks.nearest_hour(past, np.array([7200.05]))[0] == pytest.approx(7199.9)
