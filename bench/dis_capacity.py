@@ -175,7 +175,8 @@ def main() -> None:
     print(f"{args.entities} entities at 1 Hz for {total:g} s ({sent} PDUs), realtime service, "
           f"measured over the last {wall:.1f} s ({pdus} PDUs)")
     print(f"in: sent {sent} = taken {i['accepted']} + refused {refused} "
-          f"({i['rejected']}) + own {i['own']} + kernel-dropped {i['kernel_dropped']} "
+          f"({i['rejected']}) + own {i['own']} + ended {i['ended']} "
+          f"+ kernel-dropped {i['kernel_dropped']} "
           f"+ unread {sent - i['datagrams'] - i['kernel_dropped']}; "
           f"{i['scans']} scan/ messages ({sent / max(i['scans'], 1):.0f} rows each)")
     print(f"service: {svc_status['tracks']} tracks, meas_accepted {svc_status['meas_accepted']},"

@@ -148,7 +148,8 @@ def test_remove_entity_and_the_deactivated_bit_end_an_entity(gateway: Gateway) -
     off["appearance"] = pdu.DEACTIVATED
     gateway.send(rm.tobytes(), off.tobytes())
     gateway.until(5)
-    assert gateway.inbound.counts.removed == 2
+    c = gateway.inbound.counts
+    assert c.removed == c.ended == 2 and c.accepted == 3 and c.datagrams == 5
     assert list(gateway.inbound.names.values()) == ["1-1-1"]
 
 

@@ -253,7 +253,8 @@ class Gateway:
         if self.inbound is not None:
             c = self.inbound.counts
             out["in"] = {"datagrams": c.datagrams, "accepted": c.accepted, "scans": c.scans,
-                         "own": c.own, "entities": len(self.inbound.seen),
+                         "own": c.own, "ended": c.ended,
+                         "entities": len(self.inbound.seen),
                          "removed": c.removed, "timed_out": c.timed_out,
                          "rejected": dict(c.rejected),
                          "kernel_dropped": kernel_drops(self.inbound.sock)}

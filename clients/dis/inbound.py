@@ -64,6 +64,7 @@ class InCounts:
     datagrams: int = 0
     accepted: int = 0  # rows sent to the service
     scans: int = 0  # scan/ messages sent
+    ended: int = 0  # PDUs that end entities: Remove Entity, or the deactivated bit set
     removed: int = 0  # entities ended by a Remove Entity PDU or the deactivated bit
     timed_out: int = 0  # entities silent for --timeout
     own: int = 0  # the gateway's own PDUs, read back (loop protection)
@@ -229,7 +230,9 @@ class Inbound:
                                      rm["entity"].tolist(), strict=True):
             if (site, app) == self.config.own:
                 self.counts.add("own", 1)
-            elif entity == standard.ALL_ENTITIES:
+                continue
+            self.counts.ended += 1
+            if entity == standard.ALL_ENTITIES:
                 prefix = (site << 32) | (app << 16)
                 for uid in [u for u in self.seen if u >> 16 == prefix >> 16]:
                     self._forget(uid)
@@ -260,6 +263,7 @@ class Inbound:
         keep &= sane
         uid = (sender << 16) | es["entity"].astype(np.int64)
         gone = keep & ((es["appearance"] & pdu.DEACTIVATED) != 0)
+        c.ended += int(np.count_nonzero(gone))
         for u in uid[gone].tolist():
             self._forget(u)
         keep &= ~gone
