@@ -167,6 +167,17 @@ def test_silent_entities_time_out() -> None:
         gw.close()
 
 
+def test_a_multicast_group_on_loopback() -> None:
+    group = "239.255.3.0"
+    with open_socket("127.0.0.1", 0, group) as sock, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        sock.settimeout(5.0)
+        tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
+        data = states(np.zeros((1, 3)), [1], time.time())[0].tobytes()
+        tx.sendto(data, (group, sock.getsockname()[1]))
+        assert sock.recv(2048) == data
+
+
 def test_accept_filter_and_arrival_time() -> None:
     gw = Gateway(window=0.02, accept=frozenset({(1, 1)}), clock="arrival")
     try:

@@ -213,6 +213,8 @@ class Gateway:
         out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         out.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
         out.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
+        if args.bind not in ("", "0.0.0.0"):  # multicast out on the interface of --bind
+            out.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(args.bind))
         config = OutConfig(args.exercise, *own, args.entity_type, args.force, args.dr,
                            args.pos_threshold, np.radians(args.orient_threshold),
                            args.heartbeat, not args.relative,
