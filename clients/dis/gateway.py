@@ -137,6 +137,9 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--timeout", type=float, default=standard.TIMEOUT, metavar="SECONDS",
                    help="an entity without a PDU this long is gone (default %(default)s: "
                         "HBT_TIMEOUT_MPLIER x the 5 s heartbeat)")
+    g.add_argument("--max-entities", type=int, default=InConfig.max_entities, metavar="N",
+                   help="entities held at most; PDUs of further ones are refused "
+                        "(default %(default)s)")
     o.add_argument("--tentative", action="store_true",
                    help="send tentative tracks too (default: confirmed and coasting)")
     return p
@@ -183,6 +186,7 @@ class Gateway:
         self.inbound: Inbound | None = None
         self.outbound: Outbound | None = None
         self.sock: socket.socket | None = None
+        self.out_sock: socket.socket | None = None
         own = (args.site, args.application)
         if not args.no_in:
             try:
@@ -194,7 +198,7 @@ class Gateway:
             feed = client.feed(args.name, check=False)
             config = InConfig(args.exercise, frozenset(args.accept) if args.accept else None,
                               own, args.sigma, args.time, args.time_window, args.window,
-                              args.timeout)
+                              args.timeout, args.max_entities)
             self.report = Reporter(session, keys.errors(args.name),
                                    f"udp/{args.group or args.bind}:{args.port}")
             self.inbound = Inbound(self.sock, frame, config,
@@ -220,6 +224,7 @@ class Gateway:
                            args.heartbeat, not args.relative,
                            ("tentative", "confirmed", "coasting") if args.tentative
                            else ("confirmed", "coasting"))
+        self.out_sock = out
         self.outbound = Outbound(frame, config, lambda data: out.sendto(data, dest))
         # about 2 s of frames: a lockstep burst fits, a late gateway takes the newest
         self.picture = self.client.picture(maxlen=64)
@@ -288,8 +293,9 @@ class Gateway:
         for t in self.threads:
             t.join(timeout=2.0)
         self.status_q.undeclare()
-        if self.sock is not None:
-            self.sock.close()
+        for sock in (self.sock, self.out_sock):
+            if sock is not None:
+                sock.close()
 
 
 def resolve_origin(client: Client, given: Origin | None, wait: float = 10.0) -> Origin:
