@@ -63,6 +63,14 @@ def site_app(text: str) -> tuple[int, int]:
     return site, app
 
 
+def octet(text: str) -> int:
+    """An option's number 0..255 (a DIS enumeration of one octet)."""
+    value = int(text)
+    if not 0 <= value <= 255:
+        raise argparse.ArgumentTypeError(f"{text!r}: a number 0..255")
+    return value
+
+
 def origin_option(text: str | None) -> Origin | None:
     """`--origin`, or one line and exit 2."""
     try:
@@ -88,7 +96,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="dis",
                    help="the gateway's name: its sensor (scan/<name>), errors/<name> and "
                         "<ns>/gateway/<name>/status (default %(default)s)")
-    p.add_argument("--exercise", type=int, default=standard.EXERCISE,
+    p.add_argument("--exercise", type=octet, default=standard.EXERCISE,
                    help="DIS exercise id, both ways (default %(default)s)")
     g = p.add_argument_group("in: Entity State PDUs -> the service")
     g.add_argument("--no-in", action="store_true", help="do not take PDUs in")
@@ -121,8 +129,7 @@ def parser() -> argparse.ArgumentParser:
                         "PDUs of this site:application are never taken in")
     o.add_argument("--entity-type", type=entity_type, default=standard.ENTITY_TYPE,
                    metavar="K.D.C.C.S.S.E", help="entity type (default %(default)s)")
-    o.add_argument("--force", type=int, default=standard.FORCE, choices=range(0, 256),
-                   metavar="ID", help="force id (default %(default)s: other)")
+    o.add_argument("--force", type=octet, default=standard.FORCE, metavar="ID", help="force id (default %(default)s: other)")
     o.add_argument("--dr", choices=tuple(standard.DR_ALGORITHMS), default="fvw",
                    help="dead-reckoning algorithm (default %(default)s)")
     o.add_argument("--pos-threshold", type=float, default=standard.DRA_POS_THRSH,
