@@ -63,6 +63,14 @@ def site_app(text: str) -> tuple[int, int]:
     return site, app
 
 
+def uint16(text: str) -> int:
+    """An option's number 1..65534 (a site or application id)."""
+    value = int(text)
+    if not 0 < value < 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: a number 1..65534")
+    return value
+
+
 def octet(text: str) -> int:
     """An option's number 0..255 (a DIS enumeration of one octet)."""
     value = int(text)
@@ -122,14 +130,15 @@ def parser() -> argparse.ArgumentParser:
     o.add_argument("--send-to", type=address, metavar="HOST:PORT",
                    help="destination (default: --bind or 127.0.0.1, --port; a broadcast or "
                         "multicast address works)")
-    o.add_argument("--site", type=int, default=standard.OWN_SITE,
+    o.add_argument("--site", type=uint16, default=standard.OWN_SITE,
                    help="site id of the gateway's entities (default %(default)s)")
-    o.add_argument("--application", type=int, default=standard.OWN_APPLICATION,
+    o.add_argument("--application", type=uint16, default=standard.OWN_APPLICATION,
                    help="application id of the gateway's entities (default %(default)s); "
                         "PDUs of this site:application are never taken in")
     o.add_argument("--entity-type", type=entity_type, default=standard.ENTITY_TYPE,
                    metavar="K.D.C.C.S.S.E", help="entity type (default %(default)s)")
-    o.add_argument("--force", type=octet, default=standard.FORCE, metavar="ID", help="force id (default %(default)s: other)")
+    o.add_argument("--force", type=octet, default=standard.FORCE, metavar="ID",
+                   help="force id (default %(default)s: other)")
     o.add_argument("--dr", choices=tuple(standard.DR_ALGORITHMS), default="fvw",
                    help="dead-reckoning algorithm (default %(default)s)")
     o.add_argument("--pos-threshold", type=float, default=standard.DRA_POS_THRSH,
