@@ -11,6 +11,7 @@ from typing import Any
 
 from . import __version__, defaults
 from .adapter import TrackService
+from .adapter.origin import OriginQueryable
 from .adapter.state import StateFile
 from .estimation import imm_jit, jit
 from .estimation.catalog import FILTERS, FilterSpec
@@ -18,7 +19,17 @@ from .tracking import frame
 from .tracking.display import DisplayConfig
 from .tracking.plot_association import SensorModels
 from .tracking.tracker import SCAN_ASSOCIATORS, Tracker, TrackerConfig
-from .wire import Keys, add_zenoh_args, fail, on_signals, open_session, read_file
+from .wire import (
+    Keys,
+    Origin,
+    Rejected,
+    add_zenoh_args,
+    fail,
+    on_signals,
+    open_session,
+    parse_origin,
+    read_file,
+)
 
 
 def steady_malloc() -> None:
@@ -228,14 +239,28 @@ def parser() -> argparse.ArgumentParser:
                    help="refuse an input more than this from the picture's time, unless "
                         f"{defaults.NEW_TIMELINE} such come in a row (a new timeline; "
                         "default %(default)s s)")
+    p.add_argument("--origin", metavar="LAT,LON,ALT",
+                   help="the deployment's geodetic frame: positions are East-North-Up metres "
+                        "about this WGS-84 point (degrees, degrees, metres above the "
+                        "ellipsoid), answered on <ns>/origin to gateways and displays "
+                        "(default: a local frame without geodetic meaning)")
     p.add_argument("--instance", default=None, help="liveliness instance name")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
 
 
+def origin_option(text: str | None) -> Origin | None:
+    """`--origin`, or one line and exit 2."""
+    try:
+        return None if text is None else parse_origin(text)
+    except Rejected as exc:
+        fail(f"--origin {text}: {exc}")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
     stop = on_signals()  # first: before Zenoh or anything else starts a thread
+    origin = origin_option(args.origin)
     steady_malloc()  # before Zenoh starts its threads
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -247,7 +272,7 @@ def main(argv: list[str] | None = None) -> None:
                                admin=True, stamp=True)
     try:
         with stop.interrupting():  # stopped while starting: nothing taken, nothing to save
-            svc = start(args, session, tracker)
+            svc, origin_answer = start(args, session, tracker, origin)
     except SystemExit:
         session.close()
         raise
@@ -258,18 +283,23 @@ def main(argv: list[str] | None = None) -> None:
     # the worker stops, the final checkpoint is written, then the session closes; a close
     # that blocks on data queued for a vanished peer (lockstep BLOCK) is cut short by the
     # stop's deadline (wire.STOP_GRACE)
+    origin_answer.close()
     svc.close()
     session.close()
 
 
-def start(args: argparse.Namespace, session: Any, tracker: Tracker) -> TrackService:
-    """The kernels ready (lockstep) or compiling (realtime), the state file read back, the
-    service started."""
+def start(args: argparse.Namespace, session: Any, tracker: Tracker,
+          origin: Origin | None) -> tuple[TrackService, OriginQueryable]:
+    """The kernels ready (lockstep) or compiling (realtime), the origin answered, the state
+    file read back, the service started."""
     # the compiled kernels: a realtime service is alive at once on their NumPy forms and
     # takes the compiled ones when ready (a machine's first start compiles them in a child
     # process); lockstep outputs are a function of the inputs alone, so it waits for them
     jit.prepare([imm_jit, frame], wait=args.clock == "lockstep", say=lambda line: print(
         f"track-service: {line}", file=sys.stderr, flush=True))
+    # answered before the liveliness token is declared: a client that sees the service
+    # alive can ask its origin
+    origin_answer = OriginQueryable(session, Keys(args.ns), origin)
     svc = TrackService(session, Keys(args.ns), tracker, clock=args.clock,
                        instance=args.instance or uuid.uuid4().hex[:8],
                        noise=(args.sr, args.saz, args.sel, args.sigma),
@@ -280,7 +310,7 @@ def start(args: argparse.Namespace, session: Any, tracker: Tracker) -> TrackServ
     if args.state:
         svc.state = StateFile(args.state, args.state_period)
         print(f"track-service: {svc.state.restore(svc)}", file=sys.stderr, flush=True)
-    return svc.start()
+    return svc.start(), origin_answer
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ NEEDS = [
     (["track-demo", "--web"], "web"),
     (["track-eval", "display", "--plot", "figures"], "plot"),
     (["track-replay", "any.mcap", "--plot", "out.png"], "plot"),
+    (["track-dis"], "dis"),
 ]
 
 

@@ -25,7 +25,16 @@ from typing import Any
 
 import zenoh
 
-from zenoh_track.wire import CHUNK, Keys, Stop, add_zenoh_args, fail, on_signals, open_session
+from zenoh_track.wire import (
+    CHUNK,
+    Keys,
+    Origin,
+    Stop,
+    add_zenoh_args,
+    fail,
+    on_signals,
+    open_session,
+)
 
 try:
     from aiohttp import WSMsgType, web
@@ -35,6 +44,8 @@ except ImportError as exc:
     missing_extra(exc, "web", "track-web")
 
 from zenoh_track.clients.lib import Frame as Columns
+from zenoh_track.clients.lib.origin import OriginConflict, agreed_origin
+from zenoh_track.clients.lib.session import Client
 from zenoh_track.clients.web.web_frames import FrameHub
 from zenoh_track.clients.web.web_link import Link
 
@@ -191,10 +202,21 @@ class WebServer:
         self.link.close()
 
 
+def service_origin(session: zenoh.Session, args: argparse.Namespace) -> list[float] | None:
+    """The service's geodetic origin (`<ns>/origin`); --origin only where it agrees, or
+    where the service states none (one line and exit 2 when it disagrees)."""
+    given = Origin(*args.origin) if args.origin else None
+    try:
+        origin, _ = agreed_origin(Client(session, args.ns, own=False), given, timeout=2.0)
+    except OriginConflict as exc:
+        fail(str(exc), "track-web")
+    return None if origin is None else [origin.lat, origin.lon, origin.alt]
+
+
 async def serve(args: argparse.Namespace, stop: Stop) -> None:
     session = open_session(args, log=True)
     try:
-        server = WebServer(session, Keys(args.ns), args.origin, args.trail)
+        server = WebServer(session, Keys(args.ns), service_origin(session, args), args.trail)
     except BaseException:
         session.close()
         raise
@@ -221,7 +243,9 @@ def parser() -> argparse.ArgumentParser:
                    help="address to serve on (default %(default)s: this machine only)")
     p.add_argument("--port", type=int, default=8080, help="HTTP port (default %(default)s)")
     p.add_argument("--origin", type=parse_origin, metavar="LAT,LON,ALT",
-                   help="geodetic origin of the ENU frame: positions also in lat/lon")
+                   help="geodetic origin of the ENU frame: positions also in lat/lon "
+                        "(default: the service's, track-service --origin; one that differs "
+                        "is refused)")
     p.add_argument("--trail", type=float, default=TRAIL,
                    help="seconds of history behind each track (default %(default)s)")
     return p

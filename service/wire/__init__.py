@@ -35,6 +35,7 @@ from .keys import (
     Keys,
 )
 from .messages import Measurement, parse_clock, parse_full, parse_measurement
+from .origin import Origin, origin_message, parse_origin, parse_origin_message
 from .plots import MAX_DETECTIONS, PlotScan, bad_rows, parse_plots
 from .scans import LabelledScan, ScanColumns, parse_scan, parse_scan_columns
 from .session import (
@@ -68,4 +69,5 @@ __all__ = [
     "reason_code", "unpack",
     "wait_for_tracker", "zenoh_config", "CONNECT_TIMEOUT", "fail", "open_or_exit", "read_file",
     "add_version", "missing_extra", "need", "STOP_GRACE", "Stop", "on_signals",
+    "Origin", "origin_message", "parse_origin", "parse_origin_message",
 ]

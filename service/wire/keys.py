@@ -92,6 +92,15 @@ class Keys:
     def status(self) -> str:
         return f"{self.ns}/status"
 
+    @property
+    def origin(self) -> str:
+        """1.2: the deployment's geodetic frame (`wire.origin`), a queryable."""
+        return f"{self.ns}/origin"
+
+    def gateway(self, name: str = "*") -> str:
+        """1.2: a gateway's own status, a queryable (`<ns>/gateway/<name>/status`)."""
+        return f"{self.ns}/gateway/{name}/status"
+
     def chunks_after(self, key: str, what: str) -> list[str]:
         """The chunks of `key` after `<ns>/<what>/` (empty if the key is elsewhere)."""
         prefix = f"{self.ns}/{what}/"
