@@ -21,11 +21,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from zenoh_track.clients.evaluation import metrics  # noqa: E402
 from zenoh_track.clients.feeds import scenarios  # noqa: E402
-from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
+from zenoh_track.estimation.catalog import Filter, FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import IMM, ModeSet, standard_modes  # noqa: E402
+from zenoh_track.estimation.ucm import CMKFConversion  # noqa: E402
 from zenoh_track.tracking.batches import Labelled  # noqa: E402
-from zenoh_track.tracking.display import DisplayState  # noqa: E402
-from zenoh_track.tracking.store import TrackStore  # noqa: E402
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
 from zenoh_track.wire import Measurement  # noqa: E402
 
@@ -69,12 +68,8 @@ BEST = {"display": "ca", "radar3d": "cv", "maneuver": "vdf"}
 def tracker(updater: IMM | None, spec: FilterSpec | None = None) -> Tracker:
     """The service's tracker with the filter `spec`, or with `updater` in its place."""
     if updater is None:
-        return Tracker(TrackerConfig(filter=spec or FilterSpec()))
-    tr = Tracker()
-    tr.updater = updater
-    tr.store = TrackStore(updater.order, updater.fields, tr.store.columns)
-    tr.display = DisplayState(tr.config.display, 1.0)
-    return tr
+        return Tracker.from_config(TrackerConfig(filter=spec or FilterSpec()))
+    return Tracker.from_config(filter=Filter(updater, 1.0, CMKFConversion, "imm"))
 
 
 def measurement(t: float, name: str, m: dict) -> Measurement:

@@ -188,16 +188,20 @@ def test_realtime_frames_survive_time_faults(service_factory):
 
     feeder = threading.Thread(target=feed, daemon=True)
     feeder.start()
+    def tracked(prefix: str) -> bool:  # the feed's tracks of this phase are published
+        return {f"{prefix}{i}" for i in range(3)} <= {k for k, kind, _ in w.tracks
+                                                       if kind == "PUT"}
+
     try:
-        time.sleep(1.5)
+        assert w.wait(lambda: tracked("p"))
         meas(s, "p0", 1e300)
         meas(s, "p0", 1e8)
         s.put("track/meas/r1/p0", b"\xc1\xc1", congestion_control=BLOCK)
-        time.sleep(1.5)
+        assert w.wait(lambda: len(w.errors) >= 3)
         phase.update(offset=3 * 3600.0, prefix="h")  # the feed's clock jumps 3 h ahead
-        time.sleep(2.0)
+        assert w.wait(lambda: tracked("h"))  # the new timeline taken
         phase.update(offset=0.0, prefix="q")  # and back
-        time.sleep(2.0)
+        assert w.wait(lambda: tracked("q"))
         st = status(s)
     finally:
         stop.set()

@@ -27,7 +27,7 @@ def test_a_frame_within_a_step_leaves_the_deletion_to_the_steps_end():
     session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
     try:
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(TrackerConfig(delete_after=0.3)),
+        svc = TrackService(session, keys, Tracker.from_config(TrackerConfig(delete_after=0.3)),
                            clock="realtime")
         t = time.time()
         svc._process([Singles.one(keys.meas("r1", "gone"), pack({"t": t, "pos": [0.0, 1.0]}),
@@ -55,7 +55,7 @@ def test_the_realtime_clock_learns_from_arrival_not_from_when_the_worker_takes_i
     feed = zenoh.open(peer_config(ep))
     try:
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime")
         pub = feed.declare_publisher(keys.meas("r1", "x1"))
         end = time.monotonic() + 10
         while not pub.matching_status.matching and time.monotonic() < end:
@@ -144,7 +144,7 @@ def test_a_clock_message_moves_the_realtime_frames_only_after_the_measurements_b
     session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
     try:
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime")
         wall = time.time()
         svc._process([  # one batch: a measurement, then the feed's clock 1 s ahead
             Singles.one(keys.meas("r1", "x1"), pack({"t": wall - 0.5, "pos": [0.0, 1.0]}),
@@ -164,7 +164,7 @@ def test_the_worker_freezes_the_long_lived_objects_out_of_the_collectors_scans()
     try:
         gc.unfreeze()
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(), clock="realtime").start()
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime").start()
         end = time.monotonic() + 10
         while gc.get_freeze_count() == 0 and time.monotonic() < end:
             time.sleep(0.01)  # an idle worker freezes at once, then every FREEZE_EVERY s
@@ -185,7 +185,7 @@ def test_batched_scans_taken_together_are_applied_a_pass_each_beyond_the_pass_bo
     session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
     try:
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime")
         passes: list[int] = []
         rows = svc.tracking.rows
         svc.tracking.rows = lambda r, *a: (passes.append(len(r)), rows(r, *a))[1]

@@ -79,7 +79,7 @@ class TrackService:
                  max_jump: float = defaults.MAX_JUMP) -> None:
         self.session, self.keys, self.tracker = session, keys, tracker
         self.tracking = Tracking(tracker)
-        display = tracker.config.display
+        display = tracker.display.config
         self.clock = make_clock(clock, display.rate, display.lag)
         self.out = Publisher(session, keys, self.clock.anytime, per_target_display)
         self.count = self.out.count

@@ -224,12 +224,14 @@ class IMM:
         _, _, nis, _ = kalman.update(xbar, pbar, z, rbar)
         return x, p, nis, ok
 
-    def update_pda(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, w: Any) -> Result:
+    def update_pda(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, weighted: Any
+                   ) -> Result:
         """`update` by weighted detections (`tracking.hypotheses.WeightedUpdate`: JPDA's
         or PDA's): each mode updated by the PDA of its own prediction and weighed by its
         own likelihood of the scan (`pda.pda_update`, the IMM-PDAF), so that a far
         detection of small probability neither moves every mode to the widest one nor
         gives the quiet ones the widest one's spread."""
+        w = weighted
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
         preds = [self.predict_mode(j, dt, x0[:, j], p0[:, j], arrays.dim)
