@@ -12,7 +12,6 @@ import uuid
 
 from . import __version__, defaults
 from .adapter import TrackService
-from .adapter.state import StateFile
 from .estimation import imm_jit, jit
 from .estimation.catalog import FILTERS, FilterSpec
 from .tracking import frame
@@ -262,10 +261,10 @@ def main(argv: list[str] | None = None) -> None:
                        per_target_display=not args.no_display_keys,
                        meas_keys=args.meas or None, plot_keys=args.plots or None,
                        scan_keys=args.scan or None,
-                       reorder=args.reorder, max_jump=args.max_jump)
-    if args.state:
-        svc.state = StateFile(args.state, args.state_period)
-        print(f"track-service: {svc.state.restore(svc)}", file=sys.stderr, flush=True)
+                       reorder=args.reorder, max_jump=args.max_jump,
+                       state=args.state, state_period=args.state_period)
+    if svc.state is not None:
+        print(f"track-service: {svc.state.restore(svc.restore)}", file=sys.stderr, flush=True)
     svc.start()
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -18,7 +18,7 @@ import logging
 import math
 import threading
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -35,10 +35,8 @@ from .ingest import ClockMessage, Ingest, Input, Plots, Query, Scan, Singles
 from .publish import Publisher
 from .queries import Queries
 from .schedule import Frames, make_clock
+from .state import StateFile
 from .steps import Tracking
-
-if TYPE_CHECKING:
-    from .state import StateFile
 
 log = logging.getLogger("track-service")
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
@@ -76,7 +74,10 @@ class TrackService:
                  per_target_display: bool = True, meas_keys: list[str] | None = None,
                  plot_keys: list[str] | None = None, scan_keys: list[str] | None = None,
                  reorder: float = defaults.REORDER,
-                 max_jump: float = defaults.MAX_JUMP) -> None:
+                 max_jump: float = defaults.MAX_JUMP, state: str | None = None,
+                 state_period: float = defaults.STATE_PERIOD) -> None:
+        """`state`: the `--state` file's path (None: no checkpoints), written every
+        `state_period` s."""
         self.session, self.keys, self.tracker = session, keys, tracker
         self.tracking = Tracking(tracker)
         display = tracker.display.config
@@ -87,7 +88,8 @@ class TrackService:
         self.admit = Admit(self.clock, max_jump, reorder)
         self.pending: list[Rows] = []  # labelled rows taken, not yet applied
         self.frames = Frames(self.clock, self.tracking, self.out)
-        self.state: StateFile | None = None  # with --state: checkpoints
+        self.state = None if state is None else \
+            StateFile(state, self.checkpoint, state_period)  # checkpoints
         self.stop = threading.Event()
         self.next_freeze = 0.0  # monotonic time of the worker's next gc.freeze()
         self.ingest = Ingest(session, keys, meas_keys, plot_keys, scan_keys)
@@ -108,7 +110,7 @@ class TrackService:
         if self.thread.ident is not None:  # started
             self.thread.join(timeout=10)
         if self.state is not None and not self.thread.is_alive():
-            self.state.final(self)  # the worker has stopped: the table is still
+            self.state.final()  # the worker has stopped: the table is still
         self.token.undeclare()
         self.out.close()
 
@@ -146,7 +148,7 @@ class TrackService:
                 self._process(batch)
                 self._tick()
                 if self.state is not None:
-                    self.state.tick(self)
+                    self.state.tick()
                 if time.monotonic() >= self.next_freeze and self.ingest.idle():
                     gc.freeze()
                     if TRIM is not None:
