@@ -35,6 +35,7 @@ from zenoh_track.clients.feeds import feed_plots  # noqa: E402
 from zenoh_track.clients.feeds.manoeuvres import CLASSES, Manoeuvres  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import ModeSet  # noqa: E402
+from zenoh_track.estimation.imm_jit import CompiledIMM  # noqa: E402
 from zenoh_track.tracking.batches import Labelled, Unlabelled  # noqa: E402
 from zenoh_track.tracking.plot_association import SensorModels  # noqa: E402
 from zenoh_track.tracking.reach import Reach  # noqa: E402
@@ -70,13 +71,13 @@ def ours(name: str, sc: Manoeuvres, labelled: bool, associator: str = "gnn",
     built, parts = config.filter.build(), {}
     if name == "before":  # the default before the manoeuvre modes, gated by the store's state
         built = replace(built, updater=ModeSet(manoeuvre=(), ca_q=0.1,
-                                               initial=(0.1, 0.6, 0.3)).imm())
+                                               initial=(0.1, 0.6, 0.3)).imm(CompiledIMM))
         parts["scan_associator"] = SCAN_ASSOCIATORS[associator](
             built.q, config.sensors, config.gate_probability, predict=None,
             stages=stages(associator, Reach(), second_look))
     if ":" in name:  # a variant of the default mode set: default:key=value,key=value
         changes = {k: eval(v) for k, v in (kv.split("=") for kv in name.split(":")[1].split(";"))}
-        built = replace(built, updater=ModeSet(**changes).imm())
+        built = replace(built, updater=ModeSet(**changes).imm(CompiledIMM))
     tr = Tracker.from_config(config, filter=built, **parts)
     shown, states, spent = {}, {}, 0.0
     names = [f.name for f in sc.flights]

@@ -72,6 +72,12 @@ IMM_TURN_DEG = 0.0  # deg/s: > 0 adds coordinated-turn modes at +- this (0: none
 VDF_DETECT = 35.0  # VDF manoeuvre detection threshold (fading NIS sum)
 VDF_SETTLE = 13.0  # VDF return-to-CV threshold (fading acceleration significance)
 
+# rows per block of the compiled IMM update (estimation/imm_kernel.py): a large pass in
+# blocks of IMM_BLOCK, a pass of fewer rows in blocks of IMM_SMALL (less padding); the
+# block was chosen by bench/imm_cost.py (not a power of two)
+IMM_BLOCK = 40
+IMM_SMALL = 8
+
 # ---------------------------------------------------------------- track life
 INIT_SPEED = 1000.0  # m/s: prior std of the velocity at initiation
 INIT_ACCEL = 10.0  # m/s^2: prior std of the acceleration at initiation (order-3 states)

@@ -69,7 +69,8 @@ def compare(dim: int, count: int, own_r: bool, modes: str, gap: float) -> None:
     built = FilterSpec("imm", imm_turn=2.0 * (modes == "turns")).build()
     if modes == "turn-rate":
         built = dataclasses.replace(built, updater=ModeSet(manoeuvre=(
-            *defaults.IMM_MANOEUVRE[:2], ("turn", 5.0), *defaults.IMM_MANOEUVRE[2:])).imm())
+            *defaults.IMM_MANOEUVRE[:2], ("turn", 5.0), *defaults.IMM_MANOEUVRE[2:])).imm(
+                imm_jit.CompiledIMM))
     tracker = Tracker.from_config(filter=built)
     assert tracker.updater.mode_conversion is False  # the default shares R
     imm = dataclasses.replace(tracker.updater, mode_conversion=own_r)

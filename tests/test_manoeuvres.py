@@ -238,15 +238,16 @@ def test_imm_onset_option_sets_the_rate_of_entering_the_manoeuvre_modes():
     default's."""
     from zenoh_track.__main__ import parser, tracker_config
     from zenoh_track.estimation.imm import ModeSet
+    from zenoh_track.estimation.imm_jit import CompiledIMM
 
     def built(argv: list[str]):
         return tracker_config(parser().parse_args(argv)).filter.build().updater
 
     fast = built(["--imm-onset", "60"])
-    assert fast == ModeSet(onset=60.0).imm()
-    assert built([]) == ModeSet().imm() != fast
+    assert fast == ModeSet(onset=60.0).imm(CompiledIMM)  # the catalogue's: compiled
+    assert built([]) == ModeSet().imm(CompiledIMM) != fast
     turning = built(["--imm-turn-estimated", "5"])  # a seventh mode at its own rate
-    assert turning == ModeSet(manoeuvre=(*ModeSet().manoeuvre, ("turn", 5.0))).imm()
+    assert turning == ModeSet(manoeuvre=(*ModeSet().manoeuvre, ("turn", 5.0))).imm(CompiledIMM)
     assert [m[1] for m in turning.modes].count("turn") == 1
     for bad in (["--imm-onset", "0"], ["--imm-onset", "-5"], ["--imm-sojourn", "inf"],
                 ["--second-look", "nan"], ["--imm-turn-estimated", "-1"],

@@ -5,7 +5,7 @@
    their keys and payloads into checked columns.
 2. `admit`: the time policy (`timeline`), unlabelled scans reordered across sensors
    (`reorder`), `seq` gaps.
-3. `worker`: the one thread that takes each batch through the stages, and `Tracking`,
+3. `worker`: the one thread that takes each batch through the stages, and `TrackerCalls`,
    every call into the tracker.
 4. `schedule`: the display clock (`Clock`: `Lockstep`, `Realtime`), the instants due.
 5. `publish`: the outputs (`encode`: MessagePack from columns; `listeners`: who

@@ -1,4 +1,4 @@
-"""The worker's calls into the tracker, every one of them, in one place (`Tracking`): the
+"""The worker's calls into the tracker, every one of them, in one place (`TrackerCalls`): the
 rest of the adapter reaches the tracker through these methods only."""
 
 from __future__ import annotations
@@ -6,16 +6,14 @@ from __future__ import annotations
 from typing import Any
 
 from ..tracking import checkpoint
-from ..tracking.batches import Instant, Unlabelled, Want
-from ..tracking.batches import Labelled as Rows
-from ..tracking.batches import StepOutcome as BatchOutcome
+from ..tracking.batches import Instant, Labelled, StepOutcome, Unlabelled, Want
 from ..tracking.display import Snapshot
 from ..tracking.protocols import NoiseMonitor
 from ..tracking.tracker import Tracker
 from ..wire import PlotScan
 
 
-class Tracking:
+class TrackerCalls:
     """Every call the adapter makes into the tracker, in one place."""
 
     def __init__(self, tracker: Tracker) -> None:
@@ -24,12 +22,12 @@ class Tracking:
     def __len__(self) -> int:
         return len(self.tracker)
 
-    def rows(self, rows: Rows, want: Want | None, pause: Any) -> BatchOutcome:
+    def rows(self, rows: Labelled, want: Want | None, pause: Any) -> StepOutcome:
         """Labelled rows, in order, in one pass over their columns (`pause`: called
         between parts of a long update)."""
         return self.tracker.step(rows, want, pause)
 
-    def scan(self, scan: PlotScan) -> BatchOutcome:
+    def scan(self, scan: PlotScan) -> StepOutcome:
         """An unlabelled scan."""
         return self.tracker.step(Unlabelled.of(scan.sensor, scan.t, scan.detections))
 

@@ -10,6 +10,7 @@ from .. import defaults
 from .ekf import EKFConversion
 from .filters import Convert, SingleModelFilter
 from .imm import IMM, ModeSet
+from .imm_jit import CompiledIMM
 from .measurements import MeasurementBatch
 from .ucm import CMKFConversion
 from .vdf import VDF
@@ -62,7 +63,7 @@ class FilterSpec:
             modes = ModeSet(q=q, sojourn=self.imm_sojourn, ct_q=self.imm_ct_q,
                             turn_deg=self.imm_turn, onset=self.imm_onset,
                             manoeuvre=defaults.IMM_MANOEUVRE + turn)
-            return Filter(modes.imm(), q, CMKFConversion, self.name)
+            return Filter(modes.imm(CompiledIMM), q, CMKFConversion, self.name)
         if self.name == "vdf":
             return Filter(VDF(detect=self.vdf_detect, settle=self.vdf_settle), 0.0,
                           CMKFConversion, self.name)

@@ -22,7 +22,16 @@ from .. import defaults
 from ..estimation.catalog import Filter, FilterSpec
 from ..estimation.measurements import MeasurementBatch
 from ..wire import TIME_TOL
-from .batches import Detections, Instant, Labelled, Scan, StepOutcome, Unlabelled, Want, all_states
+from .batches import (
+    Detections,
+    Instant,
+    Labelled,
+    StepInput,
+    StepOutcome,
+    Unlabelled,
+    Want,
+    all_states,
+)
 from .deleter import CompositeDeleter, UpdateTimeDeleter
 from .display import DISPLAY_COLUMNS, DisplayConfig, DisplayState, Snapshot
 from .hypotheses import Hypotheses, WeightedUpdate
@@ -178,7 +187,7 @@ class Tracker:
         """Every track's id."""
         return list(self.store.where)
 
-    def step(self, scan: Scan, want: Want | None = all_states,
+    def step(self, scan: StepInput, want: Want | None = all_states,
              pause: Callable[[StepOutcome], None] | None = None) -> StepOutcome:
         """Apply one input: each part of it (`Associator.split`) associated, its tracks
         updated, the tracks in view counted as detected or missed, the stale tracks
