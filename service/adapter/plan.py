@@ -10,6 +10,7 @@ applied first, in one pass: the only place a pass is started.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -115,3 +116,19 @@ class Plan(list[Step]):
         """Every step done (`waiting`: the rows left waiting): the plan starts empty."""
         self.clear()
         self.waiting, self.planned = waiting, 0
+
+
+class Refusals:
+    """The bad messages of a run of single measurements (message index, key, sensor,
+    reason), reported into the plan in message order among the good ones (`fine`: the
+    good ones' message indices)."""
+
+    def __init__(self, bad: list[tuple], fine: list[int], plan: Plan) -> None:
+        self.bad, self.fine, self.plan, self.next = bad, fine, plan, 0
+
+    def before(self, upto: int) -> None:
+        """The bad messages before good message `upto` (in `fine`; beyond: all)."""
+        at = self.fine[upto] if upto < len(self.fine) else math.inf
+        while self.next < len(self.bad) and self.bad[self.next][0] < at:
+            self.plan.reject(*self.bad[self.next][1:])
+            self.next += 1

@@ -15,7 +15,6 @@ import ctypes
 import ctypes.util
 import gc
 import logging
-import math
 import threading
 import time
 from typing import Any
@@ -32,7 +31,7 @@ from .admit import Admit
 from .clocks import make_clock
 from .decode import Decoder
 from .ingest import ClockMessage, Ingest, Input, LabelledScan, Plots, Query, Singles
-from .plan import SEES_ROWS, Answer, Apply, ApplyScan, Do, Frame, Plan, Reject, Wait
+from .plan import SEES_ROWS, Answer, Apply, ApplyScan, Do, Frame, Plan, Refusals, Reject, Wait
 from .publish import Publisher
 from .queries import Queries
 from .schedule import Frames
@@ -413,18 +412,3 @@ class TrackService:
         self.out.scan(key, scan.sensor, outcome)
         self.out.noise(self.calls.noise)
 
-
-class Refusals:
-    """The bad messages of a run of single measurements (message index, key, sensor,
-    reason), reported into the plan in message order among the good ones (`fine`: the
-    good ones' message indices)."""
-
-    def __init__(self, bad: list[tuple], fine: list[int], plan: Plan) -> None:
-        self.bad, self.fine, self.plan, self.next = bad, fine, plan, 0
-
-    def before(self, upto: int) -> None:
-        """The bad messages before good message `upto` (in `fine`; beyond: all)."""
-        at = self.fine[upto] if upto < len(self.fine) else math.inf
-        while self.next < len(self.bad) and self.bad[self.next][0] < at:
-            self.plan.reject(*self.bad[self.next][1:])
-            self.next += 1
