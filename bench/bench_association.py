@@ -12,7 +12,7 @@ trajectory; the true clutter density is printed), 2-D Cartesian detections with 
 noise per axis, 1 s scans, 100 scans. Run r uses seed r; every tracker gets the same
 recorded scans.
 
-- ours: `Tracker(TrackerConfig(filter=FilterSpec("cv", 1), associator="gnn" | "jpda",
+- ours: `Tracker.from_config(TrackerConfig(filter=FilterSpec("cv", 1), associator="gnn" | "jpda",
   sensors=SensorModels(pd=0.9, clutter_density=<true density>)))`, fed scan by scan with
   `Tracker.step` (the `Measurement` records are built before the clock starts). Estimates:
   the confirmed and coasting tracks (not tentative), filtered states predicted to the scan.
@@ -121,7 +121,7 @@ def ours(kind: str, sc: plotgen.Scenario, scans: list[plotgen.Scan]) -> Run:
 def our_tracker(kind: str, sc: plotgen.Scenario, spec: FilterSpec | None = None) -> Tracker:
     """Our CV tracker (q = Q; or the filter `spec`) with the scan associator `kind` and
     the true Pd and clutter density."""
-    return Tracker(TrackerConfig(filter=spec or FilterSpec("cv", Q), associator=kind,
+    return Tracker.from_config(TrackerConfig(filter=spec or FilterSpec("cv", Q), associator=kind,
                                  gate_probability=GATE,
                                  sensors=SensorModels(pd=sc.pd,
                                                       clutter_density=sc.clutter_density)))

@@ -21,7 +21,7 @@ from zenoh_track.wire import Measurement  # noqa: E402
 
 
 def tracker(name: str, n: int) -> Tracker:
-    tr = Tracker(TrackerConfig(filter=FilterSpec(name)))
+    tr = Tracker.from_config(TrackerConfig(filter=FilterSpec(name)))
     for k in range(3):
         tr.step(Labelled.of([Measurement("r", f"t{i}", float(k), 3, True,
                               (5000.0 + i + 10 * k, 0.0005 * i, 0.1), (10.0, 0.01, 0.01),
@@ -53,7 +53,7 @@ def main() -> None:
             t_cap, cap = best(lambda tr=tr: checkpoint.capture(tr), a.repeat)
             t_enc, data = best(lambda cap=cap: checkpoint.encode(cap), a.repeat)
             t_load, _ = best(lambda name=name, data=data: checkpoint.load(
-                Tracker(TrackerConfig(filter=FilterSpec(name))), data), a.repeat)
+                Tracker.from_config(TrackerConfig(filter=FilterSpec(name))), data), a.repeat)
             print(f"{name:<7}{n:>7}{len(data) / 1e6:>7.1f}{t_cap * 1e3:>12.1f}"
                   f"{t_enc * 1e3:>11.1f}{t_load * 1e3:>9.1f}", flush=True)
 

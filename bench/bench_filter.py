@@ -159,7 +159,7 @@ def ours_parts(x, p, batch):
 
 def bench_ours(n: int, reps: int, seed: int) -> dict:
     data = scans(n, PRIOR_SCANS + 1 + reps, seed)
-    table = Tracker(TrackerConfig(filter=FilterSpec({2: "cv", 3: "ca"}[ORDER], Q)))
+    table = Tracker.from_config(TrackerConfig(filter=FilterSpec({2: "cv", 3: "ca"}[ORDER], Q)))
     for scan in data[:PRIOR_SCANS]:
         assert not table.step(Labelled.of(scan)).rejected
     x0, p0 = prior(table, data[PRIOR_SCANS])

@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--after", type=float, default=68.0, help="s: the scan of the last update")
     args = p.parse_args(argv)
     sc = Manoeuvres(args.period, 0.9, 10.0, 2, args.seed)
-    tracker = Tracker(TrackerConfig(filter=bench.spec("default", args.period),
+    tracker = Tracker.from_config(TrackerConfig(filter=bench.spec("default", args.period),
                                     sensors=SensorModels(pd=sc.pd)))
     imm, flight = tracker.updater, next(f for f in sc.flights if f.name == args.aircraft)
     scans = list(sc)

@@ -50,7 +50,7 @@ def no_inflation(self, sensors, batch, *args):  # noqa: ANN001, ANN002, ANN202
 
 
 def heldout(spec: FilterSpec, sigma: float, ts: np.ndarray, pos: np.ndarray) -> float:
-    tr = Tracker(TrackerConfig(filter=spec))
+    tr = Tracker.from_config(TrackerConfig(filter=spec))
     n = len(pos)
     pred = np.full_like(pos, np.nan)
     for k in range(0, len(ts), 2):

@@ -33,15 +33,15 @@ STAGES = [  # (module, class or None, name, label): nested labels are indented
     ("worker", "TrackService", "_process", "worker._process"),
     ("worker", "TrackService", "_take_singles", "  _take_singles"),
     ("decode", "Decoder", "singles", "    Decoder.singles"),
-    ("steps", "Tracking", "rows", "  Tracking.rows (Tracker.step)"),
+    ("steps", "TrackerCalls", "rows", "  TrackerCalls.rows (Tracker.step)"),
     ("imm", "IMM", "update", "    IMM.update (the compiled kernel)"),
     ("label_association", "LabelAssociator", "associate", "    LabelAssociator.associate"),
     ("tracker", "Tracker", "_initiate", "    Tracker._initiate"),
     ("publish", "Publisher", "batch", "  Publisher.batch"),
     ("publish", "Publisher", "put_states", "    Publisher.put_states"),
-    ("steps", "Tracking", "snapshot", "  Tracking.snapshot (frames)"),
+    ("steps", "TrackerCalls", "snapshot", "  TrackerCalls.snapshot (frames)"),
     ("publish", "Publisher", "frame", "  Publisher.frame"),
-    ("worker", "TrackService", "_tick", "worker._tick"),
+    ("clocks", "Realtime", "end", "  Realtime.end (the step's end)"),
 ]
 
 
@@ -56,6 +56,7 @@ def serve(argv: list[str]) -> None:
     clock = time.thread_time
     where = {"ingest": "adapter.ingest", "worker": "adapter.worker", "decode": "adapter.decode",
              "steps": "adapter.steps", "publish": "adapter.publish", "imm": "estimation.imm",
+             "clocks": "adapter.clocks",
              "label_association": "tracking.label_association", "tracker": "tracking.tracker"}
     for mod, cls, name, label in STAGES:
         owner = getattr(importlib.import_module(f"zenoh_track.{where[mod]}"), cls)

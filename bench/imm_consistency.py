@@ -29,6 +29,7 @@ from zenoh_track.clients.feeds import scenarios  # noqa: E402
 from zenoh_track.estimation import models  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import IMM, ModeSet  # noqa: E402
+from zenoh_track.estimation.imm_jit import CompiledIMM  # noqa: E402
 from zenoh_track.tracking.batches import Labelled  # noqa: E402
 from zenoh_track.tracking.tracker import Tracker  # noqa: E402
 
@@ -74,7 +75,7 @@ def phase_means(c: dict[str, np.ndarray], key: str) -> list:
 
 def phases(runs: int, seed: int) -> None:
     """The default IMM per phase of C, beside the same modes that never switch."""
-    for label, imm in (("default", ModeSet().imm()),
+    for label, imm in (("default", ModeSet().imm(CompiledIMM)),
                        ("no switching", variant(sojourn=(1e12, 1e12, 1e12)))):
         c = collect(tracker(imm), runs, seed)
         names = [m[0] for m in imm.modes]
@@ -130,7 +131,7 @@ def own_model_targets(imm: IMM, runs: int, seed: int, scans: int = 400, period: 
 
 
 def self_consistency(runs: int, seed: int) -> None:
-    imm = ModeSet().imm()
+    imm = ModeSet().imm(CompiledIMM)
     n, mode, since = own_model_targets(imm, runs, seed)
     print(f"default IMM on {runs} targets drawn from its own model (2 s, 100 m, 400 scans), "
           f"seed {seed}, t >= 20 s: average NEES {n.mean():.2f} (4-D state: 4 if consistent)")
@@ -149,7 +150,7 @@ def tradeoff(runs: int, seed: int) -> None:
         *[(f"cv q={q:g}", lambda q=q: tracker(None, FilterSpec("cv", q)))
           for q in (0.003, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)],
         ("vdf", lambda: tracker(None, FilterSpec("vdf"))),
-        ("imm default (quiet->nominal 600 s)", lambda: tracker(ModeSet().imm())),
+        ("imm default (quiet->nominal 600 s)", lambda: tracker(ModeSet().imm(CompiledIMM))),
         *[(f"imm quiet->nominal {s:g} s", lambda s=s: tracker(variant(sojourn=(s, 600.0, 10.0))))
           for s in (300.0, 1200.0, 3000.0, 20000.0)],
         *[(f"imm start quiet {s:g}", lambda s=s: tracker(variant(initial=(s, 1 - s, 0.0))))

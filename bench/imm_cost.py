@@ -25,13 +25,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from zenoh_track import defaults  # noqa: E402
 from zenoh_track.estimation import imm_jit  # noqa: E402
+from zenoh_track.estimation.catalog import Filter  # noqa: E402
 from zenoh_track.estimation.imm import IMM, ModeSet  # noqa: E402
+from zenoh_track.estimation.imm_jit import CompiledIMM  # noqa: E402
 from zenoh_track.estimation.measurements import MeasurementBatch  # noqa: E402
 from zenoh_track.estimation.ucm import CMKFConversion  # noqa: E402
 from zenoh_track.tracking.batches import Labelled  # noqa: E402
-from zenoh_track.tracking.display import DISPLAY_COLUMNS  # noqa: E402
-from zenoh_track.tracking.life import LIFE_COLUMNS  # noqa: E402
-from zenoh_track.tracking.store import TrackStore  # noqa: E402
 from zenoh_track.tracking.tracker import Tracker  # noqa: E402
 from zenoh_track.wire import Measurement  # noqa: E402
 
@@ -65,12 +64,12 @@ def main() -> None:
     imm_jit.warm()
     print(f"# kernel compiled or loaded in {time.perf_counter() - t0:.2f} s; "
           f"{args.tracks} tracks, CPU per pass (best of 5)")
-    sets = {"default": ModeSet().imm()}
+    sets = {"default": ModeSet().imm(CompiledIMM)}
     if args.turn_estimated > 0:
         sets["with the turn"] = ModeSet(manoeuvre=(*defaults.IMM_MANOEUVRE,
-                                                   ("turn", args.turn_estimated))).imm()
+                                                   ("turn", args.turn_estimated))).imm(CompiledIMM)
     if args.before:
-        sets["three modes"] = ModeSet(manoeuvre=(), initial=(0.1, 0.6, 0.3)).imm()
+        sets["three modes"] = ModeSet(manoeuvre=(), initial=(0.1, 0.6, 0.3)).imm(CompiledIMM)
     per_row: dict[str, dict[int, float]] = {}
     for label, imm in sets.items():
         print(f"{label}: {len(imm.modes)} modes ({', '.join(m[0] for m in imm.modes)})")
@@ -85,9 +84,7 @@ def main() -> None:
 def run(imm: IMM, tracks: int, sizes: list[int]) -> dict[int, float]:
     """The table of one mode set; returns the compiled CPU per row at each size."""
     rng = np.random.default_rng(0)
-    tracker = Tracker()
-    tracker.updater = imm
-    tracker.store = TrackStore(imm.order, imm.fields, {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
+    tracker = Tracker.from_config(filter=Filter(imm, defaults.Q_CV, CMKFConversion, "imm"))
     for t in (0.0, 1.0, 2.0):
         tracker.step(Labelled.of(swarm(tracks, t, rng)))
     arrays = tracker.store.layout(3)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,39 +22,59 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from zenoh_track.clients.evaluation import metrics  # noqa: E402
 from zenoh_track.clients.feeds import scenarios  # noqa: E402
-from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
-from zenoh_track.estimation.imm import IMM, ModeSet, standard_modes  # noqa: E402
+from zenoh_track.estimation.catalog import Filter, FilterSpec  # noqa: E402
+from zenoh_track.estimation.imm import IMM, Mode, ModeSet, mix_moments  # noqa: E402
+from zenoh_track.estimation.imm_jit import CompiledIMM  # noqa: E402
+from zenoh_track.estimation.ucm import CMKFConversion  # noqa: E402
 from zenoh_track.tracking.batches import Labelled  # noqa: E402
-from zenoh_track.tracking.display import DisplayState  # noqa: E402
-from zenoh_track.tracking.store import TrackStore  # noqa: E402
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
 from zenoh_track.wire import Measurement  # noqa: E402
 
 
-def variant(**changes: object) -> IMM:
+def standard_modes(q: float = 1.0, ct_q: float = 3.0, turn_deg: float = 1.8
+                   ) -> tuple[Mode, ...]:
+    """The "old" design: CV and CA with white noise `q` and coordinated turns at
+    +- `turn_deg` deg/s with `ct_q` x q (sojourn 200 s, evenly left)."""
+    w = np.radians(turn_deg)
+    return (("cv", "cv", q, 0.0), ("ca", "ca", q, 0.0),
+            ("ct+", "ct", ct_q * q, w), ("ct-", "ct", ct_q * q, -w))
+
+
+@dataclass(frozen=True)
+class ZeroPadding(IMM):
+    """The ablation of unbiased mixing: a CV mode mixes into a CA one with a zero
+    acceleration (the textbook's padding); the reference update, never compiled."""
+
+    def mix(self, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray, pi: np.ndarray, dim: int
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        c, _, x0, p0 = mix_moments(mx, mp, mu, pi)
+        return c, x0, p0
+
+
+def variant(kind: type[IMM] = CompiledIMM, **changes: object) -> IMM:
     base = ModeSet().imm()
-    return IMM(**{**{k: getattr(base, k) for k in ("modes", "sojourn", "leave", "initial")},
-                  **changes})
+    return kind(**{**{k: getattr(base, k) for k in ("modes", "sojourn", "leave", "initial")},
+                   **changes})
 
 
 CANDIDATES = {
-    "default": lambda: ModeSet().imm(),
-    "old": lambda: IMM(standard_modes(), 200.0, unbiased_mixing=False, mode_conversion=False),
-    "zero-padding": lambda: variant(unbiased_mixing=False),
+    "default": lambda: ModeSet().imm(CompiledIMM),
+    "old": lambda: ZeroPadding(standard_modes(), 200.0, mode_conversion=False),
+    "zero-padding": lambda: variant(ZeroPadding),
     "mode-R": lambda: variant(mode_conversion=True),
     "even-start": lambda: variant(initial=None),
     "even-leave": lambda: variant(leave=None),
-    "no-quiet": lambda: IMM((("cv", "cv", 1.0, 0.0), ("ca", "ca", 0.1, 0.0)), (3000.0, 10.0),
-                            initial=(0.7, 0.3)),
-    "no-nominal": lambda: IMM((("quiet", "cv", 0.003, 0.0), ("ca", "ca", 0.1, 0.0)),
-                              (3000.0, 10.0), initial=(0.7, 0.3)),
-    "sojourn-3000": lambda: ModeSet(sojourn=3000.0).imm(),
-    "nominal-0.5": lambda: ModeSet(q=0.5).imm(),
+    "no-quiet": lambda: CompiledIMM((("cv", "cv", 1.0, 0.0), ("ca", "ca", 0.1, 0.0)),
+                                    (3000.0, 10.0), initial=(0.7, 0.3)),
+    "no-nominal": lambda: CompiledIMM((("quiet", "cv", 0.003, 0.0), ("ca", "ca", 0.1, 0.0)),
+                                      (3000.0, 10.0), initial=(0.7, 0.3)),
+    "sojourn-3000": lambda: ModeSet(sojourn=3000.0).imm(CompiledIMM),
+    "nominal-0.5": lambda: ModeSet(q=0.5).imm(CompiledIMM),
     "nominal-150s": lambda: variant(sojourn=(600.0, 150.0, 10.0)),
-    "quiet-0.001": lambda: ModeSet(quiet_q=0.001).imm(),
-    "quiet-0.03": lambda: ModeSet(quiet_q=0.03).imm(),
-    "ca-0.3": lambda: ModeSet(ca_q=0.3).imm(),
-    "ca-sojourn-30": lambda: ModeSet(manoeuvre_sojourn=30.0).imm(),
+    "quiet-0.001": lambda: ModeSet(quiet_q=0.001).imm(CompiledIMM),
+    "quiet-0.03": lambda: ModeSet(quiet_q=0.03).imm(CompiledIMM),
+    "ca-0.3": lambda: ModeSet(ca_q=0.3).imm(CompiledIMM),
+    "ca-sojourn-30": lambda: ModeSet(manoeuvre_sojourn=30.0).imm(CompiledIMM),
     # C's straight legs (docs/accuracy.md, "What is not met, and why")
     "quiet-3000s": lambda: variant(sojourn=(3000.0, 600.0, 10.0)),
     "quiet-20000s": lambda: variant(sojourn=(20000.0, 600.0, 10.0)),
@@ -69,12 +90,8 @@ BEST = {"display": "ca", "radar3d": "cv", "maneuver": "vdf"}
 def tracker(updater: IMM | None, spec: FilterSpec | None = None) -> Tracker:
     """The service's tracker with the filter `spec`, or with `updater` in its place."""
     if updater is None:
-        return Tracker(TrackerConfig(filter=spec or FilterSpec()))
-    tr = Tracker()
-    tr.updater = updater
-    tr.store = TrackStore(updater.order, updater.fields, tr.store.columns)
-    tr.display = DisplayState(tr.config.display, 1.0)
-    return tr
+        return Tracker.from_config(TrackerConfig(filter=spec or FilterSpec()))
+    return Tracker.from_config(filter=Filter(updater, 1.0, CMKFConversion, "imm"))
 
 
 def measurement(t: float, name: str, m: dict) -> Measurement:

@@ -24,6 +24,7 @@ from zenoh_track.clients.evaluation import manoeuvre_score as ms  # noqa: E402
 from zenoh_track.clients.feeds.manoeuvres import Manoeuvres  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import ModeSet  # noqa: E402
+from zenoh_track.estimation.imm_jit import CompiledIMM  # noqa: E402
 
 RUNS = {"display": 1, "radar3d": 100, "maneuver": 20}
 
@@ -52,7 +53,7 @@ def main() -> None:
     for v in args.variants:
         changes = {} if v == "default" else {
             k: eval(x) for k, x in (kv.split("=") for kv in v.split(";"))}  # noqa: S307
-        a, b, c = (design.run(sc, n, design.tracker(ModeSet(**changes).imm()))
+        a, b, c = (design.run(sc, n, design.tracker(ModeSet(**changes).imm(CompiledIMM)))
                    for sc, n in RUNS.items())
         print(f"{v}: A {a['frame RMS']:.4f} B {b['RMSE/CRB']:.4f} NEES {b['NEES']:.2f} "
               f"(window {b['max window NEES']:.2f}) C {c['straight RMSE']:.1f} "

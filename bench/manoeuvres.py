@@ -22,6 +22,7 @@ import datetime
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,12 +35,16 @@ from zenoh_track.clients.feeds import feed_plots  # noqa: E402
 from zenoh_track.clients.feeds.manoeuvres import CLASSES, Manoeuvres  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import ModeSet  # noqa: E402
+from zenoh_track.estimation.imm_jit import CompiledIMM  # noqa: E402
 from zenoh_track.tracking.batches import Labelled, Unlabelled  # noqa: E402
-from zenoh_track.tracking.display import DISPLAY_COLUMNS  # noqa: E402
-from zenoh_track.tracking.life import LIFE_COLUMNS  # noqa: E402
 from zenoh_track.tracking.plot_association import SensorModels  # noqa: E402
-from zenoh_track.tracking.store import TrackStore  # noqa: E402
-from zenoh_track.tracking.tracker import Tracker, TrackerConfig  # noqa: E402
+from zenoh_track.tracking.reach import Reach  # noqa: E402
+from zenoh_track.tracking.tracker import (  # noqa: E402
+    SCAN_ASSOCIATORS,
+    Tracker,
+    TrackerConfig,
+    stages,
+)
 from zenoh_track.wire import Measurement  # noqa: E402
 
 A_MAX = 7 * 9.80665
@@ -56,24 +61,24 @@ def spec(name: str, period: float) -> FilterSpec:
 
 
 def ours(name: str, sc: Manoeuvres, labelled: bool, associator: str = "gnn",
-         second_look: float = defaults.SECOND_LOOK, stitch_reach: float = defaults.STITCH_REACH,
+         second_look: float = defaults.SECOND_LOOK, stitch_reach: float = defaults.MAX_ACCEL,
          delete_misses: int = defaults.DELETE_MISSES) -> tuple[ms.Shown, ms.States, float]:
     """Our tracker over the scenario: what a lockstep service would show at each scan."""
-    tr = Tracker(TrackerConfig(filter=spec(name, sc.period), associator=associator,
-                               sensors=SensorModels(pd=sc.pd),  # the radar's, as stated
-                               second_look=second_look, stitch_reach=stitch_reach,
-                               delete_misses=4 if name == "before" else delete_misses))
+    config = TrackerConfig(filter=spec(name, sc.period), associator=associator,
+                           sensors=SensorModels(pd=sc.pd),  # the radar's, as stated
+                           second_look=second_look, stitch_reach=stitch_reach,
+                           delete_misses=4 if name == "before" else delete_misses)
+    built, parts = config.filter.build(), {}
     if name == "before":  # the default before the manoeuvre modes, gated by the store's state
-        tr.updater = ModeSet(manoeuvre=(), ca_q=0.1, initial=(0.1, 0.6, 0.3)).imm()
-        tr.store = TrackStore(tr.updater.order, tr.updater.fields,
-                              {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
-        tr.scan_associator.predict = None
+        built = replace(built, updater=ModeSet(manoeuvre=(), ca_q=0.1,
+                                               initial=(0.1, 0.6, 0.3)).imm(CompiledIMM))
+        parts["scan_associator"] = SCAN_ASSOCIATORS[associator](
+            built.q, config.sensors, config.gate_probability, predict=None,
+            stages=stages(associator, Reach(), second_look))
     if ":" in name:  # a variant of the default mode set: default:key=value,key=value
         changes = {k: eval(v) for k, v in (kv.split("=") for kv in name.split(":")[1].split(";"))}
-        tr.updater = ModeSet(**changes).imm()
-        tr.store = TrackStore(tr.updater.order, tr.updater.fields,
-                              {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
-        tr.scan_associator.predict = tr.updater.gate_prediction
+        built = replace(built, updater=ModeSet(**changes).imm(CompiledIMM))
+    tr = Tracker.from_config(config, filter=built, **parts)
     shown, states, spent = {}, {}, 0.0
     names = [f.name for f in sc.flights]
     for s in sc:
@@ -185,7 +190,7 @@ def main() -> None:
     p.add_argument("--associator", choices=("gnn", "jpda"), default="gnn", help="ours")
     p.add_argument("--second-look", type=float, default=defaults.SECOND_LOOK,
                    help="ours: the service's --second-look (0: off)")
-    p.add_argument("--stitch-reach", type=float, default=defaults.STITCH_REACH,
+    p.add_argument("--stitch-reach", type=float, default=defaults.MAX_ACCEL,
                    help="ours: the service's --stitch-reach (0: off)")
     p.add_argument("--delete-misses", type=int, default=defaults.DELETE_MISSES,
                    help="ours: the service's --delete-misses")

@@ -49,7 +49,7 @@ def main() -> None:
         first = meas[0][1]
         turns.append(pack({"ids": [k for k, _ in meas], **col, "sr": first["sr"],
                            "saz": first["saz"], "sel": first["sel"]}))
-    clock, tracker, spent = time.process_time, Tracker(), 0.0
+    clock, tracker, spent = time.process_time, Tracker.from_config(), 0.0
     for k, payload in enumerate(turns[:3]):
         t0 = clock()
         tracker.step(Labelled.of(parse_scan("radar1", payload, defaults.NOISE).measurements))

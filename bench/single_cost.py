@@ -58,7 +58,7 @@ def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any
 
     compiled()
     consumer.stdout.readline()  # type: ignore[union-attr]
-    svc = TrackService(session, keys, Tracker(), clock="realtime")
+    svc = TrackService(session, keys, Tracker.from_config(), clock="realtime")
     end = time.monotonic() + 10
     while svc.out.track_listeners.none and time.monotonic() < end:
         svc.out.track_listeners.look()
@@ -140,7 +140,7 @@ def step_cost(log: Any, tracks: int = 10_000, sizes: tuple[int, ...] = (1, 64, 3
             "r", ids[i], t, 3, True, (float(r[i]) + 10 * t, float(az[i]), 0.1),
             (20.0, 0.003, 0.003), (0.0, 0.0, 0.0), None) for i in range(k)], 3)
 
-    tracker = Tracker()
+    tracker = Tracker.from_config()
     for t in (0.0, 1.0):
         tracker.step(Labelled(["r"] * tracks, ids, batch(t, tracks)), want=None)
     log(f"one pass of k rows at {tracks} tracks (Tracker.step, IMM), CPU, median of {reps}:")

@@ -194,7 +194,7 @@ def frame_cost(sizes: list[int], log: Any, frames: int = 60) -> None:
             rng = np.random.default_rng(0)
             r, az = rng.uniform(5e3, 8e4, n), rng.uniform(-3, 3, n)
             ids = [f"swarm-{i:06d}" for i in range(n)]
-            tracker = Tracker()
+            tracker = Tracker.from_config()
             for t in (0.0, 1.0, 2.0):
                 tracker.step(Labelled(["r"] * n, ids, _swarm_batch(t, r, az, range(n))),
                              want=None)
@@ -283,7 +283,7 @@ def scan_cost(sizes: list[int], log: Any, rows: int = 10_000) -> None:
         f"{'meas/s/core':>12} {'records':>8} {'x':>5}")
     compiled()
     for n in sizes:
-        tracker, ref = Tracker(), Tracker()
+        tracker, ref = Tracker.from_config(), Tracker.from_config()
         turns: list[list[bytes]] = [[], [], []]
         for sent, sec in scenarios.swarm_sectors(n, 0, 2.0, sectors=max(1, n // rows)):
             msg = {"ids": [sec.names[i] for i in sec.idx.tolist()], "t": sec.t.tobytes(),

@@ -12,7 +12,6 @@ from typing import Any
 from . import __version__, defaults
 from .adapter import TrackService
 from .adapter.origin import OriginQueryable
-from .adapter.state import StateFile
 from .estimation import imm_jit, jit
 from .estimation.catalog import FILTERS, FilterSpec
 from .tracking import frame
@@ -76,7 +75,7 @@ def tracker_config(args: argparse.Namespace) -> TrackerConfig:
                          associator=args.associator, sensors=sensors,
                          gate_probability=args.gate, second_look=args.second_look,
                          stitch_reach=args.stitch_reach,
-                         max_speed=args.max_speed,
+                         max_speed=args.max_speed, max_accel=args.max_accel,
                          confirm_m=m, confirm_n=n, confirm_score=args.confirm_score,
                          delete_misses=args.delete_misses, delete_sigma=args.delete_sigma)
 
@@ -205,14 +204,20 @@ def parser() -> argparse.ArgumentParser:
                    metavar="LN_RATIO", help="a confirmed track whose detection beats a miss "
                    "by less than this log-likelihood ratio keeps its miss branch, and the "
                    "next scan chooses (0: off; default %(default)s)")
-    g.add_argument("--stitch-reach", type=float, default=defaults.STITCH_REACH,
+    g.add_argument("--max-speed", type=float, default=defaults.MAX_SPEED,
+                   help="m/s: fastest target (the speed gate of confirmed tracks); a new "
+                        "track's velocity prior has std a third of it per axis (default "
+                        "%(default)s)")
+    g.add_argument("--max-accel", type=non_negative, default=defaults.MAX_ACCEL,
+                   metavar="M_S2", help="an aircraft's hardest manoeuvre: a detection or "
+                   "an update beyond it from a track's extrapolation waits for a second "
+                   "look, and a lost track is continued within it (default %(default)s = "
+                   "10 g)")
+    g.add_argument("--stitch-reach", type=non_negative, default=None,
                    metavar="M_S2", help="a track confirmed within an aircraft's reach at "
                    "this acceleration of one confirmed track that missed every scan it "
-                   "took (and no other) continues that track's id (0: off; default "
-                   "%(default)s = 10 g)")
-    g.add_argument("--max-speed", type=float, default=defaults.MAX_SPEED,
-                   help="m/s: fastest target; a new track's velocity prior has std a third "
-                        "of it per axis (default %(default)s)")
+                   "took (and no other) continues that track's id (0: off; default: "
+                   "--max-accel)")
     g.add_argument("--confirm", default=f"{defaults.CONFIRM_M}/{defaults.CONFIRM_N}",
                    metavar="M/N", help="confirm a track detected in M of its last N scans "
                                        "(default %(default)s) ...")
@@ -264,7 +269,7 @@ def main(argv: list[str] | None = None) -> None:
     steady_malloc()  # before Zenoh starts its threads
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    tracker = Tracker(tracker_config(args))
+    tracker = Tracker.from_config(tracker_config(args))
     # lockstep drops nothing: BLOCK puts wait for a slow subscriber. Opened before the
     # kernels are compiled: a refused or unreachable router is said at once
     with stop.interrupting():
@@ -306,10 +311,10 @@ def start(args: argparse.Namespace, session: Any, tracker: Tracker,
                        per_target_display=not args.no_display_keys,
                        meas_keys=args.meas or None, plot_keys=args.plots or None,
                        scan_keys=args.scan or None,
-                       reorder=args.reorder, max_jump=args.max_jump)
-    if args.state:
-        svc.state = StateFile(args.state, args.state_period)
-        print(f"track-service: {svc.state.restore(svc)}", file=sys.stderr, flush=True)
+                       reorder=args.reorder, max_jump=args.max_jump,
+                       state=args.state, state_period=args.state_period)
+    if svc.state is not None:
+        print(f"track-service: {svc.state.restore(svc.restore)}", file=sys.stderr, flush=True)
     return svc.start(), origin_answer
 
 

@@ -72,6 +72,12 @@ IMM_TURN_DEG = 0.0  # deg/s: > 0 adds coordinated-turn modes at +- this (0: none
 VDF_DETECT = 35.0  # VDF manoeuvre detection threshold (fading NIS sum)
 VDF_SETTLE = 13.0  # VDF return-to-CV threshold (fading acceleration significance)
 
+# rows per block of the compiled IMM update (estimation/imm_kernel.py): a large pass in
+# blocks of IMM_BLOCK, a pass of fewer rows in blocks of IMM_SMALL (less padding); the
+# block was chosen by bench/imm_cost.py (not a power of two)
+IMM_BLOCK = 40
+IMM_SMALL = 8
+
 # ---------------------------------------------------------------- track life
 INIT_SPEED = 1000.0  # m/s: prior std of the velocity at initiation
 INIT_ACCEL = 10.0  # m/s^2: prior std of the acceleration at initiation (order-3 states)
@@ -86,14 +92,13 @@ CLUTTER_DENSITY = None  # false detections per m^2 (2-D) or m^3 (3-D); None: est
 # a confirmed track whose detection beats a miss by less than this log-likelihood ratio
 # keeps its miss branch one scan (tracking.second_look; docs/accuracy.md); 0: never
 SECOND_LOOK = 4.0  # ln 55 (docs/accuracy.md, "A doubtful update beyond reach waits")
-# m/s^2: a doubtful detection farther from the track's own prediction than an aircraft
-# could go at this acceleration (10 g) is not shown until the next scan confirms it
-SECOND_LOOK_REACH = 98.0
-# m/s^2: a newly confirmed track within this reach of a lost confirmed track (not updated
-# since the new one began) continues it under its id (tracking.stitcher); 0: never
-STITCH_REACH = 98.0
 JPDA_MAX_EVENTS = 5000  # joint events enumerated per cluster; more: cheap JPDA
-MAX_SPEED = 340.0  # m/s: a new track's velocity prior has std MAX_SPEED / 3 per axis
+# an aircraft's reach (tracking.reach): the fastest target, m/s (a new track's velocity
+# prior has std MAX_SPEED / 3 per axis), its hardest manoeuvre, m/s^2 (10 g), and the
+# sigmas of the positions compared added to either
+MAX_SPEED = 340.0
+MAX_ACCEL = 98.0
+REACH_SIGMAS = 3.0
 CONFIRM_M, CONFIRM_N = 3, 5  # confirmed once detected in 3 of its last 5 scans ...
 CONFIRM_SCORE = 4.6  # ... with a track score (log-likelihood ratio) of at least ln 100
 DELETE_MISSES = 6  # a confirmed track is deleted after this many consecutive misses at Pd 0.9

@@ -71,7 +71,7 @@ def make_tracker(order: int = 2, q: float | None = None, **kw: Any) -> Tracker:
     """A single-model tracker (order 2: CV, 3: CA) whose config also takes the display's
     options (for the unit tests of the tracker and of the display state)."""
     disp = DisplayConfig(**{k: kw.pop(k) for k in list(kw) if k in DISPLAY_OPTIONS})
-    return Tracker(TrackerConfig(filter=FilterSpec({2: "cv", 3: "ca"}[order], q), **kw,
+    return Tracker.from_config(TrackerConfig(filter=FilterSpec({2: "cv", 3: "ca"}[order], q), **kw,
                                  display=disp))
 
 

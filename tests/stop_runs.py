@@ -75,7 +75,7 @@ def load_state(path: Path) -> set[str]:
     from zenoh_track.tracking import checkpoint
     from zenoh_track.tracking.tracker import Tracker
 
-    tracker = Tracker(tracker_config(parser().parse_args([])))
+    tracker = Tracker.from_config(tracker_config(parser().parse_args([])))
     checkpoint.load(tracker, path.read_bytes())
     return {tid for lay in tracker.store.layouts.values() for tid in lay.live()[1]}
 

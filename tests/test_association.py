@@ -20,7 +20,8 @@ from zenoh_track.tracking import plot_association as association
 from zenoh_track.tracking.batches import Detections
 from zenoh_track.tracking.hypotheses import Hypotheses
 from zenoh_track.tracking.jpda import JPDAAssociator
-from zenoh_track.tracking.plot_association import GNNAssociator, SensorModels
+from zenoh_track.tracking.plot_association import GNNAssociator, ScanAssociator, SensorModels
+from zenoh_track.tracking.stages import Pass
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 from zenoh_track.wire import Measurement
 
@@ -41,7 +42,7 @@ def scan(tracker: Tracker, t: float, positions, sensor: str = "r1") -> list[Outc
 
 def make(associator: str = "gnn", **kw) -> Tracker:
     sensors = SensorModels(pd=kw.pop("pd", 0.9), clutter_density=kw.pop("density", 1e-8))
-    return Tracker(TrackerConfig(filter=FilterSpec("cv", 1.0), associator=associator,
+    return Tracker.from_config(TrackerConfig(filter=FilterSpec("cv", 1.0), associator=associator,
                                  sensors=sensors,
                                  **kw))
 
@@ -215,9 +216,9 @@ def test_jpda_exact_marginals_by_hand():
               sum(w for e, w in events.items() if e[1] == 1) / total]
     got = jp._marginals(np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]), g, b)
     np.testing.assert_allclose(got, expect, rtol=1e-12)
-    jp.max_events = 4  # 3 x 3 events > 4: the cheap approximation, still probabilities
-    cheap = jp._marginals(np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]), g, b)
-    assert (cheap > 0).all() and np.bincount([0, 0, 1, 1], cheap).max() < 1
+    cheap_jp = JPDAAssociator(1.0, max_events=4)  # 3 x 3 events > 4: the cheap
+    cheap = cheap_jp._marginals(np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]), g, b)
+    assert (cheap > 0).all() and np.bincount([0, 0, 1, 1], cheap).max() < 1  # probabilities
     assert not np.allclose(cheap, expect, rtol=1e-3)  # a different computation
 
 
@@ -367,7 +368,7 @@ def test_gnn_associator_is_the_default():
 @pytest.mark.parametrize("kind", ["ca", "imm", "vdf"])
 def test_every_filter_tracks_unlabelled_targets(kind, associator):
     """The associators work with every filter as the updater."""
-    tracker = Tracker(TrackerConfig(filter=FilterSpec(kind), associator=associator,
+    tracker = Tracker.from_config(TrackerConfig(filter=FilterSpec(kind), associator=associator,
                                     sensors=SensorModels(pd=0.9, clutter_density=1e-7)))
     rng = np.random.default_rng(11)
     vel = np.array([[120.0, 0.0], [0.0, 150.0], [-90.0, 90.0]])
@@ -414,20 +415,50 @@ def test_cluster_propagation_equals_connected_components():
             == len(set(b.tolist()))
 
 
-class EveryDetectionNew:
+class EveryDetectionNew(ScanAssociator):
     """The trivial associator of docs/architecture.md's "Where to add": no detection
-    updates a track, each starts one (one class satisfying `protocols.Associator`)."""
-
-    def __init__(self, q: float, sensors: SensorModels | None = None,
-                 gate_probability: float = 0.999) -> None:
-        self.inner = GNNAssociator(q, sensors, gate_probability)
-
-    def split(self, scan):
-        return self.inner.split(scan)  # one part per dimension, as every scan associator
+    updates a track, each starts one (the shared steps of `ScanAssociator` replaced by one
+    method; its stages, settle and counts inherited)."""
 
     def associate(self, store, part) -> Hypotheses:
         return Hypotheses(part.batch.dim if part.batch is not None else 0,
                           unassociated=list(range(len(part))))
+
+
+class Veto(Pass):
+    """A stage of docs/architecture.md's "Where to add": the established tracks may take
+    no detection (every pair refused), counted."""
+
+    def __init__(self) -> None:
+        self.vetoed = 0
+
+    def pairs(self, scene):
+        self.vetoed += len(scene.every.ti)
+        return np.zeros(len(scene.every.ti), dtype=bool)
+
+    def counts(self) -> dict[str, int]:
+        return {"vetoed": self.vetoed}
+
+
+def test_a_new_stage_is_one_class_in_the_associators_stages():
+    """The stage recipe tried: added to the service's stages, it acts at its one hook and
+    its count reaches `Tracker.counts` (status); left out, nothing changes."""
+    def run(extra: list) -> Tracker:
+        config = TrackerConfig(filter=FilterSpec("cv", 1.0), sensors=SensorModels(0.9, 1e-8))
+        a = Tracker.from_config(config).scan_associator
+        tracker = Tracker.from_config(config, scan_associator=GNNAssociator(
+                                          a.q, a.sensors, a.gate_probability, predict=a.predict,
+                                          stages=[*a.stages, *extra]))
+        pts = np.array([[0.0, 0.0], [5000.0, 0.0]])
+        for k in range(8):
+            scan(tracker, float(k), pts + k)
+        return tracker
+
+    plain, veto = run([]), Veto()
+    vetoed = run([veto])
+    assert len(plain) == 2 and all(plain.state(k)["updates"] == 8 for k in plain.ids())
+    assert veto.vetoed > 0 and vetoed.counts()["vetoed"] == veto.vetoed
+    assert len(vetoed) > 2  # the confirmed tracks took nothing: new tracks began
 
 
 def test_a_new_associator_is_one_class_and_one_registration(monkeypatch):

@@ -30,7 +30,7 @@ def swarm_measurements(targets: int = 12, duration: float = 8.0) -> list:
 def published(measurements: list, sizes, filter_name: str) -> list[bytes]:
     """The state and covariance bytes of each measurement's track after its update, the
     measurements applied in batches of the sizes drawn from `sizes`."""
-    tracker = Tracker(TrackerConfig(filter=FilterSpec(filter_name)))
+    tracker = Tracker.from_config(TrackerConfig(filter=FilterSpec(filter_name)))
     out, i = [], 0
     while i < len(measurements):
         batch = measurements[i:i + sizes()]

@@ -27,7 +27,7 @@ def polar(target: str, t: float, r: float, az: float, el: float | None = None) -
 
 def busy_tracker(name: str = "imm") -> Tracker:
     """Labelled 2-D and 3-D tracks and tracks of unlabelled scans, some deleted (free rows)."""
-    tr = Tracker(TrackerConfig(filter=FilterSpec(name)))
+    tr = Tracker.from_config(TrackerConfig(filter=FilterSpec(name)))
     for k in range(4):
         t = float(k)
         track(tr, [polar(f"a{i}", t, 5000 + 100 * i + 50 * k, 0.1 * i) for i in range(6)]
@@ -54,7 +54,7 @@ def table(tr: Tracker) -> dict:
 def test_roundtrip_keeps_every_column_and_the_picture(name):
     tr = busy_tracker(name)
     data = checkpoint.dump(tr, extra={"clock": {"kind": "realtime", "offset": -3.5}})
-    back = Tracker(TrackerConfig(filter=FilterSpec(name)))
+    back = Tracker.from_config(TrackerConfig(filter=FilterSpec(name)))
     meta = checkpoint.load(back, data)
     assert meta["extra"] == {"clock": {"kind": "realtime", "offset": -3.5}}
     before, after = table(tr), table(back)
@@ -84,7 +84,7 @@ def test_roundtrip_keeps_every_column_and_the_picture(name):
 
 def test_unlabelled_ids_continue_after_restore():
     tr = busy_tracker("cv")
-    back = Tracker(TrackerConfig(filter=FilterSpec("cv")))
+    back = Tracker.from_config(TrackerConfig(filter=FilterSpec("cv")))
     checkpoint.load(back, checkpoint.dump(tr))
     far = {"t": 4.0, "dets": [{"r": 90000.0, "az": -2.0}]}
     track_scan(back, parse_plots("r2", pack(far), NOISE))
@@ -138,23 +138,24 @@ def test_corrupt_checkpoint_is_refused_and_changes_nothing(case):
         bad = BAD[case](data)
     except ValueError:  # np.savez refuses to write some of them: fine, nothing to read
         pytest.skip("the archive cannot be written")
-    fresh = Tracker(TrackerConfig(filter=FilterSpec("cv")))
+    fresh = Tracker.from_config(TrackerConfig(filter=FilterSpec("cv")))
     with pytest.raises(CheckpointError) as err:
         checkpoint.load(fresh, bad)
     assert str(err.value) and "\n" not in str(err.value)
-    assert len(fresh) == 0 and not fresh.memory()["numbers"] and not fresh.store.layouts or \
-        all(not len(lay.live()[0]) for lay in fresh.store.layouts.values())
+    assert len(fresh) == 0
+    assert not fresh.memory()["numbers"]
+    assert all(not len(lay.live()[0]) for lay in fresh.store.layouts.values())
 
 
 def test_checkpoint_of_another_filter_is_refused():
     data = checkpoint.dump(busy_tracker("imm"))
     with pytest.raises(CheckpointError, match="filter is 'imm'"):
-        checkpoint.load(Tracker(TrackerConfig(filter=FilterSpec("cv"))), data)
+        checkpoint.load(Tracker.from_config(TrackerConfig(filter=FilterSpec("cv"))), data)
     with pytest.raises(CheckpointError, match="already holds"):
         checkpoint.load(busy_tracker("imm"), data)
 
 
 def test_empty_tracker_roundtrip():
-    data = checkpoint.dump(Tracker(), extra={"ns": DEFAULT_NS})
-    back = Tracker()
+    data = checkpoint.dump(Tracker.from_config(), extra={"ns": DEFAULT_NS})
+    back = Tracker.from_config()
     assert checkpoint.load(back, data)["extra"] == {"ns": DEFAULT_NS} and len(back) == 0

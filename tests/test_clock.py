@@ -1,5 +1,5 @@
-"""Unit tests of the display clocks (service/adapter/schedule.py) against the Clock
-section of PROTOCOL.md; their one interface (`Clock`).
+"""Unit tests of the display clocks (service/adapter/clocks.py) against the Clock
+section of PROTOCOL.md; their one interface (`schedule.Clock`).
 
 Display instants are n / rate. Lockstep: before an input at t, every instant strictly
 before t (1 us tolerance) not yet published is due; the first input sets the start.
@@ -13,7 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zenoh_track.adapter import schedule as clock
+from zenoh_track.adapter import clocks as clock
+from zenoh_track.adapter.plan import Frame, Plan
+from zenoh_track.adapter.schedule import Clock
 
 RATE = 30.0
 
@@ -221,14 +223,14 @@ def test_realtime_long_run_monotonic_and_accounted():
 
 # ---------------------------------------------------------------- one interface
 def protocol_members() -> list[str]:
-    return sorted({*clock.Clock.__annotations__,
-                   *(n for n in vars(clock.Clock) if not n.startswith("_"))})
+    return sorted({*Clock.__annotations__, *(n for n in vars(Clock) if not n.startswith("_"))})
 
 
 def test_both_clocks_answer_every_member_of_the_interface():
     """The worker asks the clock, never which clock it is: both have every member."""
     members = protocol_members()
-    assert {"picture", "due_before", "first_due", "due", "save", "load"} <= set(members)
+    assert {"picture", "rows", "scan", "clock_message", "released", "apply", "end", "save",
+            "load"} <= set(members)
     for c in (clock.make_clock("lockstep", RATE), clock.make_clock("realtime", RATE)):
         missing = [m for m in members if not hasattr(c, m)]
         assert not missing, (type(c).__name__, missing)
@@ -249,8 +251,13 @@ def test_first_due_is_the_first_row_before_which_an_instant_falls_due():
         assert lk.first_due(t, 1, held) is not None  # the times run past an instant
     rt = clock.Realtime(RATE)
     rt.observe(100.0, 50.0)
-    assert rt.first_due(np.array([100.0, 101.0, 200.0]), 1, None) is None
-    assert rt.due_before(200.0) == []  # its instants fall due on the wall clock
+    plan, frames = Plan(), Plan()
+    rt.clock_message(plan, 200.0, 50.0, None)  # its instants fall due on the wall clock
+    lk = clock.Lockstep(RATE)
+    lk.due_before(2.0)
+    lk.clock_message(frames, 3.0, 50.0, None)  # the lockstep's before an input
+    assert not any(isinstance(s, Frame) for s in plan)
+    assert [s.t for s in frames if isinstance(s, Frame)] == inst(*range(60, 90))
 
 
 def test_the_lag_delays_the_instants_by_itself():
@@ -265,33 +272,105 @@ def test_the_lag_delays_the_instants_by_itself():
 
 def test_the_picture_is_the_newest_input_in_lockstep_and_the_wall_clock_in_realtime():
     lk = clock.Lockstep(RATE)
-    assert lk.picture(5.0) is None and lk.sim_time(5.0) is None
-    lk.taken(3.0)
-    lk.taken(2.0)  # an older input does not move the picture back
-    assert lk.picture(123.0) == 3.0
-    lk.restart(1.0)  # a new timeline, backwards
-    assert lk.picture(0.0) == 1.0
+    assert lk.picture(5.0, None) is None
+    assert lk.picture(123.0, 3.0) == 3.0  # the newest input taken (`Admit.newest`)
     rt = clock.Realtime(RATE)
-    assert rt.picture(5.0) is None
+    assert rt.picture(5.0, None) is None
     rt.observe(10.0, 1000.0)
-    rt.taken(99.0)  # the picture follows the wall clock, not the inputs taken
-    assert rt.picture(1001.0) == rt.sim_time(1001.0) == 11.0
+    assert rt.picture(1001.0, 99.0) == rt.sim_time(1001.0) == 11.0  # the wall clock's
 
 
 def test_a_clock_resumes_from_its_saved_state_and_refuses_the_other_kinds():
     lk = clock.Lockstep(RATE)
     lk.due_before(1.0)
     lk.due_before(2.0)
-    lk.taken(2.0)
     again = clock.Lockstep(RATE)
-    assert again.load(lk.save(), 0.0) == "; lockstep picture at t=2.000"
-    assert (again.next_n, again.picture_t) == (lk.next_n, 2.0)
+    saved = {**lk.save(), "picture_t": 2.0}  # the worker adds the picture's time
+    assert again.load(saved, 0.0) == "; lockstep picture at t=2.000"
+    assert again.next_n == lk.next_n
     assert again.due_before(2.1) == lk.due_before(2.1)
     rt = clock.Realtime(RATE)
     rt.observe(10.0, 1000.0)
     back = clock.Realtime(RATE)
     assert back.load(rt.save(), 2000.0).startswith("; realtime frames resume")
-    assert back.picture(2000.0) == 1010.0
+    assert back.picture(2000.0, None) == 1010.0
     fresh = clock.Realtime(RATE)
     assert fresh.load(lk.save(), 2000.0) == "" and fresh.offset is None
     assert clock.Lockstep(RATE).load(rt.save(), 0.0) == ""
+
+
+class OnClock:
+    """The clock recipe of docs/architecture.md's "Where to add": frames only when a clock
+    message comes (every instant before its time), none before a measurement; a class
+    satisfying `schedule.Clock`, registered in `clocks.CLOCKS`."""
+
+    name, skipped, missed = "on-clock", 0, 0
+    publishing = clock.Lockstep.publishing  # in line, nothing dropped
+
+    def __init__(self, rate: float, lag: float = 0.0) -> None:
+        self.instants = clock.Lockstep(rate, lag)  # its arithmetic of the instants
+
+    def picture(self, wall, newest):
+        return newest
+
+    def timeout(self, wall):
+        return 0.001
+
+    def restart(self, t):
+        self.instants.restart(t)
+
+    def rows(self, plan, rows, walls, held):
+        if self.instants.next_n is None:  # the first input sets the start
+            self.instants.due_before(float(rows.batch.t[0]))
+        plan.wait(rows)
+
+    def scan(self, plan, t, wall, released, held):
+        self.released(plan, released, held)
+
+    def clock_message(self, plan, t, wall, held):
+        for instant in self.instants.due_before(t):
+            plan.frame(instant)
+
+    def released(self, plan, scans, held):
+        for key, scan in scans:
+            plan.scan(key, scan)
+
+    def apply(self, rows, frames, run, report):
+        report(rows, run(rows, None))
+
+    def end(self, plan, wall, admit, frames):
+        plan.apply()
+
+    def save(self):
+        return {"kind": self.name}
+
+    def load(self, saved, wall):
+        return ""
+
+
+def test_a_new_clock_is_one_class_and_one_registration(monkeypatch):
+    """The recipe tried on a service with a real Zenoh session: measurements bring no
+    frame; a clock message brings every instant before its time, showing them."""
+    import zenoh
+
+    from zenoh_track.adapter import TrackService
+    from zenoh_track.adapter.ingest import ClockMessage, Singles
+    from zenoh_track.tracking.tracker import Tracker
+    from zenoh_track.wire import Keys, free_port, listen_config, pack
+
+    assert not [m for m in protocol_members() if not hasattr(OnClock(RATE), m)]
+    monkeypatch.setitem(clock.CLOCKS, "on-clock", OnClock)
+    session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
+    try:
+        keys = Keys("oc")
+        svc = TrackService(session, keys, Tracker.from_config(), clock="on-clock")
+        for t in (0.0, 1.0, 2.0):
+            svc._process([Singles.one(keys.meas("r1", "a"), pack({"t": t, "pos": [t, 0.0]}),
+                                      100.0 + t)])
+        assert svc.count.frames_published == 0 and len(svc.tracker) == 1
+        svc._process([ClockMessage(keys.clock, pack({"t": 2.0}), 102.0)])
+        assert svc.count.frames_published == 2 * RATE  # the instants of [0, 2)
+        assert svc.out.latest[1].ids == ["a"]
+        svc.close()
+    finally:
+        session.close()

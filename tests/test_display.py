@@ -178,7 +178,7 @@ def test_frame_is_the_imm_prediction_but_for_the_manoeuvre_mode_switching():
     10 s, beside its onset of the manoeuvre modes)."""
     from zenoh_track.estimation import models
 
-    tracker = Tracker()
+    tracker = Tracker.from_config()
     for k in range(6):  # accelerating targets: the CA mode gains weight
         track(tracker, [cart(f"a{i}", k, (100.0 * k + 4.0 * i * k * k, 50.0 * i, 0.0))
                        for i in range(8)])

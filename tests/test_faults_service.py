@@ -188,22 +188,34 @@ def test_realtime_frames_survive_time_faults(service_factory):
 
     feeder = threading.Thread(target=feed, daemon=True)
     feeder.start()
+    def tracked(prefix: str, since: int = 0) -> bool:  # this phase's tracks updated
+        return {f"{prefix}{i}" for i in range(3)} <= {k for k, kind, _ in w.tracks[since:]
+                                                       if kind == "PUT"}
+
     try:
-        time.sleep(1.5)
+        assert w.wait(lambda: tracked("p"))
         meas(s, "p0", 1e300)
         meas(s, "p0", 1e8)
         s.put("track/meas/r1/p0", b"\xc1\xc1", congestion_control=BLOCK)
-        time.sleep(1.5)
+        assert w.wait(lambda: len(w.errors) >= 3)
+        seen = len(w.tracks)  # the feed's own times taken again (the far one not in a row)
+        assert w.wait(lambda: tracked("p", seen))
         phase.update(offset=3 * 3600.0, prefix="h")  # the feed's clock jumps 3 h ahead
-        time.sleep(2.0)
+        assert w.wait(lambda: tracked("h"))  # the new timeline taken
         phase.update(offset=0.0, prefix="q")  # and back
-        time.sleep(2.0)
+        assert w.wait(lambda: tracked("q"))
+
+        def back_a_second() -> bool:  # a second of frames since the last 3 h ahead
+            ahead = [wall for t, wall in w.frames if t > base + 3600.0]
+            return bool(ahead) and w.frames[-1][1] - ahead[-1] > 1.0
+
+        assert w.wait(back_a_second)
         st = status(s)
     finally:
         stop.set()
         feeder.join()
     assert st["timeline_jumps"] == 2, st
-    assert w.wait(lambda: len(w.errors) >= 3 + 2 * 9)
+    assert w.wait(lambda: len(w.errors) >= 3 + 2 * 9), w.codes()
     codes = w.codes()
     assert codes[:3] == ["time_out_of_range", "time_far", "not_msgpack"], codes
     assert codes.count("time_far") == 1 + 2 * 9, codes

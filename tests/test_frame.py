@@ -78,7 +78,7 @@ def test_frames_equal_the_plain_prediction_as_tracks_come_change_and_go(name, ch
 
 def test_frames_follow_many_updates_beyond_one_chunk(chunk):
     """The default IMM, more tracks than one chunk, some updated between frames."""
-    tr = Tracker()
+    tr = Tracker.from_config()
     n = 2 * frame.CHUNK + 5 if chunk < 100 else 300
     rng = np.random.default_rng(3)
     r, az = rng.uniform(5e3, 8e4, n), rng.uniform(-3, 3, n)
@@ -92,7 +92,7 @@ def test_frames_follow_many_updates_beyond_one_chunk(chunk):
 def test_frames_read_a_restored_tracker():
     """A checkpoint restored into a fresh tracker is drawn as the one it was taken of."""
     tr = busy_tracker()
-    back = Tracker(TrackerConfig(filter=FilterSpec("imm")))
+    back = Tracker.from_config(TrackerConfig(filter=FilterSpec("imm")))
     checkpoint.load(back, checkpoint.dump(tr))
     for t in (3.5, 20.0):
         assert_frame(back, t)
@@ -115,7 +115,7 @@ def test_frame_columns_refresh_rows_whose_time_moved():
 def test_a_row_reused_at_the_same_time_is_read_again():
     """A track deleted and another started in its row with the same time: the display's
     `initiate` marks the row (its time alone would not tell)."""
-    tr = Tracker()
+    tr = Tracker.from_config()
     track(tr, [polar("a", 1.0, 5000.0, 0.1), polar("b", 1.0, 6000.0, 0.2)])
     assert_frame(tr, 1.5)
     tr.remove(["a"])
@@ -152,7 +152,7 @@ def test_update_time_deleter_takes_the_tracks_the_plain_rule_takes():
                  if now - arrays.t[r] > 2.0]
         got = [k for k in deleter.delete_tracks(tr.store, now) if k in arrays.live()[1]]
         assert got == plain
-    assert UpdateTimeDeleter(2.0).delete_tracks(Tracker().store, 1e9) == []
+    assert UpdateTimeDeleter(2.0).delete_tracks(Tracker.from_config().store, 1e9) == []
 
 
 @pytest.mark.parametrize("order,dim", [(3, 3), (3, 2), (2, 3), (2, 2)])

@@ -130,7 +130,7 @@ def test_gate_prediction_is_the_filter_prediction():
 
 def test_cut_gatings_read_their_source_on_first_use():
     rng = np.random.default_rng(3)
-    tracker = Tracker(TrackerConfig(associator="gnn"))
+    tracker = Tracker.from_config(TrackerConfig(associator="gnn"))
     pts = rng.uniform(0, 3000, (12, 2))
     for k in range(2):
         scan_step(tracker, [Outcome(det(float(k), q))
@@ -193,7 +193,7 @@ def test_batch_columns_check_every_record():
 
 
 def test_track_ids_count_per_sensor():
-    numbers = Tracker().numbers
+    numbers = Tracker.from_config().numbers
     assert numbers.new("a", 3) == ["a-1", "a-2", "a-3"]
     assert numbers.new("b", 1) == ["b-1"] and numbers.new("a", 1) == ["a-4"]
     assert numbers.new("a", 0) == [] and numbers.new("a", 1) == ["a-5"]

@@ -98,7 +98,6 @@ def test_large_sets_equal_the_full_assignment():
 
 # ---------------------------------------------------------------- against Stone Soup
 def test_equals_stone_soup_gospa_metric():
-    pytest.importorskip("stonesoup")
     import datetime
 
     from stonesoup.metricgenerator.ospametric import GOSPAMetric

@@ -20,10 +20,7 @@ from zenoh_track.estimation.catalog import FilterSpec
 from zenoh_track.estimation.imm import ModeSet
 from zenoh_track.estimation.measurements import MeasurementBatch
 from zenoh_track.estimation.ucm import CMKFConversion
-from zenoh_track.tracking.display import DISPLAY_COLUMNS
-from zenoh_track.tracking.life import LIFE_COLUMNS
-from zenoh_track.tracking.store import TrackStore
-from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.tracking.tracker import Tracker
 from zenoh_track.wire import Measurement
 
 
@@ -69,12 +66,12 @@ def test_compiled_imm_is_the_textbook_imm_after_a_long_gap(dim, own_r):
 def compare(dim: int, count: int, own_r: bool, modes: str, gap: float) -> None:
     """The update of `count` rows by both, `gap` s later than the scan after the last."""
     rng = np.random.default_rng(5)
-    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm", imm_turn=2.0 * (modes == "turns"))))
+    built = FilterSpec("imm", imm_turn=2.0 * (modes == "turns")).build()
     if modes == "turn-rate":
-        tracker.updater = ModeSet(manoeuvre=(*defaults.IMM_MANOEUVRE[:2], ("turn", 5.0),
-                                             *defaults.IMM_MANOEUVRE[2:])).imm()
-        tracker.store = TrackStore(3, tracker.updater.fields,
-                                   {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
+        built = dataclasses.replace(built, updater=ModeSet(manoeuvre=(
+            *defaults.IMM_MANOEUVRE[:2], ("turn", 5.0), *defaults.IMM_MANOEUVRE[2:])).imm(
+                imm_jit.CompiledIMM))
+    tracker = Tracker.from_config(filter=built)
     assert tracker.updater.mode_conversion is False  # the default shares R
     imm = dataclasses.replace(tracker.updater, mode_conversion=own_r)
     assert imm_jit.applies(imm)
@@ -117,7 +114,7 @@ from zenoh_track.wire import Measurement
 jit.load([imm_jit, frame])
 kernels = (imm_kernel.update_rows, imm_kernel.update_few, frame_kernel.draw)
 warmed = [list(k.signatures) for k in kernels]
-tracker, rng = Tracker(), np.random.default_rng(1)
+tracker, rng = Tracker.from_config(), np.random.default_rng(1)
 for t in range(6):
     polar = [Measurement("r", f"p{i}", t, 3, True, (3e4 + 200.0 * t + i, 0.1 * i, 0.05),
                          (20.0, 0.002, 0.002), (0.0, 0.0, 0.0), None) for i in range(40)]
@@ -148,7 +145,7 @@ def test_a_pass_on_several_threads_is_the_same_bits(monkeypatch, threads):
     output and every store row written the same to the bit as on one thread."""
     monkeypatch.setattr(defaults, "PARALLEL_ROWS", imm_jit.BLOCK)
     rng, count = np.random.default_rng(11), 5 * imm_jit.BLOCK + 7
-    tracker = Tracker(TrackerConfig(filter=FilterSpec("imm")))
+    tracker = Tracker.from_config()
     for t in range(3):
         track(tracker, measurements(count, float(t), 3, rng))
     arrays = tracker.store.layout(3)

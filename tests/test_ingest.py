@@ -3,7 +3,7 @@ cut at a count of messages and joined again keeps every message once, in order."
 
 from __future__ import annotations
 
-from zenoh_track.adapter.ingest import ClockMessage, Plots, Query, Scan, Singles, cut, size
+from zenoh_track.adapter.ingest import ClockMessage, LabelledScan, Plots, Query, Singles, cut, size
 
 
 def run(lo: int, hi: int) -> Singles:
@@ -44,5 +44,5 @@ def test_a_run_joined_from_pieces_is_the_run():
 
 def test_every_input_names_its_key():
     q = Query("status", type("Q", (), {"key_expr": "ns/status"})())
-    assert [i.key for i in (run(3, 5), Scan("ns/scan/r", b"", 0.0), q)] == [
+    assert [i.key for i in (run(3, 5), LabelledScan("ns/scan/r", b"", 0.0), q)] == [
         "k3", "ns/scan/r", "ns/status"]

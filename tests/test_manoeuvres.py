@@ -18,8 +18,6 @@ from zenoh_track.clients.feeds.manoeuvres import CLASSES, SLOW_CLASSES, G, Manoe
 from zenoh_track.estimation.measurements import MeasurementBatch
 from zenoh_track.tracking import gating
 from zenoh_track.tracking.batches import Unlabelled
-from zenoh_track.tracking.display import DISPLAY_COLUMNS
-from zenoh_track.tracking.life import LIFE_COLUMNS
 from zenoh_track.tracking.tracker import Tracker
 from zenoh_track.wire import Measurement
 
@@ -116,7 +114,7 @@ def test_the_imm_gate_holds_the_first_scan_of_a_7g_turn():
     """Gated with the IMM's widest mode, a detection 550 m off the straight prediction
     (7 g for 4 s) is in the gate; gated with the combined state and the nominal noise,
     as before, it is not."""
-    tracker = Tracker()
+    tracker = Tracker.from_config()
     ts, m = _first_turn_scan(tracker, 4.0)
     arrays = tracker.store.layout(3)
     rows = arrays.rows()[arrays.confirmed[arrays.rows()]]
@@ -209,16 +207,15 @@ def test_a_coasting_track_leaves_far_clutter_in_its_wide_gate(gate_wide, taken):
     import dataclasses
 
     from zenoh_track.tracking.plot_association import SensorModels
-    from zenoh_track.tracking.store import TrackStore
     from zenoh_track.tracking.tracker import TrackerConfig
 
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(clutter_density=9e-14),
-                                    second_look=0.0, max_speed=2000.0))
+    config = TrackerConfig(sensors=SensorModels(clutter_density=9e-14), second_look=0.0,
+                           max_speed=2000.0)
+    built = config.filter.build()
     if gate_wide is not None:
-        tracker.updater = dataclasses.replace(tracker.updater, gate_wide=gate_wide)
-        tracker.store = TrackStore(tracker.updater.order, tracker.updater.fields,
-                                   {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
-        tracker.scan_associator.predict = tracker.updater.gate_prediction
+        built = dataclasses.replace(built, updater=dataclasses.replace(built.updater,
+                                                                       gate_wide=gate_wide))
+    tracker = Tracker.from_config(config, filter=built)
     ts, m = _first_turn_scan(tracker, 4.0)
     arrays = tracker.store.layout(3)
     row = int(arrays.rows()[arrays.confirmed[arrays.rows()]][0])
@@ -241,15 +238,16 @@ def test_imm_onset_option_sets_the_rate_of_entering_the_manoeuvre_modes():
     default's."""
     from zenoh_track.__main__ import parser, tracker_config
     from zenoh_track.estimation.imm import ModeSet
+    from zenoh_track.estimation.imm_jit import CompiledIMM
 
     def built(argv: list[str]):
         return tracker_config(parser().parse_args(argv)).filter.build().updater
 
     fast = built(["--imm-onset", "60"])
-    assert fast == ModeSet(onset=60.0).imm()
-    assert built([]) == ModeSet().imm() != fast
+    assert fast == ModeSet(onset=60.0).imm(CompiledIMM)  # the catalogue's: compiled
+    assert built([]) == ModeSet().imm(CompiledIMM) != fast
     turning = built(["--imm-turn-estimated", "5"])  # a seventh mode at its own rate
-    assert turning == ModeSet(manoeuvre=(*ModeSet().manoeuvre, ("turn", 5.0))).imm()
+    assert turning == ModeSet(manoeuvre=(*ModeSet().manoeuvre, ("turn", 5.0))).imm(CompiledIMM)
     assert [m[1] for m in turning.modes].count("turn") == 1
     for bad in (["--imm-onset", "0"], ["--imm-onset", "-5"], ["--imm-sojourn", "inf"],
                 ["--second-look", "nan"], ["--imm-turn-estimated", "-1"],

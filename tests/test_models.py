@@ -276,19 +276,19 @@ def test_an_imm_mode_of_the_turn_holds_a_steady_4g_turn(kind):
     one CA mode with the same jerk noise, on 1 Hz positions (sigma 30 m) of a 4 g turn:
     the turn model's error stays near the noise, the CA's lags; without the Jacobian
     of the rate the turn filter diverged (400 m and more at this noise)."""
+    from zenoh_track import defaults
     from zenoh_track.estimation import imm_jit
+    from zenoh_track.estimation.catalog import Filter
     from zenoh_track.estimation.imm import IMM
+    from zenoh_track.estimation.ucm import CMKFConversion
     from zenoh_track.tracking.batches import Labelled
-    from zenoh_track.tracking.display import DISPLAY_COLUMNS
-    from zenoh_track.tracking.life import LIFE_COLUMNS
-    from zenoh_track.tracking.store import TrackStore
     from zenoh_track.tracking.tracker import Tracker
     from zenoh_track.wire import Measurement
 
-    tracker, rng = Tracker(), np.random.default_rng(3)
-    tracker.updater = IMM(((kind, kind, 0.5, 0.0),), 1e9)
-    assert imm_jit.applies(tracker.updater)  # compiled once warm (tests/test_imm_jit.py)
-    tracker.store = TrackStore(3, tracker.updater.fields, {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
+    imm = IMM(((kind, kind, 0.5, 0.0),), 1e9)
+    assert imm_jit.applies(imm)  # compiled once warm (tests/test_imm_jit.py)
+    tracker = Tracker.from_config(filter=Filter(imm, defaults.Q_CV, CMKFConversion, "imm"))
+    rng = np.random.default_rng(3)
     errors = []
     for t in range(90):
         pos = _turn_truth(float(t))[:3] + rng.normal(0.0, 30.0, 3)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -13,9 +14,11 @@ from zenoh_track.wire import free_port
 pytestmark = pytest.mark.slow
 
 
-def run(*args: str, module: str = "service", timeout: float = 60) -> tuple[int, str]:
-    p = subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True,
-                       timeout=timeout, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+def run(*args: str, program: str = "track-service", timeout: float = 60) -> tuple[int, str]:
+    """The installed console script `program` (beside this interpreter) with `args`."""
+    p = subprocess.run([str(Path(sys.executable).parent / program), *args],
+                       capture_output=True, text=True, timeout=timeout,
+                       env={**os.environ, "PYTHONUNBUFFERED": "1"})
     return p.returncode, p.stderr
 
 
@@ -38,7 +41,7 @@ def test_router_not_reached_after_retries():
     one_line(*run("--mode", "client", "-e", endpoint, "--connect-timeout", "1.5"),
              f"cannot reach {endpoint} after 1.5 s of retries")
     one_line(*run("radar3d", "--mode", "client", "-e", endpoint, "--connect-timeout", "1",
-                  module="zenoh_track.clients.feeds.feed"), "track-feed: cannot reach", endpoint)
+                  program="track-feed"), "track-feed: cannot reach", endpoint)
 
 
 def test_unreadable_files(tmp_path):

@@ -8,11 +8,14 @@ import numpy as np
 import pytest
 from test_second_look import PD, PERIOD, SIGMA, START, VEL, det
 
+from zenoh_track import defaults
 from zenoh_track.estimation import kalman
 from zenoh_track.estimation.pda import pda_update, pda_update_reference
 from zenoh_track.tracking.batches import Unlabelled
-from zenoh_track.tracking.plot_association import SensorModels
-from zenoh_track.tracking.tracker import Tracker, TrackerConfig
+from zenoh_track.tracking.plot_association import GNNAssociator, SensorModels
+from zenoh_track.tracking.reach import Reach
+from zenoh_track.tracking.stages import SpeedGate
+from zenoh_track.tracking.tracker import Tracker, TrackerConfig, stages
 
 
 def predictions(rng: np.random.Generator, n_tracks: int, n: int, d: int
@@ -55,7 +58,7 @@ def test_one_sure_detection_is_the_kalman_update():
 
 def jpda_settled(max_speed: float) -> tuple[Tracker, str]:
     """A confirmed JPDA track of the default IMM on a straight flight, 15 scans."""
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14), associator="jpda",
+    tracker = Tracker.from_config(TrackerConfig(sensors=SensorModels(PD, 4e-14), associator="jpda",
                                     max_speed=max_speed))
     for k in range(15):
         t = k * PERIOD
@@ -98,7 +101,7 @@ def test_a_track_spread_wide_by_a_detected_scan_is_deleted_only_when_missed():
     spread it over kilometres for a scan) and deleted at the first scan that misses it."""
     from zenoh_track.tracking.life import MofNDeleter
 
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, 4e-14)))
+    tracker = Tracker.from_config(TrackerConfig(sensors=SensorModels(PD, 4e-14)))
     for k in range(6):
         t = k * PERIOD
         tracker.step(Unlabelled.of("r1", t, [det(t, START + VEL * t)]))
@@ -117,7 +120,7 @@ def test_a_jpda_track_weighs_no_detection_beyond_the_fastest_target():
     standard-rate aircraft of seed 9 at 4 s (docs/explanation/association.md) is missed
     twice in its turn, its track spreads over false detections kilometres out in the
     widest mode's gate and is deleted, and the aircraft starts a second track."""
-    got = manoeuvre_runs.fly(Tracker(TrackerConfig(associator="jpda")), 4.0, 9)
+    got = manoeuvre_runs.fly(Tracker.from_config(TrackerConfig(associator="jpda")), 4.0, 9)
     assert all(a.breaks == 0 for a in got), [(a.name, a.ids) for a in got if a.breaks]
 
 
@@ -128,9 +131,13 @@ def test_a_gnn_track_takes_no_detection_beyond_the_fastest_target(gated, held):
     without the gate (the associator's `reachable` taking every pair) its coasting track
     takes a false detection 4 km out in its widest mode's gate and shows it there for
     four scans."""
-    tracker = Tracker()
-    if not gated:
-        tracker.scan_associator.reachable = lambda *args: None
+    tracker = Tracker.from_config()
+    if not gated:  # the service's stages less the speed gate
+        a = tracker.scan_associator
+        tracker = Tracker.from_config(scan_associator=GNNAssociator(
+            a.q, a.sensors, a.gate_probability, predict=a.predict,
+            stages=[s for s in stages("gnn", Reach(), defaults.SECOND_LOOK)
+                    if not isinstance(s, SpeedGate)]))
     got = manoeuvre_runs.aircraft(tracker, 4.0, 6, "helicopter-0",
                                   ("straight", "orbit", "helicopter", "glider"))
     assert (got.breaks, got.held, got.scans) == (0, held, 49)

@@ -123,7 +123,7 @@ def test_multisensor_scans_through_the_service_find_every_target():
     from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 
     sc = plotgen.multisensor(targets=10, radars=3, scans=20, clutter=10.0, seed=8)
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(
+    tracker = Tracker.from_config(TrackerConfig(sensors=SensorModels(
         pd=sc.pd, clutter_density=sc.clutter_density)))
     for s in sc:
         mine = plotgen.to_cartesian(s.dets, s.sensor_pos)

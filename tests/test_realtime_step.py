@@ -1,5 +1,5 @@
-"""The realtime worker's frames within a step (around a pass: `TrackService._flush`,
-service/adapter/worker.py, and `Frames.between`) and the coasting and deletion that go
+"""The realtime worker's frames within a step (around a pass: `Realtime.apply` and
+`Realtime.between`, service/adapter/clocks.py) and the coasting and deletion that go
 with them, on a service with a real Zenoh session (the worker's own methods driven in
 this thread, as its loop drives them)."""
 
@@ -13,7 +13,7 @@ import zenoh
 
 from zenoh_track.adapter import TrackService
 from zenoh_track.adapter.ingest import TRANSIT, ClockMessage, Singles, arrival
-from zenoh_track.adapter.publish import FrameSender
+from zenoh_track.adapter.senders import FrameSender
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 from zenoh_track.wire import Keys, free_port, listen_config, pack, peer_config, stamp_ns, stamping
 
@@ -27,21 +27,20 @@ def test_a_frame_within_a_step_leaves_the_deletion_to_the_steps_end():
     session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
     try:
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(TrackerConfig(delete_after=0.3)),
+        svc = TrackService(session, keys, Tracker.from_config(TrackerConfig(delete_after=0.3)),
                            clock="realtime")
         t = time.time()
         svc._process([Singles.one(keys.meas("r1", "gone"), pack({"t": t, "pos": [0.0, 1.0]}),
-                                  time.time())])
-        svc._tick()
+                                  time.time())])  # a step, its end included
         assert len(svc.tracker) == 1
         wait_until(t + 0.3 + 2 / 30)  # an instant after the track went stale is due
-        svc.frames.between()  # as around a pass: the frame, no deletion
+        svc.clock.between(svc.frames)  # as around a pass: the frame, no deletion
         assert svc.out.latest[0] is not None  # published
-        assert svc.frames.unswept is not None and svc.frames.unswept > t + 0.3
+        assert svc.clock.unswept is not None and svc.clock.unswept > t + 0.3
         assert len(svc.tracker) == 1
-        svc._tick()  # the step's end: the coast and delete of that instant
+        svc._process([])  # a step's end: the coast and delete of that instant
         assert len(svc.tracker) == 0 and svc.count.tracks_deleted == 1
-        assert svc.frames.unswept is None
+        assert svc.clock.unswept is None
         svc.close()
     finally:
         session.close()
@@ -55,7 +54,7 @@ def test_the_realtime_clock_learns_from_arrival_not_from_when_the_worker_takes_i
     feed = zenoh.open(peer_config(ep))
     try:
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime")
         pub = feed.declare_publisher(keys.meas("r1", "x1"))
         end = time.monotonic() + 10
         while not pub.matching_status.matching and time.monotonic() < end:
@@ -144,13 +143,12 @@ def test_a_clock_message_moves_the_realtime_frames_only_after_the_measurements_b
     session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
     try:
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime")
         wall = time.time()
         svc._process([  # one batch: a measurement, then the feed's clock 1 s ahead
             Singles.one(keys.meas("r1", "x1"), pack({"t": wall - 0.5, "pos": [0.0, 1.0]}),
                         wall),
             ClockMessage(keys.clock, pack({"t": wall + 1.0}), wall)])
-        svc._tick()
         t, snap = svc.out.latest[1].t, svc.out.latest[1]
         assert t >= wall + 1.0 - 1 / 30  # the instant the clock message made due
         assert snap.ids == ["x1"]  # shows the measurement received before it
@@ -164,7 +162,7 @@ def test_the_worker_freezes_the_long_lived_objects_out_of_the_collectors_scans()
     try:
         gc.unfreeze()
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(), clock="realtime").start()
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime").start()
         end = time.monotonic() + 10
         while gc.get_freeze_count() == 0 and time.monotonic() < end:
             time.sleep(0.01)  # an idle worker freezes at once, then every FREEZE_EVERY s
@@ -178,20 +176,20 @@ def test_the_worker_freezes_the_long_lived_objects_out_of_the_collectors_scans()
 def test_batched_scans_taken_together_are_applied_a_pass_each_beyond_the_pass_bound(
         monkeypatch):
     from zenoh_track import defaults
-    from zenoh_track.adapter.ingest import Scan
+    from zenoh_track.adapter.ingest import LabelledScan
     from zenoh_track.wire import f64_bin
 
     monkeypatch.setattr(defaults, "PASS_ROWS", 50)
     session = zenoh.open(listen_config(f"tcp/127.0.0.1:{free_port()}"))
     try:
         keys = Keys("rt")
-        svc = TrackService(session, keys, Tracker(), clock="realtime")
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime")
         passes: list[int] = []
-        rows = svc.tracking.rows
-        svc.tracking.rows = lambda r, *a: (passes.append(len(r)), rows(r, *a))[1]
+        rows = svc.calls.rows
+        svc.calls.rows = lambda r, *a: (passes.append(len(r)), rows(r, *a))[1]
 
-        def scan(t: float, n: int) -> Scan:
-            return Scan(keys.scan("r1"), pack({
+        def scan(t: float, n: int) -> LabelledScan:
+            return LabelledScan(keys.scan("r1"), pack({
                 "t": t, "ids": [f"x{i}" for i in range(n)],
                 "r": f64_bin([5000.0 + i for i in range(n)]),
                 "az": f64_bin([0.001 * i for i in range(n)]), "el": f64_bin([0.01] * n)}),

@@ -101,7 +101,7 @@ class Run:
         self.listen = Listener(self.session)
         self.t = 10.0
         self.rng = np.random.default_rng(12)
-        self.reference = Tracker(tracker_config(parser().parse_args(OPTIONS)))
+        self.reference = Tracker.from_config(tracker_config(parser().parse_args(OPTIONS)))
         self.expected: dict[str, list[str | None]] = defaultdict(list)
         self.tally: Counter[str] = Counter()
         self.durations: list[float] = []

@@ -54,7 +54,9 @@ def test_router_restart_resumes_tracking_with_every_track_kept():
         start = time.monotonic()
         assert tracks.wait_for(lambda s: set(ids_since(s, start)) == names, 30), \
             "tracking did not start"
-        time.sleep(1.0)  # a second scan: every track established
+        assert tracks.wait_for(lambda s: {b["id"] for _, _, k, b in s if k == "PUT"
+                                          and b["updates"] >= 2} >= names, 30), \
+            "no second scan"  # every track established
         before = status(session, keys)
         assert before["tracks"] == TARGETS, before
         updates_before = {b["id"]: b["updates"] for _, _, k, b in tracks.snapshot()

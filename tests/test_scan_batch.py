@@ -140,7 +140,7 @@ def test_one_pass_gives_the_single_messages_tracks():
     msgs = scans(rng)
     flat = parse_measurement("s", "flat", pack({"t": 0.0, "pos": [1.0, 2.0], "sigma": 3.0}),
                              NOISE)
-    one, many = Tracker(), Tracker()
+    one, many = Tracker.from_config(), Tracker.from_config()
     track(one, [flat])
     track(many, [flat])
     cut = random.Random(4)
@@ -230,7 +230,7 @@ def test_an_update_in_parts_gives_the_same_tracks(monkeypatch):
 
     rng = random.Random(5)
     msgs = scans(rng)
-    whole, parts = Tracker(), Tracker()
+    whole, parts = Tracker.from_config(), Tracker.from_config()
     pauses = []
     monkeypatch.setattr(tracker_module, "PART", 7)
     for msg in msgs:

@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 from reference.record import Outcome, scan_step
 
+from zenoh_track import defaults
 from zenoh_track.tracking import gating
 from zenoh_track.tracking.batches import Unlabelled
 from zenoh_track.tracking.plot_association import SensorModels, miss_score
+from zenoh_track.tracking.second_look import SecondLook
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 from zenoh_track.wire import Measurement
 
@@ -31,12 +33,20 @@ def step(tracker: Tracker, t: float, positions) -> list[Outcome]:
     return outcomes
 
 
-def settled(margin: float, density: float = DENSITY) -> tuple[Tracker, str, float]:
+def second_look(tracker: Tracker) -> SecondLook:
+    """The tracker's second-look stage (its doubts and counts)."""
+    return next(s for s in tracker.scan_associator.stages if isinstance(s, SecondLook))
+
+
+def settled(margin: float, density: float = DENSITY, max_accel: float = defaults.MAX_ACCEL
+            ) -> tuple[Tracker, str, float]:
     """A confirmed track on a straight flight, 15 scans; its id and the last scan's time.
     Targets up to 1,000 m/s: the doubtful offsets (about 2 km in 4 s) within the speed
-    gate (`ScanAssociator.reachable`), which at the default 340 m/s takes none of them."""
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, density), second_look=margin,
-                                    max_speed=1000.0))
+    gate (`stages.SpeedGate`), which at the default 340 m/s takes none of them; the second
+    look's reach `max_accel` (the stitcher's the default)."""
+    tracker = Tracker.from_config(TrackerConfig(
+        sensors=SensorModels(PD, density), second_look=margin, max_speed=1000.0,
+        max_accel=max_accel, stitch_reach=defaults.MAX_ACCEL))
     for k in range(15):
         step(tracker, k * PERIOD, [START + VEL * k * PERIOD])
     (track,) = tracker.store.where
@@ -96,7 +106,7 @@ def test_clutter_taken_in_a_missed_scan_is_undone_by_the_next():
         pos, vel = state(tracker, track)
         results[margin] = (np.linalg.norm(pos - (START + VEL * t2)),
                            np.linalg.norm(vel - VEL), sorted(tracker.store.where),
-                           tracker.scan_associator.second_look.reverted)
+                           tracker.counts()["reverted"])
     err, verr, ids, reverted = results[3.0]
     assert ids == [track] and reverted == 1
     assert err < 3 * SIGMA and verr < 30.0
@@ -116,7 +126,7 @@ def test_a_turn_confirmed_by_the_next_scan_is_kept():
     step(tracker, t2, [p2])
     p3 = p2 + VEL * PERIOD + [1.5 * dy, 0.0, 0.0]  # and on (p2 may be in doubt in turn)
     step(tracker, t2 + PERIOD, [p3])
-    assert tracker.scan_associator.second_look.reverted == 0
+    assert second_look(tracker).reverted == 0
     assert sorted(tracker.store.where) == [track]
     now = tracker.state(track)["t"]  # p2 taken, not missed; p3 taken or still in doubt
     assert now in (t2, t2 + PERIOD)
@@ -128,19 +138,18 @@ def test_a_deferred_update_puts_no_state_and_a_reachable_one_shows_at_once():
     nor returned as a state (nothing for tracks/) until the next scan; with the reach
     raised above it, the same update is shown and returned at once."""
     for reach, shown_now in ((98.0, False), (1e9, True)):
-        tracker, track, t = settled(3.0)
-        tracker.scan_associator.second_look.reach = reach
+        tracker, track, t = settled(3.0, max_accel=reach)
         t1 = t + PERIOD
         dy = doubtful_offset(tracker, track, t1)
         out = tracker.step(Unlabelled.of("r1", t1, [det(t1, START + VEL * t1 + [dy, 0.0, 0.0])]))
         ids = [i for block in out.states for i in block.ids]
         moved = np.linalg.norm(shown_at(tracker, track, t1) - (START + VEL * t1))
         assert (track in ids) == shown_now and (moved > 0.5 * dy) == shown_now, reach
-        assert tracker.scan_associator.second_look.deferred == (not shown_now)
+        assert second_look(tracker).deferred == (not shown_now)
         t2 = t1 + PERIOD  # the aircraft where it flies: the miss branch, either way
         step(tracker, t2, [START + VEL * t2])
         assert np.linalg.norm(state(tracker, track)[0] - (START + VEL * t2)) < 3 * SIGMA
-        assert tracker.scan_associator.second_look.reverted == 1
+        assert second_look(tracker).reverted == 1
 
 
 def test_a_doubt_of_a_track_deleted_meanwhile_is_dropped():
@@ -150,7 +159,7 @@ def test_a_doubt_of_a_track_deleted_meanwhile_is_dropped():
     t1 = t + PERIOD
     dy = doubtful_offset(tracker, track, t1)
     step(tracker, t1, [START + VEL * t1 + [dy, 0.0, 0.0]])
-    look = tracker.scan_associator.second_look
+    look = second_look(tracker)
     assert len(look.doubts) == 1
     k = 2
     while track in tracker.store.where:
@@ -169,9 +178,8 @@ def test_a_confident_detection_beyond_reach_is_weighed_by_the_next_scan(reach):
     doubt's at most), the update is shown at once, and the next scan, the aircraft where
     it flies, puts the track back: one track. Without the reach (0), the jump is kept and
     the aircraft starts a second track."""
-    tracker, track, t = settled(4.0, DENSITY / 100)
-    look = tracker.scan_associator.second_look
-    look.reach = reach
+    tracker, track, t = settled(4.0, DENSITY / 100, max_accel=reach)
+    look = second_look(tracker)
     t1, t2 = t + PERIOD, t + 2 * PERIOD
     dy = doubtful_offset(tracker, track, t1)
     assert dy > 0.5 * 98.0 * PERIOD**2 + 3 * np.sqrt(3) * SIGMA  # beyond reach
@@ -190,15 +198,15 @@ def test_a_confident_detection_beyond_reach_is_weighed_by_the_next_scan(reach):
 
 
 def test_a_turn_ending_in_a_missed_scan_keeps_its_track():
-    """A traced case at 4 s (the manoeuvres scenario, docs/accuracy.md "Manoeuvres"): a
-    4 g turn ends as a scan is missed, and the track takes a false detection 1.8 km off
-    with confidence (its wide manoeuvre mode still allows the turn); the aircraft's
-    detections at the next scan put it back. Without the second look the aircraft starts
-    a second track there and is not held at 2 of its 46 scans."""
-    tracker = Tracker()
+    """The traced break of issue 30 at 4 s (docs/accuracy.md, "Far detections weighed
+    too"): a 4 g turn ends as a scan is missed, and the track takes a false detection
+    1.8 km off with confidence (its wide manoeuvre mode still allows the turn); the
+    aircraft's detections at the next scan put it back. Before, the aircraft started a
+    second track there and was not held at 2 of its 46 scans."""
+    tracker = Tracker.from_config()
     aircraft = manoeuvre_runs.aircraft(tracker, 4.0, 12, "4g-0")
     assert aircraft.breaks == 0 and aircraft.held == aircraft.scans
-    assert tracker.scan_associator.second_look.reverted >= 1
+    assert second_look(tracker).reverted >= 1
 
 
 def test_a_detection_passed_over_by_a_hair_gets_a_second_chance():
@@ -208,13 +216,13 @@ def test_a_detection_passed_over_by_a_hair_gets_a_second_chance():
     it: the aircraft is held at every scan with one id (without the second look: a scan
     not held and a second id)."""
     def run(second_look: float | None) -> tuple[Tracker, object]:
-        tracker = Tracker() if second_look is None else \
-            Tracker(TrackerConfig(second_look=second_look))
+        tracker = Tracker.from_config() if second_look is None else \
+            Tracker.from_config(TrackerConfig(second_look=second_look))
         return tracker, manoeuvre_runs.aircraft(tracker, 10.0, 23, "standard-rate-1")
 
     tracker, aircraft = run(None)
     assert aircraft.breaks == 0 and aircraft.held == aircraft.scans
-    look = tracker.scan_associator.second_look
+    look = second_look(tracker)
     assert look.chances >= 1 and look.retaken >= 1
     _, without = run(0.0)
     assert without.breaks == 1 and without.held < without.scans

@@ -43,7 +43,7 @@ def test_a_far_doubtful_detection_is_not_put_until_the_next_scan(service_factory
 
     sub = s.declare_subscriber("track/tracks/*", on_tracks)
     # the same inputs; targets up to 1,000 m/s, as test_second_look.settled (the speed gate)
-    mirror = Tracker(TrackerConfig(sensors=SensorModels(PD, DENSITY), max_speed=1000.0))
+    mirror = Tracker.from_config(TrackerConfig(sensors=SensorModels(PD, DENSITY), max_speed=1000.0))
     for k in range(15):
         t = k * PERIOD
         plots(s, t, [START + VEL * t])

@@ -35,7 +35,7 @@ def flown(reach: float | None = None, other: bool = False) -> tuple[Tracker, lis
     cfg = TrackerConfig(sensors=SensorModels(PD, DENSITY))
     if reach is not None:
         cfg = TrackerConfig(sensors=SensorModels(PD, DENSITY), stitch_reach=reach)
-    tracker = Tracker(cfg)
+    tracker = Tracker.from_config(cfg)
     side = np.array([2_000.0, 0.0, 0.0])
     for k in range(15):
         p = START + VEL * k * PERIOD
@@ -56,7 +56,7 @@ def test_a_track_found_again_on_a_new_heading_keeps_its_id():
     found = START + VEL * 16 * PERIOD + AWAY + NEW_VEL * 4 * PERIOD
     assert np.linalg.norm(arrays.x[row, :3] - found) < 4 * SIGMA
     assert arrays.updates[row] == 15 + 5 and arrays.t_first[row] == 0.0
-    assert tracker.stitcher.joined == 1
+    assert tracker.counts()["continued"] == 1
     # the scan that confirmed the new track: its id announced deleted, its state renamed
     joined = outs[4]  # scan 19: detected at 3 of 17, 18, 19
     assert joined.deleted == ["r1-2"]
@@ -67,18 +67,18 @@ def test_a_track_found_again_on_a_new_heading_keeps_its_id():
 
 def test_two_lost_tracks_that_could_both_go_on_are_not_joined():
     tracker, _ = flown(other=True)
-    assert tracker.stitcher.joined == 0
+    assert tracker.counts()["continued"] == 0
     assert set(tracker.store.where) == {"r1-3"}  # both lost tracks deleted meanwhile
 
 
 def test_a_target_beside_a_tracked_one_starts_its_own_track():
     """A second aircraft 1 km beside a tracked one, seen from scan 10: the tracked one is
     detected at every scan, so the new track is another aircraft, not a continuation."""
-    tracker = Tracker(TrackerConfig(sensors=SensorModels(PD, DENSITY)))
+    tracker = Tracker.from_config(TrackerConfig(sensors=SensorModels(PD, DENSITY)))
     for k in range(20):
         p = START + VEL * k * PERIOD
         scan(tracker, k, [p, p + [1_000.0, 0.0, 0.0]] if k >= 10 else [p])
-    assert tracker.stitcher.joined == 0 and len(tracker.store) == 2
+    assert tracker.counts()["continued"] == 0 and len(tracker.store) == 2
 
 
 def test_a_4g_aircraft_at_10_s_keeps_one_track():
@@ -89,17 +89,13 @@ def test_a_4g_aircraft_at_10_s_keeps_one_track():
     id takes it (which continuation would give the lost track's id)."""
     import dataclasses
 
-    from zenoh_track.tracking.display import DISPLAY_COLUMNS
-    from zenoh_track.tracking.life import LIFE_COLUMNS
-    from zenoh_track.tracking.store import TrackStore
-
     def breaks(reach: float | None, bounded: bool = True) -> int:
-        tracker = Tracker() if reach is None else Tracker(TrackerConfig(stitch_reach=reach))
+        config = TrackerConfig() if reach is None else TrackerConfig(stitch_reach=reach)
+        built = config.filter.build()
         if not bounded:
-            tracker.updater = dataclasses.replace(tracker.updater, dv_cap=0.0)
-            tracker.store = TrackStore(tracker.updater.order, tracker.updater.fields,
-                                       {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
-            tracker.scan_associator.predict = tracker.updater.gate_prediction
+            built = dataclasses.replace(built, updater=dataclasses.replace(built.updater,
+                                                                           dv_cap=0.0))
+        tracker = Tracker.from_config(config, filter=built)
         return manoeuvre_runs.aircraft(tracker, 10.0, 11, "4g-1").breaks
 
     assert breaks(0.0) == 0 and breaks(None) == 0

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from zenoh_track.adapter.schedule import Lockstep
+from zenoh_track.adapter.clocks import Lockstep
 from zenoh_track.adapter.timeline import Timeline
 
 

@@ -91,7 +91,8 @@ def test_a_burst_behind_a_query_comes_in_batches_of_at_most_max_batch_in_order()
     svc = None
     try:
         keys = Keys("mb")
-        svc = TrackService(session, keys, Tracker(), clock="lockstep")  # worker not started
+        # the worker not started
+        svc = TrackService(session, keys, Tracker.from_config(), clock="lockstep")
         pub = feed.declare_publisher(keys.meas("r1", "probe"))
         assert poll(lambda: pub.matching_status.matching)
         n = 2500

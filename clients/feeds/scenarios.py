@@ -1,4 +1,5 @@
-"""The reference problems of SCENARIOS.md as measurement generators (client side).
+"""The three reference problems of docs/scenarios.md (its "Sources" name the papers) as
+measurement generators (client side).
 
 Each scenario yields scans: (t, [(target, measurement map)], [(target, truth map)]).
 Monte Carlo runs are independent targets named `<scenario>-<run>`.
@@ -42,7 +43,7 @@ def _truth(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray | None = None) -> d
 
 # ---------------------------------------------------------------- A: 30 Hz display
 class FlightA:
-    """Scenario A's manoeuvring body (seeds/000), integrated on a 1 ms grid.
+    """Scenario A's manoeuvring body (docs/scenarios.md, A), integrated on a 1 ms grid.
 
     Phases: 0-5 s accelerate 2 m/s^2 North from rest; 5-18 s pitch up to 5 deg, hold,
     back to 0; 18-20 s roll in; 20-30 s right turn at 3 deg/s (30 deg); 30-32 s roll out;
@@ -117,7 +118,8 @@ def radar3d(runs: int = 1, seed: int = 0, cfg: RadarB = RadarB()) -> Iterator[Sc
 
 # ---------------------------------------------------------------- C: manoeuvring target
 class ManeuverC:
-    """Scenario C's 2-D trajectory (seeds/002): exact piecewise-constant accelerations."""
+    """Scenario C's 2-D trajectory (docs/scenarios.md, C: Xu & Wang, Journal of Xinxiang
+    University 27(1), 2010): exact piecewise-constant accelerations."""
 
     start = (4000.0, 4000.0, -18.0, 0.0)
     # (from t, acceleration x, y)

@@ -20,7 +20,7 @@ GUIDANCE = ("pure", "pn", "intercept")
 PN_FORMS = ("true", "pure")
 DEFAULT_START = (7000.0, 6000.0)
 DEFAULT_SPEED = 20.0
-DEFAULT_CAPTURE = 2.55  # m: the interceptor-target distance of seeds/002
+DEFAULT_CAPTURE = 2.55  # m: the paper's capture distance (docs/scenarios.md, C)
 EPS_T = 1e-6
 
 

@@ -28,6 +28,7 @@ class Admit:
         self.timeline = Timeline(max_jump)
         self.reorder: ReorderBuffer[tuple[str, Any]] = ReorderBuffer(reorder)
         self.last_seq: dict[str, int] = {}
+        self.newest: float | None = None  # the newest input time taken
 
     # ------------------------------------------------------------ the time policy
     def time(self, t: float, wall: float, tracks: int) -> tuple[str | None, bool, float | None]:
@@ -35,26 +36,37 @@ class Admit:
         held: why it is refused (None: taken), whether it starts a new timeline, and the
         picture's time it was judged against. Taken, call `taken(t)` (after the new
         timeline, if any, has started)."""
-        now = self.clock.picture(wall)
+        now = self.picture(wall)
         reason, jump = self.timeline.admit(t, now, tracks)
         return reason, jump, now
 
+    def picture(self, wall: float) -> float | None:
+        """The picture's time for an input arriving at `wall` (the clock's)."""
+        return self.clock.picture(wall, self.newest)
+
     def taken(self, t: float) -> None:
-        self.clock.taken(t)
+        """An input of time t was admitted."""
+        if self.newest is None or t > self.newest:
+            self.newest = t
+
+    def restart(self, t: float) -> None:
+        """A new timeline at time t: the picture there, the clock started afresh."""
+        self.newest = t
+        self.clock.restart(t)
 
     def near(self, t: np.ndarray, walls: list[float]) -> bool:
         """Whether inputs of times t received at `walls` are all within --max-jump of the
         picture's time and of each other (then the time policy takes each of them)."""
         lo, hi = float(t.min()), float(t.max())
-        first = self.clock.picture(min(walls))
+        first = self.picture(min(walls))
         if first is not None:
-            lo, hi = min(lo, first), max(hi, self.clock.picture(max(walls)))  # type: ignore[arg-type]
+            lo, hi = min(lo, first), max(hi, self.picture(max(walls)))  # type: ignore[arg-type]
         return hi - lo <= self.timeline.max_jump
 
     def all_near(self, t: np.ndarray, wall: float) -> bool:
         """Whether the rows of times t of one input received at `wall` are all within
         --max-jump of the picture's time (then one admission, at the newest, takes all)."""
-        now = self.clock.picture(wall)
+        now = self.picture(wall)
         lo, hi = float(t.min()), float(t.max())
         return now is not None and max(abs(lo - now), abs(hi - now)) <= self.timeline.max_jump
 

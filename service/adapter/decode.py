@@ -11,7 +11,7 @@ from typing import Any
 
 from ..wire import Keys, Rejected, parse_clock, parse_plots, parse_scan_columns, parse_singles
 from ..wire.scans import ScanColumns
-from .ingest import ClockMessage, Plots, Scan, Singles
+from .ingest import ClockMessage, LabelledScan, Plots, Singles
 from .layouts import by_layout
 
 KEYS_HELD = 1 << 20  # measurement keys whose chunks are remembered (`Decoder.meas_key`)
@@ -85,7 +85,7 @@ class Decoder:
         self.key_parts[key] = parts
         return parts
 
-    def scan(self, item: Scan) -> tuple[str, ScanColumns | None, str | None]:
+    def scan(self, item: LabelledScan) -> tuple[str, ScanColumns | None, str | None]:
         """A batched labelled scan: (sensor, its rows as columns or None, why not)."""
         return self._parsed(item.key, "scan", "batched scan", parse_scan_columns,
                             item.payload)

@@ -81,7 +81,7 @@ class Message:
     wall: float
 
 
-class Scan(Message):
+class LabelledScan(Message):
     """A batched labelled scan, `<ns>/scan/<sensor>` (rows as columns)."""
 
     __slots__ = ()
@@ -118,8 +118,8 @@ class Wake:
     key = ""
 
 
-Input = Singles | Scan | Plots | ClockMessage | Query | Wake
-Measurement = Singles | Scan | Plots
+Input = Singles | LabelledScan | Plots | ClockMessage | Query | Wake
+Measurement = Singles | LabelledScan | Plots
 
 
 def size(item: Input) -> int:
@@ -201,7 +201,7 @@ class Ingest:
               for k in (meas_keys or [keys.space("meas")])),
             *((Plots, session.declare_subscriber(k, fifo(CHANNEL)))
               for k in (plot_keys or [keys.plots("*")])),
-            *((Scan, session.declare_subscriber(k, fifo(CHANNEL)))
+            *((LabelledScan, session.declare_subscriber(k, fifo(CHANNEL)))
               for k in (scan_keys or [keys.scan("*")]))]
         self.empty_at = [-math.inf] * len(self.channels)  # when each was last found empty
         self.subs = [

@@ -17,17 +17,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from .. import defaults
-from ..tracking.batches import StepOutcome as BatchOutcome
+from ..tracking.batches import StepOutcome
 from ..tracking.display import Snapshot
 from ..tracking.noise_check import NoiseCheck
 from ..tracking.store import States
 from ..wire import CHUNK, MSGPACK_ENCODING, Keys, pack, reason_code
 from .encode import pack_displays, pack_frame, pack_states, pack_tracks
 from .listeners import Listeners
-from .senders import FrameSender, InlineTrackSender, TrackSender
+from .schedule import Publishing
 
-__all__ = ["Counters", "FrameSender", "Publisher"]
+__all__ = ["Counters", "Publisher"]
 
 MSGPACK = zenoh.Encoding(MSGPACK_ENCODING)
 
@@ -53,34 +52,31 @@ class Counters:
 
 
 class Publisher:
-    """Everything the service puts. `anytime` (frames on the wall clock, `Clock.anytime`):
-    display keys may drop under congestion (a stale frame is worthless) and frames go out
-    from a thread of their own; `tracks/`, `states`, deletions and errors never drop.
+    """Everything the service puts, as its clock's `publishing` says: the display keys'
+    congestion control (a realtime frame may drop: a stale frame is worthless) and the
+    senders of frames and states; `tracks/`, `states`, deletions and errors never drop.
     `per_target_display` False: no `display/<id>` even when someone listens. `instance`
     (the liveliness name) goes into every frame: clients merge several instances' frames
     by it."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys, anytime: bool,
+    def __init__(self, session: zenoh.Session, keys: Keys, publishing: Publishing,
                  per_target_display: bool, instance: str | None = None) -> None:
         self.session, self.keys, self.instance = session, keys, instance
         self.per_target_display = per_target_display
         self.count = Counters()
         self.log_after = 0.0  # wall time before which no rejection is logged
         cc = zenoh.CongestionControl
-        self.display_cc = cc.DROP if anytime else cc.BLOCK
+        self.display_cc = publishing.display_cc
         self.block = cc.BLOCK
         self.pub_frame = session.declare_publisher(keys.frame, congestion_control=self.display_cc,
                                                    encoding=MSGPACK)
-        # realtime frames and tracks/ go out from threads of their own (the worker never
-        # waits on a slow subscriber); lockstep ones in order, here
-        self.sender = FrameSender(self.pub_frame) if anytime else None
-        self.track_sender = TrackSender(session, MSGPACK) if anytime else \
-            InlineTrackSender(session, MSGPACK)
+        self.sender = publishing.frame_sender(self.pub_frame)
+        self.track_sender = publishing.track_sender(session, MSGPACK)
         self.pub_states = session.declare_publisher(keys.states, congestion_control=self.block,
                                                     encoding=MSGPACK)
-        # who listens is read again every `refresh` s; at every step when frames follow the
-        # inputs (a replay must not miss a subscriber)
-        refresh = defaults.LISTENERS_REFRESH if anytime else 0.0
+        # who listens is read again every `refresh` s (0: at every step: a replay must not
+        # miss a subscriber)
+        refresh = publishing.refresh
         self.display_listeners = Listeners(session, keys.display("").rstrip("/"), refresh)
         self.track_listeners = Listeners(session, keys.tracks("").rstrip("/"), refresh)
         # key expressions of each track's display/ and tracks/ keys, made once per track;
@@ -109,7 +105,7 @@ class Publisher:
     @property
     def replaced(self) -> int:
         """Frames replaced by a newer one before they went out (`FrameSender`)."""
-        return 0 if self.sender is None else self.sender.replaced
+        return self.sender.replaced
 
     def noise(self, check: NoiseCheck) -> None:
         """Each sensor whose stated noise is far off, on `errors/<sensor>` (code `noise`,
@@ -129,13 +125,12 @@ class Publisher:
         self.track_listeners.look()
 
     def close(self) -> None:
-        if self.sender is not None:
-            self.sender.close()
+        self.sender.close()
         self.track_sender.close()
         self.display_listeners.close()
         self.track_listeners.close()
 
-    def scan(self, key: str, sensor: str, outcome: BatchOutcome) -> None:
+    def scan(self, key: str, sensor: str, outcome: StepOutcome) -> None:
         """Count and report the outcome of an unlabelled scan's detections (a rejection
         on the scan's key) and put the states of the tracks they updated or started."""
         for _, reason in outcome.rejected:
@@ -158,7 +153,7 @@ class Publisher:
         """Whether anyone listens to `tracks/` or `states` (else no state is put)."""
         return not self.track_listeners.none or self.pub_states.matching_status.matching
 
-    def batch(self, sensor: str | list[str], ids: list[str], outcome: BatchOutcome) -> None:
+    def batch(self, sensor: str | list[str], ids: list[str], outcome: StepOutcome) -> None:
         """Count and report the outcome of labelled rows (`ids`: the rows' target ids,
         `sensor`: of all rows or of each; a rejection is reported on the row's own `meas/`
         key, as for a single message) and put the states of the tracks they updated."""
@@ -213,7 +208,7 @@ class Publisher:
             self.frame_ids = (snap.ids, pack(snap.ids))
         frame = pack_frame(t, self.frame_ids[1], snap.pos, snap.vel, snap.sigma, snap.codes,
                            self.instance)
-        (self.sender or self.pub_frame).put(frame)
+        self.sender.put(frame)
         self.latest = (frame, snap)
         if self.wants_display and len(snap.ids):
             rows = self.display_listeners.rows(snap.ids)

@@ -19,22 +19,22 @@ from .publish import MSGPACK, Publisher
 from .schedule import Clock
 
 if TYPE_CHECKING:
-    from .steps import Tracking
+    from .steps import TrackerCalls
 
 
 class Queries:
     """What a service answers about itself and its tracks."""
 
-    def __init__(self, keys: Keys, tracking: Tracking, out: Publisher, clock: Clock,
+    def __init__(self, keys: Keys, calls: TrackerCalls, out: Publisher, clock: Clock,
                  admit: Admit, ingest: Ingest, instance: str, rate: float) -> None:
-        self.keys, self.tracking, self.out, self.clock = keys, tracking, out, clock
+        self.keys, self.calls, self.out, self.clock = keys, calls, out, clock
         self.admit, self.ingest, self.instance, self.rate = admit, ingest, instance, rate
         self.started = time.monotonic()
 
     def status(self) -> dict[str, Any]:
         c = self.out.count
         return {
-            "tracks": len(self.tracking), "meas_accepted": c.meas_accepted,
+            "tracks": len(self.calls), "meas_accepted": c.meas_accepted,
             "meas_rejected": c.meas_rejected, "frames_published": c.frames_published,
             "uptime_s": time.monotonic() - self.started, "version": __version__,
             "kernels": jit.state(),
@@ -48,9 +48,9 @@ class Queries:
             "states_withheld": c.states_withheld,
             "scans_applied": c.scans_applied, "scans_held": len(self.admit),
             "rejected_by_reason": dict(c.by_reason),
-            "sensor_noise": self.tracking.noise.status(),
-            "second_look": self.tracking.second_look(),
-            "tracks_continued": self.tracking.continued(),
+            "sensor_noise": self.calls.noise.status(),
+            "second_look": self.calls.second_look(),
+            "tracks_continued": self.calls.continued(),
             "display_puts": c.display_puts, "tracks_puts": c.tracks_puts,
             "queue": self.ingest.waiting(),
         }
@@ -72,16 +72,16 @@ class Queries:
             elif kind == "display":
                 sel = zenoh.KeyExpr(str(query.key_expr))
                 for track_id, body in zip(*self.out.latest_displays(), strict=True):
-                    if self.tracking.has(track_id):  # not deleted since
+                    if self.calls.has(track_id):  # not deleted since
                         key = zenoh.KeyExpr(self.keys.display(track_id))
                         if sel.intersects(key):
                             query.reply(key, body, encoding=MSGPACK)
             else:
                 sel = zenoh.KeyExpr(str(query.key_expr))
-                for track_id in self.tracking.ids():
+                for track_id in self.calls.ids():
                     key = zenoh.KeyExpr(self.keys.tracks(track_id))
                     if sel.intersects(key):
-                        query.reply(key, pack(self.tracking.state(track_id)),
+                        query.reply(key, pack(self.calls.state(track_id)),
                                     encoding=MSGPACK)
         finally:
             query.drop()

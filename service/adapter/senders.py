@@ -1,15 +1,14 @@
-"""The threads that put a realtime service's outputs, so that the worker never waits on
-Zenoh: `FrameSender` (the 30 Hz `frame`) and `TrackSender` (`tracks/<id>` and the
-deletions of the tracks' keys).
+"""The senders of the service's frames and `tracks/` states. A realtime service puts them
+from threads of their own, so that the worker never waits on Zenoh: `FrameSender` (the
+30 Hz `frame`) and `TrackSender` (`tracks/<id>` and the deletions of the tracks' keys);
+a lockstep one puts them in line (`InlineFrameSender`, `InlineTrackSender`).
 
-A put with congestion control BLOCK waits while the link's queue is full, that is as long
-as the slowest subscriber takes to read what is queued: a Python subscriber of
-`tracks/**` reads about 100,000 messages a second, so a burst of 10,000 states held the
-worker for ~100 ms, and the frames and the next rows with it. Now the worker encodes the
-bodies and hands them over in order; the sender puts them with the GIL released while
-Zenoh waits, and the worker goes on with the next part and the frames. Nothing is
-dropped: when more than `defaults.TRACKS_QUEUE` messages wait, the worker waits too
-(BLOCK, as before, only later).
+A put with congestion control BLOCK waits as long as the slowest subscriber takes to read
+what is queued (a Python subscriber of `tracks/**` reads about 100,000 messages a second):
+the worker encodes the bodies and hands them over in order, and the sender puts them
+with the GIL released while Zenoh waits. Nothing is dropped: beyond
+`defaults.TRACKS_QUEUE` messages waiting, the worker waits too. docs/performance.md
+gives the figures.
 """
 
 from __future__ import annotations
@@ -168,6 +167,22 @@ class InlineTrackSender:
 
     def idle(self) -> bool:
         return True
+
+    def close(self) -> None:
+        """Nothing waits."""
+
+
+class InlineFrameSender:
+    """`FrameSender`'s put made at once, on the caller's thread: a lockstep service's
+    frames, in line with everything else it puts (none is ever replaced)."""
+
+    replaced = 0
+
+    def __init__(self, pub: zenoh.Publisher) -> None:
+        self.pub = pub
+
+    def put(self, body: bytes) -> None:
+        self.pub.put(body)
 
     def close(self) -> None:
         """Nothing waits."""

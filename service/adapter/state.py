@@ -16,24 +16,25 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from .. import defaults
 from ..tracking import checkpoint
 from ..wire.cli import fail
 
-if TYPE_CHECKING:
-    from .worker import TrackService
-
 log = logging.getLogger("track-service")
 
 
 class StateFile:
-    """The state file of one service: periodic checkpoints, written off the worker."""
+    """The state file of one service: periodic checkpoints, written off the worker.
+    `capture()` copies the service's checkpoint on the thread that owns the tracker
+    (`TrackService.checkpoint`)."""
 
-    def __init__(self, path: str | Path, period: float = defaults.STATE_PERIOD) -> None:
-        self.path = Path(path)
+    def __init__(self, path: str | Path, capture: Callable[[], Any],
+                 period: float = defaults.STATE_PERIOD) -> None:
+        self.path, self.capture = Path(path), capture
         self.period = period
         self.next_due = time.monotonic() + period
         self.pending: Any = None  # a checkpoint.capture waiting for the writer
@@ -45,16 +46,16 @@ class StateFile:
         self.writer.start()
 
     # ------------------------------------------------------------ worker side
-    def tick(self, svc: TrackService) -> None:
+    def tick(self) -> None:
         """On the worker thread: a checkpoint when one is due."""
         now = time.monotonic()
         if now >= self.next_due:
             self.next_due = now + self.period
-            self._hand_over(svc.checkpoint())
+            self._hand_over(self.capture())
 
-    def final(self, svc: TrackService) -> None:
+    def final(self) -> None:
         """The last checkpoint, once the worker has stopped; written before returning."""
-        data = svc.checkpoint()
+        data = self.capture()
         with self.cond:
             self.closed, self.pending = True, None
             self.cond.notify_all()
@@ -90,11 +91,13 @@ class StateFile:
         self.writes += 1
 
     # ------------------------------------------------------------ start
-    def restore(self, svc: TrackService) -> str:
-        """Read the file into the service (before it starts); the line to print. A file
-        that cannot be read or a place that cannot be written is an operator's mistake:
-        one line and exit 2 (`wire.cli.fail`). A file that is not a checkpoint this service can take
-        is set aside as PATH.refused, and the service starts empty."""
+    def restore(self, take: Callable[[bytes], tuple[int, float, str]]) -> str:
+        """Read the file and hand it to `take` (`TrackService.restore`, before the worker
+        starts: the tracks restored, the checkpoint's age, a note); the line to print. A
+        file that cannot be read or a place that cannot be written is an operator's
+        mistake: one line and exit 2 (`wire.cli.fail`). A file that is not a checkpoint
+        this service can take is set aside as PATH.refused, and the service starts
+        empty."""
         where = self.path.parent
         if self.path.is_dir() or not where.is_dir() or not os.access(where, os.W_OK):
             fail(f"cannot write the state file {self.path} (not a file in a writable "
@@ -106,7 +109,7 @@ class StateFile:
         except OSError as exc:
             fail(f"cannot read the state file {self.path}: {exc.strerror}")
         try:
-            tracks, age, note = svc.restore(data)
+            tracks, age, note = take(data)
         except checkpoint.CheckpointError as exc:
             refused = self.path.with_name(self.path.name + ".refused")
             os.replace(self.path, refused)

@@ -10,6 +10,7 @@ from .. import defaults
 from .ekf import EKFConversion
 from .filters import Convert, SingleModelFilter
 from .imm import IMM, ModeSet
+from .imm_jit import CompiledIMM
 from .measurements import MeasurementBatch
 from .ucm import CMKFConversion
 from .vdf import VDF
@@ -29,6 +30,7 @@ class Filter:
     updater: SingleModelFilter | IMM | VDF
     q: float
     conversion: Conversion
+    name: str = ""  # its name in `FILTERS` (a checkpoint's tracker must have the same)
 
 
 @dataclass(frozen=True)
@@ -61,13 +63,13 @@ class FilterSpec:
             modes = ModeSet(q=q, sojourn=self.imm_sojourn, ct_q=self.imm_ct_q,
                             turn_deg=self.imm_turn, onset=self.imm_onset,
                             manoeuvre=defaults.IMM_MANOEUVRE + turn)
-            return Filter(modes.imm(), q, CMKFConversion)
+            return Filter(modes.imm(CompiledIMM), q, CMKFConversion, self.name)
         if self.name == "vdf":
             return Filter(VDF(detect=self.vdf_detect, settle=self.vdf_settle), 0.0,
-                          CMKFConversion)
+                          CMKFConversion, self.name)
         if self.name == "ca":
             q = defaults.Q_CA if self.q is None else self.q
-            return Filter(SingleModelFilter("ca", q, 3), q, CMKFConversion)
+            return Filter(SingleModelFilter("ca", q, 3), q, CMKFConversion, self.name)
         q = defaults.Q_CV if self.q is None else self.q
         return Filter(SingleModelFilter("cv", q, 2), q,
-                      EKFConversion if self.name == "ekf" else CMKFConversion)
+                      EKFConversion if self.name == "ekf" else CMKFConversion, self.name)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -74,6 +74,12 @@ class SingleModelFilter:
             f, qm = models.motion(self.kind, dt, self.order, arrays.dim, self.q)
             xp, pp = predict(arrays.x[rows], arrays.p[rows], f, qm)
         return kalman.update(xp, pp, *convert(xp, pp))
+
+    def update_pda(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, weighted: Any
+                   ) -> None:
+        """No update by weighted detections of its own: the tracker's equivalent
+        measurement serves."""
+        return None
 
     def inflate(self, arrays: Rows, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the covariances of rows: nothing more is kept."""

@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .. import defaults
-from . import imm_jit, jit, kalman, models, pda, turn
+from . import kalman, models, pda, turn
 from .batch import einsum
 from .filters import Convert, Result, Rows, moments, predict
-from .ucm import CMKFConversion
 
 Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct", "turn"), q, omega (rad/s)
 ACCELERATING = ("ca", "turn")  # the kinds whose acceleration is estimated
@@ -25,7 +24,7 @@ class ModeSet:
     `manoeuvre` (kind "cv", "ca" or "turn" and its white noise, m/s^2 or m/s^3, or "ct",
     its noise and its turn rate in deg/s), plus, with `turn_deg` > 0,
     coordinated turns at +- `turn_deg` deg/s with `ct_q` x q. Quiet <-> nominal <-> CA
-    (and turns) are chained as before: the quiet and nominal modes are left for each
+    (and turns) are chained: the quiet and nominal modes are left for each
     other and the CA mode in `sojourn` s on average, the CA (and turn) modes in
     `manoeuvre_sojourn` s. Besides, every one of those modes enters the manoeuvre modes
     at the rate 1 / `onset` (shared evenly; a "ct" one `ct_entry` times as often), and
@@ -51,7 +50,9 @@ class ModeSet:
     exit_quiet: float = defaults.IMM_EXIT_QUIET
     dv_cap: float = defaults.IMM_WIDE_DV
 
-    def imm(self) -> IMM:
+    def imm(self, kind: type[IMM] | None = None) -> IMM:
+        """The IMM of this design (`kind`: the class built, `IMM` by default; the
+        catalogue builds `imm_jit.CompiledIMM`)."""
         modes: list[Mode] = [("quiet", "cv", self.quiet_q, 0.0), ("cv", "cv", self.q, 0.0),
                              ("ca", "ca", self.ca_q, 0.0)]
         if self.turn_deg > 0:
@@ -78,21 +79,9 @@ class ModeSet:
         quiet, nominal, manoeuvre, *turns = (*self.initial, 0.0)[:4]
         initial = (quiet, nominal, *[manoeuvre / (b - 2)] * (b - 2), *[turns[0] / k] * k) \
             if k else (quiet, nominal, *[(manoeuvre + turns[0]) / (b - 2)] * (b - 2))
-        return IMM(tuple(modes), tuple((1.0 / total).tolist()),
-                   tuple(map(tuple, (rate / total[:, None]).tolist())), initial,
-                   dv_cap=self.dv_cap)
-
-
-def standard_modes(q: float = defaults.Q_CV, ct_q: float = 3.0, turn_deg: float = 1.8
-                   ) -> tuple[Mode, ...]:
-    """The modes of the IMM the service used by default before the quiet/nominal/CA set
-    of `ModeSet` (a bare `IMM()`'s, and bench/imm_design.py's "old"): (name, kind, q,
-    omega) of CV and CA with white noise `q` (m/s^2 for CV, m/s^3 for CA) and
-    coordinated turns at +- `turn_deg` deg/s with `ct_q` x q (sojourn 200 s, evenly
-    left)."""
-    w = np.radians(turn_deg)
-    return (("cv", "cv", q, 0.0), ("ca", "ca", q, 0.0),
-            ("ct+", "ct", ct_q * q, w), ("ct-", "ct", ct_q * q, -w))
+        return (kind or IMM)(tuple(modes), tuple((1.0 / total).tolist()),
+                             tuple(map(tuple, (rate / total[:, None]).tolist())), initial,
+                             dv_cap=self.dv_cap)
 
 
 @dataclass(frozen=True)
@@ -113,14 +102,15 @@ class IMM:
     quiet modes do not pull the manoeuvre mode's acceleration toward zero. The converted
     measurement's covariance R is averaged over the mixture of the modes' predictions and
     shared by the modes (`mode_conversion`: each over its own prediction instead).
+    This is the textbook form, the reference of the compiled one (`imm_jit.CompiledIMM`,
+    which the catalogue builds).
     """
 
-    modes: Sequence[Mode] = field(default_factory=lambda: standard_modes())
+    modes: Sequence[Mode]
     sojourn: float | Sequence[float] = 200.0
     leave: Sequence[Sequence[float]] | None = None
     initial: Sequence[float] | None = None
-    unbiased_mixing: bool = True  # False: zero padding (the ablation of docs/accuracy.md)
-    mode_conversion: bool = defaults.IMM_MODE_R  # True: each mode's own R (ablation)
+    mode_conversion: bool = defaults.IMM_MODE_R  # True: each mode's own R
     gate_wide: float = defaults.IMM_GATE_WIDE  # association's prior of the widest mode
     turn_cap: float = defaults.IMM_TURN_CAP  # rad/s: a "turn" mode's rate at most
     dv_cap: float = defaults.IMM_WIDE_DV  # m/s: a CV mode's q |dt| at most (0: unbounded)
@@ -145,30 +135,30 @@ class IMM:
         m = len(self.modes)
         tau = np.broadcast_to(np.asarray(self.sojourn, dtype=float), (m,))
         stay = np.exp(-np.abs(np.asarray(dt, dtype=float))[:, None] / tau)  # (N, m)
-        dest = np.ones((m, m)) if self.leave is None else np.array(self.leave, dtype=float)
-        dest[np.arange(m), np.arange(m)] = 0.0
-        dest /= np.maximum(dest.sum(1, keepdims=True), 1e-300)
-        pi = (1 - stay)[:, :, None] * dest
+        pi = (1 - stay)[:, :, None] * self.destinations()
         idx = np.arange(m)
         pi[:, idx, idx] = stay
         return pi
 
+    def destinations(self) -> np.ndarray:
+        """Where a mode left goes (M, M): `leave` normalised per row, never itself (None:
+        evenly); as the compiled kernel reads it too (`imm_jit.design`)."""
+        m = len(self.modes)
+        dest = np.ones((m, m)) if self.leave is None else np.array(self.leave, dtype=float)
+        dest[np.arange(m), np.arange(m)] = 0.0
+        dest /= np.maximum(dest.sum(1, keepdims=True), 1e-300)
+        return dest
+
     def mix(self, mx: np.ndarray, mp: np.ndarray, mu: np.ndarray, pi: np.ndarray, dim: int
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted mode probabilities c (N, M) and the mixed initial conditions
-        x0 (N, M, n), P0 (N, M, n, n) of every mode: x0_j = sum_i w_ij x_i and
-        P0_j = sum_i w_ij (P_i + (x_i - x0_j)(x_i - x0_j)'), as batched matrix products."""
+        x0 (N, M, n), P0 (N, M, n, n) of every mode (`mix_moments`), a mode with an
+        acceleration mixing the others padded with its own (unbiased mixing)."""
         n_rows, m, n = mx.shape
-        c = einsum("nij,ni->nj", pi, mu)  # predicted mode probabilities
-        w = pi * mu[:, :, None] / np.maximum(c[:, None, :], 1e-300)  # mixing mu_{i|j}
-        wt = w.transpose(0, 2, 1)  # (N, j, i)
-        x0 = wt @ mx
-        d = mx[:, :, None] - x0[:, None]  # (N, i, j, n): x_i about mode j's mix
-        p0 = (wt @ mp.reshape(n_rows, m, n * n)).reshape(n_rows, m, n, n) \
-            + (w[..., None] * d).transpose(0, 2, 3, 1) @ d.transpose(0, 2, 1, 3)
+        c, w, x0, p0 = mix_moments(mx, mp, mu, pi)
         acc = slice(2 * dim, 3 * dim)
         has = np.array([kind in ACCELERATING for _, kind, _, _ in self.modes])
-        if self.unbiased_mixing and has.any() and not has.all():
+        if has.any() and not has.all():
             for j in np.flatnonzero(has).tolist():  # pad the others with j's acceleration
                 xs, ps = mx.copy(), mp.copy()
                 xs[:, ~has, acc] = mx[:, j, None, acc]
@@ -196,13 +186,17 @@ class IMM:
         xp = (f @ x0[:, :, None])[:, :, 0]
         return xp, kalman.symmetrise(jac @ p0 @ jac.transpose(0, 2, 1) + qm)
 
-    def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
-        if jit.ready() and isinstance(convert, CMKFConversion) and imm_jit.applies(self):
-            return imm_jit.step(self, arrays, rows, dt, convert.batch)  # the same, compiled
+    def predicted(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray
+                  ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+        """The rows' predicted mode probabilities c (N, M) and each mode's prediction
+        over dt from its mixed initial conditions: (x (N, n), P (N, n, n)) per mode."""
         mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
         c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
-        preds = [self.predict_mode(j, dt, x0[:, j], p0[:, j], arrays.dim)
-                 for j in range(len(self.modes))]
+        return c, [self.predict_mode(j, dt, x0[:, j], p0[:, j], arrays.dim)
+                   for j in range(len(self.modes))]
+
+    def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
+        c, preds = self.predicted(arrays, rows, dt)
         if not self.mode_conversion:
             z, r = convert(*moments(np.stack([x for x, _ in preds], 1),
                                     np.stack([p for _, p in preds], 1), c))[:2]
@@ -224,16 +218,15 @@ class IMM:
         _, _, nis, _ = kalman.update(xbar, pbar, z, rbar)
         return x, p, nis, ok
 
-    def update_pda(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, w: Any) -> Result:
+    def update_pda(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, weighted: Any
+                   ) -> Result:
         """`update` by weighted detections (`tracking.hypotheses.WeightedUpdate`: JPDA's
         or PDA's): each mode updated by the PDA of its own prediction and weighed by its
         own likelihood of the scan (`pda.pda_update`, the IMM-PDAF), so that a far
         detection of small probability neither moves every mode to the widest one nor
         gives the quiet ones the widest one's spread."""
-        mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
-        c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), arrays.dim)
-        preds = [self.predict_mode(j, dt, x0[:, j], p0[:, j], arrays.dim)
-                 for j in range(len(self.modes))]
+        w = weighted
+        c, preds = self.predicted(arrays, rows, dt)
         xp, pp = np.stack([x for x, _ in preds], 1), np.stack([p for _, p in preds], 1)
         t_count, m, n = xp.shape
         ti = (w.ti[:, None] * m + np.arange(m)).ravel()  # pair k, mode j: row k * m + j
@@ -264,14 +257,8 @@ class IMM:
         yet the prior `gate_wide`, so that clutter far out in a wide gate (a track
         coasting through missed scans) is not taken for the aircraft."""
         d = arrays.dim
-        dt = t - arrays.t[rows]
-        mx, mp, mu = arrays.mode_x[rows], arrays.mode_p[rows], arrays.mode_prob[rows]
-        c, x0, p0 = self.mix(mx, mp, mu, self.transition(dt), d)
-        xs, ps = [], []
-        for j in range(len(self.modes)):
-            xp, pp = self.predict_mode(j, dt, x0[:, j], p0[:, j], d)
-            xs.append(xp)
-            ps.append(pp)
+        c, preds = self.predicted(arrays, rows, t - arrays.t[rows])
+        xs, ps = [x for x, _ in preds], [p for _, p in preds]
         xs_, ps_ = np.stack(xs, 1), np.stack(ps, 1)  # (N, M, n), (N, M, n, n)
         mean, cov = moments(xs_, ps_, c)
         wide = np.trace(ps_[:, :, :d, :d], axis1=2, axis2=3).argmax(1)
@@ -299,6 +286,23 @@ class IMM:
 
     def labels(self, arrays: Rows, rows: np.ndarray) -> ModeProbabilities:
         return ModeProbabilities([name for name, *_ in self.modes], arrays.mode_prob[rows])
+
+
+def mix_moments(mx: np.ndarray, mp: np.ndarray, mu: np.ndarray, pi: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The IMM's mixing (Bar-Shalom, Li & Kirubarajan 2001, sec. 11.6.6): predicted mode
+    probabilities c (N, M), mixing weights w (N, i, j) = mu_{i|j}, and the mixed initial
+    conditions x0_j = sum_i w_ij x_i, P0_j = sum_i w_ij (P_i + (x_i - x0_j)(x_i - x0_j)'),
+    as batched matrix products."""
+    n_rows, m, n = mx.shape
+    c = einsum("nij,ni->nj", pi, mu)  # predicted mode probabilities
+    w = pi * mu[:, :, None] / np.maximum(c[:, None, :], 1e-300)  # mixing mu_{i|j}
+    wt = w.transpose(0, 2, 1)  # (N, j, i)
+    x0 = wt @ mx
+    d = mx[:, :, None] - x0[:, None]  # (N, i, j, n): x_i about mode j's mix
+    p0 = (wt @ mp.reshape(n_rows, m, n * n)).reshape(n_rows, m, n, n) \
+        + (w[..., None] * d).transpose(0, 2, 3, 1) @ d.transpose(0, 2, 1, 3)
+    return c, w, x0, p0
 
 
 def cv_noise(q: float, dv_cap: float, dt: np.ndarray) -> np.ndarray:

@@ -8,31 +8,45 @@ the frame sender and Zenoh's threads run beside it.
 
 Compiled once per machine and cached (`cache=True`: beside the kernels, or in the
 user's cache directory where that is not writable); `warm` compiles or loads it. The
-service does so in the background (`jit.prepare`) and `IMM.update` calls `step` only once
-`jit.ready()`; until then its own NumPy code serves. Importing this module does not import
-Numba: the kernels are imported when first used.
+service does so in the background (`jit.prepare`); the filter catalogue builds the
+default IMM as a `CompiledIMM`, whose update calls `step` once `jit.ready()` and the
+reference's NumPy code until then. Importing this module does not import Numba: the
+kernels are imported when first used.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import blocks
+from .. import defaults
+from . import blocks, jit
+from .imm import IMM
 from .measurements import MeasurementBatch
+from .ucm import CMKFConversion
 
 if TYPE_CHECKING:
-    from .filters import Rows
-    from .imm import IMM
+    from .filters import Convert, Rows
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-BLOCK = 40  # rows per block of a large pass, as imm_kernel.update_rows (`imm_cost.py`,
-# the six modes: 3.7-3.9 us a row; 4.4-4.6 at 32, 4.0-4.2 at 24, 3.7-3.9 at 56, 4.2 at
-# 48, 4.8 at 16: a power of two is the worst), SMALL of a pass of fewer rows (update_few)
-SMALL = 8
-__all__ = ["BLOCK", "SMALL", "applies", "design", "kernel", "step", "warm"]
+BLOCK, SMALL = defaults.IMM_BLOCK, defaults.IMM_SMALL  # rows per block, as the kernels'
+__all__ = ["BLOCK", "SMALL", "CompiledIMM", "applies", "design", "kernel", "step", "warm"]
+
+
+@dataclass(frozen=True)
+class CompiledIMM(IMM):
+    """The IMM whose update runs compiled (`step`) once the kernels are ready and when
+    it applies (`applies`, measurements converted by the CMKF); `IMM.update`, its
+    reference, otherwise."""
+
+    def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert
+               ) -> Result:
+        if jit.ready() and isinstance(convert, CMKFConversion) and applies(self):
+            return step(self, arrays, rows, dt, convert.batch)
+        return super().update(arrays, rows, dt, convert)
 
 
 def kernel(k: int) -> Callable:
@@ -45,8 +59,8 @@ def kernel(k: int) -> Callable:
 
 def applies(imm: IMM) -> bool:
     """Whether `step` computes this IMM's update: CV, CA, CT and turn modes in the order-3
-    state, unbiased mixing (the default's options; R shared or each mode's own)."""
-    return (imm.order == 3 and imm.unbiased_mixing
+    state, with `IMM`'s own mixing (R shared or each mode's own)."""
+    return (imm.order == 3 and type(imm).mix is IMM.mix
             and all(kind in ("cv", "ca", "turn") or (kind == "ct" and w != 0.0)
                     for _, kind, _, w in imm.modes))
 
@@ -101,9 +115,7 @@ def design(imm: IMM) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
     if got is None or got[0] is not imm:
         m = len(imm.modes)
         tau = _writable(np.asarray(imm.sojourn, float), m)
-        dest = np.ones((m, m)) if imm.leave is None else np.array(imm.leave, dtype=float)
-        dest[np.arange(m), np.arange(m)] = 0.0
-        dest /= np.maximum(dest.sum(1, keepdims=True), 1e-300)
+        dest = imm.destinations()
         kinds = np.array([KINDS.get(kind, 0) for _, kind, _, _ in imm.modes], dtype=np.int64)
         qs = np.array([q for _, _, q, _ in imm.modes], dtype=float)
         ws = np.array([imm.turn_cap if kind == "turn" else imm.dv_cap if kind == "cv" else w
@@ -116,7 +128,7 @@ def warm() -> None:
     """Compile the kernel (or load it from the cache) on a tiny problem."""
     from .imm import ModeSet
 
-    imm = ModeSet().imm()
+    imm = ModeSet().imm(CompiledIMM)
     for d in (2, 3):
         n, m = 3 * d, len(imm.modes)
         mode_x, mode_p = np.zeros((1, m, n)), np.tile(np.eye(n) * 100.0, (1, m, 1, 1))

@@ -21,6 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .. import defaults
 from .kalman import S_FLOOR
 from .turn import TURN_SMALL
 from .ucm import ROUNDING
@@ -35,26 +36,25 @@ SWEEPS = 30  # Jacobi sweeps at most (a 3 x 3 converges to rounding in about 4)
 SM, CM, SR2, SAZ2, SINH_A, SINH_E, E_AZ, E_EL, G0, G1, C0, C1, C2 = range(13)
 CONSTS = 13
 _FACT = np.array([1, 1, 2, 6])  # k! for the process noise's denominators
+BLOCK, SMALL = defaults.IMM_BLOCK, defaults.IMM_SMALL  # `update_rows`, `update_few`
 
 
 
 @njit(**JIT)
 def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
                 values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
-    """The update of every row, 40 rows at a time (the last block padded with copies of
-    its last row, which are not written back; not a power of two: with the six modes of
-    the turns, 3.7-3.9 us a row against 4.4-4.6 at 32, docs/performance.md). `shared`:
-    one R for every mode, averaged over the mixture of the modes' predictions; else each
-    mode's own."""
-    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 40, polar,
+    """The update of every row, `BLOCK` rows at a time (the last block padded with copies of
+    its last row, which are not written back). `shared`: one R for every mode, averaged
+    over the mixture of the modes' predictions; else each mode's own."""
+    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, BLOCK, polar,
           values, sigmas, origin, xn, pn, nis, ok)
 
 
 @njit(**JIT)
 def update_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
                values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
-    """`update_rows` 8 rows at a time: less padding for a pass of few rows."""
-    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 8, polar,
+    """`update_rows` `SMALL` rows at a time: less padding for a pass of few rows."""
+    _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, SMALL, polar,
           values, sigmas, origin, xn, pn, nis, ok)
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -121,6 +121,12 @@ class VDF:
             x, p, _, _ = kalman.update(xp, pp, arrays.hist_z[rows, k], arrays.hist_r[rows, k])
             t = tk
         return x, p
+
+    def update_pda(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, weighted: Any
+                   ) -> None:
+        """No update by weighted detections of its own: the tracker's equivalent
+        measurement serves."""
+        return None
 
     def inflate(self, arrays: Rows, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the covariances of rows: the history keeps the

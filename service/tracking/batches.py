@@ -125,7 +125,7 @@ class Instant:
     t: float
 
 
-Scan = Labelled | Unlabelled | Instant
+StepInput = Labelled | Unlabelled | Instant  # what `Tracker.step` takes
 
 
 @dataclass

@@ -41,7 +41,7 @@ class CheckpointError(ValueError):
 def header(tracker: Tracker) -> dict[str, Any]:
     """What a checkpoint must agree on with the tracker that reads it."""
     store = tracker.store
-    return {"format": FORMAT, "version": VERSION, "filter": tracker.config.filter.name,
+    return {"format": FORMAT, "version": VERSION, "filter": tracker.filter.name,
             "order": store.order, "fields": {k: list(v) for k, v in sorted(store.extra.items())}}
 
 

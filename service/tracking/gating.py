@@ -139,7 +139,7 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     tr_p = np.add.reduce(cross_s.reshape(d * n, k)[:d * (n + 1):n + 1], axis=0)
     radius = np.sqrt(gamma * (tr_p + tr_r))
     ti, dj = near(mean, z, radius)
-    nu = np.empty((len(ti), d))  # (K, d), read through its transpose as before
+    nu = np.empty((len(ti), d))  # (K, d), read through its transpose
     nut = nu.T
     np.subtract(z.T.take(dj, 1), mean_s.take(ti, 1), out=nut)
     s = np.add(cross_s[:, :d].take(ti, 2), r.transpose(1, 2, 0).take(dj, 2))  # (d, d, K)

@@ -64,6 +64,8 @@ class Hypotheses:
     unassociated: list[int] = field(default_factory=list)
     rejected: dict[int, str] = field(default_factory=dict)
     seen: list[Seen] = field(default_factory=list)
+    # rows whose columns a stage put back (a second look's branch): drawn afresh
+    moved: list[tuple[TrackArrays, np.ndarray]] = field(default_factory=list)
 
     def assign(self, index: np.ndarray, rows: np.ndarray) -> None:
         """Measurements `index` update the tracks at `rows`, pair by pair."""

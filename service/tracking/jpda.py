@@ -6,6 +6,7 @@ its speed gate none (docs/protocol.md §3.2)."""
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -13,6 +14,7 @@ from .. import defaults
 from .gating import Gating, singles, split
 from .hypotheses import Hypotheses, Seen, WeightedUpdate
 from .plot_association import ScanAssociator, SensorModels, miss_score, scores
+from .protocols import Stage
 
 
 class JPDAAssociator(ScanAssociator):
@@ -21,8 +23,9 @@ class JPDAAssociator(ScanAssociator):
 
     def __init__(self, q: float, sensors: SensorModels | None = None,
                  gate_probability: float = defaults.GATE_PROBABILITY,
+                 predict: Callable | None = None, stages: Sequence[Stage] = (),
                  max_events: int = defaults.JPDA_MAX_EVENTS) -> None:
-        super().__init__(q, sensors, gate_probability)
+        super().__init__(q, sensors, gate_probability, predict, stages)
         self.max_events = max_events
 
     def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,

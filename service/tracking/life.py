@@ -22,6 +22,7 @@ import numpy as np
 
 from .. import defaults
 from .hypotheses import Seen
+from .stitcher import Stitcher
 from .store import Column, TrackArrays, TrackStore
 
 # the life of a track of unlabelled scans, per row of the store, zero for a new track:
@@ -75,6 +76,35 @@ def update_life(seen: Sequence[Seen], m: int, n: int, threshold: float
         if (now & ~was).any():
             out.append((a, rows[now & ~was]))
     return out
+
+
+class MofNLife:
+    """Tracks of unlabelled scans confirmed M of N with a track score of at least
+    `threshold` (`update_life`); a track confirmed where a lost one could have gone
+    continues it (`stitcher`; None: never)."""
+
+    def __init__(self, m: int = defaults.CONFIRM_M, n: int = defaults.CONFIRM_N,
+                 threshold: float = defaults.CONFIRM_SCORE, stitcher: Stitcher | None = None
+                 ) -> None:
+        self.m, self.n, self.threshold, self.stitcher = m, n, threshold, stitcher
+
+    def start(self, arrays: TrackArrays, rows: np.ndarray) -> None:
+        """New tracks detected once: confirmed at birth only by a rule that asks no more."""
+        arrays.plot[rows], arrays.hits[rows], arrays.scans[rows] = True, 1, 1
+        arrays.confirmed[rows] = self.m <= 1 and self.threshold <= 0
+
+    def count(self, store: TrackStore, seen: Sequence[Seen]) -> dict[str, tuple[str, int]]:
+        """A scan's detections and misses counted; the tracks it confirmed that continue
+        a lost one, {new id: (old id, its updates)}."""
+        out: dict[str, tuple[str, int]] = {}
+        for arrays, rows in update_life(seen, self.m, self.n, self.threshold):
+            if self.stitcher is not None:
+                out.update(self.stitcher.join(store, arrays, rows))
+        return out
+
+    def counts(self) -> dict[str, int]:
+        """Lost tracks continued under their id since start (`status`)."""
+        return {"continued": 0 if self.stitcher is None else self.stitcher.joined}
 
 
 def restore_lost(arrays: TrackArrays, rows: np.ndarray) -> None:

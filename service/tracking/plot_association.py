@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import functools
 import json
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,8 +40,8 @@ from ..wire import TIME_TOL
 from .batches import Detections, Unlabelled
 from .gating import Gating, convert, gate, gate_threshold, restrict, singles, split
 from .hypotheses import Hypotheses, Seen
-from .second_look import SecondLook
-from .store import TrackStore
+from .protocols import Stage
+from .store import TrackArrays, TrackStore
 
 UNLIKELY = 1e12  # cost of a pair outside the gate in an assignment matrix
 PACK = 32  # tracks of the small clusters solved together as one block-diagonal assignment
@@ -101,23 +102,48 @@ class SensorModels:
         return max(m.estimate, 1e-15)
 
 
+@dataclass
+class Scene:
+    """One part of an unlabelled scan against the unlabelled tracks of its layout, as the
+    association and its stages see it (`protocols.Scene`): the tracks in play, the
+    detections converted, the sensor's Pd and clutter density, every track gated."""
+
+    arrays: TrackArrays
+    rows: np.ndarray
+    z: np.ndarray
+    r: np.ndarray
+    t: float
+    pd: float
+    lam: float
+    every: Gating
+    hyp: Hypotheses
+    gate: Callable[[np.ndarray], Gating]  # rows of the store gated against the detections
+    density: Callable[[Gating], float]  # the clutter density, from the detections ungated
+
+    def regate(self) -> None:
+        """Gate every track in play again (the store's rows changed)."""
+        self.every = self.gate(self.rows)
+        self.lam = self.density(self.every)
+
+
 class ScanAssociator:
-    """What GNN and JPDA share: one scan (all detections of one sensor and time) against
-    the unlabelled tracks of its layout, in two stages. The established (confirmed) tracks
-    take their detections first, with this associator; the tentative tracks then share,
-    by nearest neighbour, the detections the established ones left (so a tentative track
-    born of clutter never pulls on an established one); what is left starts new tracks.
-    The clutter density is estimated (when not configured) from the detections outside
-    every track's gate."""
+    """One scan part (the detections of one sensor, time and dimension) against the
+    unlabelled tracks of its layout, as the textbook's steps: gate every track; the
+    established (confirmed) tracks take their detections (`resolve`: GNN's assignment or
+    JPDA's weights); the tentative tracks share, by nearest neighbour, what they left (a
+    tentative track born of clutter never pulls on an established one); the rest start
+    tracks. `stages` (`protocols.Stage`) wrap the established tracks' step: which pairs
+    they may take (`stages.SpeedGate`), what happens before (`second_look.SecondLook`)
+    and after (`stages.SecondChance`); each can be left out. `predict`: the filter's gate
+    prediction (`gating.gate`; None: the store's state). The clutter density is
+    estimated (when not configured) from the detections outside every track's gate."""
 
     def __init__(self, q: float, sensors: SensorModels | None = None,
-                 gate_probability: float = defaults.GATE_PROBABILITY) -> None:
+                 gate_probability: float = defaults.GATE_PROBABILITY,
+                 predict: Callable | None = None, stages: Sequence[Stage] = ()) -> None:
         self.q, self.sensors = q, sensors or SensorModels()
-        self.predict = None  # the filter's gate prediction (`gating.gate`), if it has one
-        self.gate_probability = gate_probability
-        # doubtful assignments of confirmed tracks, kept a scan (the tracker sets it)
-        self.second_look = SecondLook(defaults.SECOND_LOOK)
-        self.max_speed = defaults.MAX_SPEED  # m/s: the fastest target (the tracker sets it)
+        self.gate_probability, self.predict = gate_probability, predict
+        self.stages = tuple(stages)
 
     def split(self, scan: Unlabelled) -> list[tuple[list[int], Detections]]:
         """The scan's detections one dimension at a time (2-D and 3-D detections in one
@@ -127,80 +153,78 @@ class ScanAssociator:
         return [(index, Detections(scan.sensor, scan.t, batch)) for index, batch in scan.parts]
 
     def associate(self, store: TrackStore, part: Detections) -> Hypotheses:
-        batch = part.batch
-        if batch is None:
+        if part.batch is None:
             return self._nothing_seen(store, part.t, part.sensor)
-        t, n, dim = float(batch.t[0]), len(batch.t), batch.dim
-        arrays = store.layout(dim)
-        rows = arrays.rows()
-        rows = rows[arrays.plot[rows] & (arrays.t[rows] <= t + TIME_TOL)]
-        hyp = Hypotheses(dim)
-        z, r = convert(batch)
-        gamma = gate_threshold(self.gate_probability, dim)
-        every = gate(arrays, rows, z, r, t, self.q, gamma, self.predict)
-
-        def density(g: Gating) -> float:  # the sensor's clutter, from the detections ungated
-            ungated = n - np.count_nonzero(np.bincount(g.dj, minlength=n))
-            return self.sensors.density(part.sensor, z, ungated)
-
-        lam = density(every)
-        pd = self.sensors.model(part.sensor).pd
-        score, miss = scores(every, pd, lam)  # once for both stages
-
-        def gate_rows(some: np.ndarray) -> tuple[Gating, np.ndarray]:
-            g = gate(arrays, some, z, r, t, self.q, gamma, self.predict)
-            return g, scores(g, pd, lam)[0]
-
-        if self.second_look.decide(arrays, every, t, score, miss, gate_rows):
-            every = gate_rows(rows)[0]  # a track took its doubtful update after all
-            lam = density(every)
-        confirmed = arrays.confirmed[rows]
-        g = restrict(every, confirmed, pairs=self.reachable(every, z, r, t))
-        free = self.resolve(g, np.arange(n), pd, lam, hyp)
-        seen = hyp.seen[-1]  # the confirmed tracks': a doubtful detection gets a second look
-        taken = seen.rows[seen.detected]
-        far = None
-        if hyp.index and len(taken):  # where each took its detection (GNN's pairs)
-            det = np.full(len(arrays.t), -1, dtype=np.intp)
-            det[hyp.rows[-1]] = hyp.index[-1]
-            far = self.second_look.far(arrays, taken, z, r, det[taken], t)
-        self.second_look.note(arrays, taken, seen.gain[seen.detected] - miss, t, far)
-        free = self.second_chance(g, free, z, r, t, pd, lam, hyp)
-        free = gnn(restrict(every, ~confirmed, free), free, pd, lam, hyp)
+        scene = self.scene(store, part)
+        for stage in self.stages:
+            stage.before(scene)
+        every, n, hyp = scene.every, len(scene.z), scene.hyp
+        confirmed = scene.arrays.confirmed[scene.rows]
+        g = restrict(every, confirmed, pairs=self._pairs(scene))
+        free = self.resolve(g, np.arange(n), scene.pd, scene.lam, hyp)
+        for stage in self.stages:
+            free = stage.after(scene, g, free)
+        free = gnn(restrict(every, ~confirmed, free), free, scene.pd, scene.lam, hyp)
         if len(free):
             hyp.unassociated = free.tolist()
         return hyp
 
-    def reachable(self, g: Gating, z: np.ndarray, r: np.ndarray, t: float
-                  ) -> np.ndarray | None:
-        """The pairs of `g` the established tracks may take (None: all): not the
-        detections farther from a track's last position than the fastest target flies
-        meanwhile (`max_speed`, plus 3 sigma of both positions), a speed gate (Blackman
-        & Popoli 1999, sec. 4.5). The widest mode's gate of a track coasting through
-        missed scans reaches kilometres out: JPDA weighed false detections there into
-        the update, GNN took one for a slow helicopter (docs/accuracy.md, "JPDA with
-        the IMM", "Slow and tight flyers")."""
-        a, rows, d = g.arrays, g.rows[g.ti], g.arrays.dim
-        dt = t - a.t[rows]
-        var = np.trace(r[g.dj], axis1=1, axis2=2) + np.trace(a.p[rows, :d, :d], axis1=1,
-                                                             axis2=2)
-        far = np.linalg.norm(z[g.dj] - a.x[rows, :d], axis=1) > \
-            self.max_speed * dt + 3.0 * np.sqrt(var)
-        return ~far if far.any() else None
+    def scene(self, store: TrackStore, part: Detections) -> Scene:
+        """The part's detections converted and every unlabelled track of its layout not
+        newer than them gated, with the sensor's Pd and clutter density."""
+        batch = part.batch
+        assert batch is not None
+        t, n = float(batch.t[0]), len(batch.t)
+        arrays = store.layout(batch.dim)
+        rows = arrays.rows()
+        rows = rows[arrays.plot[rows] & (arrays.t[rows] <= t + TIME_TOL)]
+        z, r = convert(batch)
+        gamma = gate_threshold(self.gate_probability, batch.dim)
 
-    def second_chance(self, g: Gating, free: np.ndarray, z: np.ndarray, r: np.ndarray,
-                      t: float, pd: float, lam: float, hyp: Hypotheses) -> np.ndarray:
-        """After the established tracks' association `g` (detections `free` left):
-        detections a missed track passed over by less than the second look's margin,
-        taken as a branch set aside for the next scan (`SecondLook`); the detections
-        still free."""
-        return free
+        def gate_rows(some: np.ndarray) -> Gating:
+            g = gate(arrays, some, z, r, t, self.q, gamma, self.predict)
+            scores(g, scene.pd, scene.lam)
+            return g
+
+        def density(g: Gating) -> float:
+            ungated = n - np.count_nonzero(np.bincount(g.dj, minlength=n))
+            return self.sensors.density(part.sensor, z, ungated)
+
+        every = gate(arrays, rows, z, r, t, self.q, gamma, self.predict)
+        pd = self.sensors.model(part.sensor).pd
+        scene = Scene(arrays, rows, z, r, t, pd, density(every), every, Hypotheses(batch.dim),
+                      gate_rows, density)
+        scores(every, pd, scene.lam)  # once for every stage
+        return scene
+
+    def _pairs(self, scene: Scene) -> np.ndarray | None:
+        """The pairs the established tracks may take: those every stage allows."""
+        out = None
+        for stage in self.stages:
+            mask = stage.pairs(scene)
+            if mask is not None:
+                out = mask if out is None else out & mask
+        return out
 
     def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
                 hyp: Hypotheses) -> np.ndarray:
         """Associate the gated pairs of `g` (its detections are scan[index]) into `hyp`;
         returns the indices of the detections left for tentative tracks."""
         raise NotImplementedError
+
+    def settle(self, arrays: TrackArrays, rows: np.ndarray) -> np.ndarray:
+        """Rows just updated by this associator's part: those a stage put back (mask)."""
+        out = np.zeros(len(rows), dtype=bool)
+        for stage in self.stages:
+            out |= stage.settle(arrays, rows)
+        return out
+
+    def counts(self) -> dict[str, int]:
+        """What the stages did since start (`status`)."""
+        out: dict[str, int] = {}
+        for stage in self.stages:
+            out.update(stage.counts())
+        return out
 
     def _nothing_seen(self, store: TrackStore, now: float, sensor: str) -> Hypotheses:
         """An empty scan: the sensor saw none of the unlabelled tracks (of any layout:
@@ -326,36 +350,3 @@ class GNNAssociator(ScanAssociator):
     def resolve(self, g: Gating, index: np.ndarray, pd: float, lam: float,
                 hyp: Hypotheses) -> np.ndarray:
         return gnn(g, index, pd, lam, hyp)
-
-    def second_chance(self, g: Gating, free: np.ndarray, z: np.ndarray, r: np.ndarray,
-                      t: float, pd: float, lam: float, hyp: Hypotheses) -> np.ndarray:
-        """Of each confirmed track that missed, its likeliest free gated detection within
-        the margin below a miss and within an aircraft's reach (one track a detection,
-        likeliest first), its branch set aside (`SecondLook.note(missed=True)`)."""
-        look = self.second_look
-        if look.margin <= 0 or not len(g.ti) or not len(free):
-            return free
-        score, miss = scores(g, pd, lam)
-        lead = score - miss
-        open_ = np.zeros(len(g.z), dtype=bool)
-        open_[free] = True
-        k = np.flatnonzero(~hyp.seen[-1].detected[g.ti] & open_[g.dj] & (lead > -look.margin))
-        if not len(k):
-            return free
-        k = k[~look.far(g.arrays, g.rows[g.ti[k]], z, r, g.dj[k], t)]
-        k = k[np.argsort(-lead[k], kind="stable")]
-        used_t: set[int] = set()
-        pick: list[int] = []
-        for kk, ti, dj in zip(k.tolist(), g.ti[k].tolist(), g.dj[k].tolist(), strict=True):
-            if ti in used_t or not open_[dj]:
-                continue
-            used_t.add(ti)
-            open_[dj] = False
-            pick.append(kk)
-        if not pick:
-            return free
-        p = np.array(pick, dtype=np.intp)
-        rows = g.rows[g.ti[p]]
-        hyp.assign(g.dj[p], rows)
-        look.note(g.arrays, rows, lead[p], t, missed=True)
-        return free[open_[free]]

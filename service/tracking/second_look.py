@@ -1,46 +1,29 @@
-"""A second look before a confirmed track is committed to a doubtful detection.
+"""A second look before a confirmed track is committed to a doubtful detection: a
+one-scan window of a track-oriented multiple-hypothesis tracker (Reid, IEEE TAC 24(6),
+1979; Blackman, IEEE AES Magazine 19(1), 2004), for the one case where global nearest
+neighbour's choice of a scan alone is often wrong.
 
-Global nearest neighbour decides each scan alone. When a confirmed track is not detected
-and a false detection lies in its widest gate (an unseen manoeuvre's), taking it can beat
-a miss by a hair (log-likelihood ratios -2.16 against -2.30 in the case traced in
-docs/accuracy.md): the track jumps kilometres and the aircraft starts a new one. A
-multiple-hypothesis tracker keeps both branches and lets the next scan choose (Reid,
-IEEE TAC 24(6), 1979; the track-oriented form, Blackman, IEEE AES Magazine 19(1), 2004,
-with an N-scan window). This is that window of one scan, for that one case:
+- `note` (after the established tracks took their detections): a confirmed track whose
+  detection beats a miss by less than `margin` (ln of a likelihood ratio), or lies
+  beyond an aircraft's reach of its own extrapolation (`far`: a wide manoeuvre mode's
+  Gaussian tails overstate what an aircraft does), keeps its row before the update: the
+  miss branch.
+- `settle` (once updated): an update that moved the track beyond reach of where its miss
+  branch predicts is set aside and the miss branch put back, so the track is shown and
+  published as if missed until the next scan; a nearer one is shown at once, its miss
+  branch aside. A far detection that scored well is weighed only while it stays beyond
+  reach, its lead counted as a doubt's at most.
+- `before` (the next scan part of its layout): each branch scored by its best gated
+  detection (or a miss), taken (the margin plus its best) against missed; the better is
+  put in the row, and the scan is associated from there. Either way the doubt ends.
 
-- When a confirmed track takes a detection whose score beats its missed-detection score
-  by less than `margin` (ln of a likelihood ratio), its row before the update is kept:
-  the miss branch (`note`). So it is for a detection beyond an aircraft's reach of the
-  track's own extrapolation (`far`: 0.5 reach dt^2, plus 3 sigma of the measurement),
-  however well it scores: a wide manoeuvre mode's Gaussian tails overstate what an
-  aircraft does (a false detection 1.7 km off at 4 s beat a miss by ln 7.1 in the case
-  of docs/accuracy.md). Its update is shown at once, and kept aside only while it stays
-  beyond reach once made, its lead then counted as `margin` at most.
-- Once updated (`settle`), a track whose update moved it farther from where its miss
-  branch predicts than an aircraft reaches at `reach` m/s^2 (0.5 reach dt^2, plus 3
-  sigma of its updated position) is not committed to it: the updated row (the taken
-  branch) is set aside and the row before is put back, so the track is shown and
-  published as if missed at that scan (no tracks/ state for that update; its frames
-  coast) while the doubt lasts. A nearer one (a hard turn's) is shown at once, its
-  miss branch aside.
-- At the next scan part of its layout (any sensor, later in time), the two branches are
-  scored on that scan alone, each by its best gated detection (or a miss): taken (the
-  margin plus its best) against missed (its best). The better is put in the row, and
-  the scan is associated as usual from there (`decide`). Either way the doubt ends.
-
-- The other way round (`GNNAssociator.second_chance`): a confirmed track that
-  missed while a free detection in its gate, within reach, scored less than `margin`
-  below a miss is updated with it as a branch set aside at once (`note(missed=True)`:
-  `settle` always defers it), its score's shortfall counted against it at the next scan.
-
-The branches are compared track by track, before the joint assignment of the second
-scan (which then resolves any detection two tracks want). The track's life counters
-(M of N, score) keep the first scan's detection. Doubts are not checkpointed.
+`stages.SecondChance` feeds it the other way round (a miss by a hair). The track's life
+counters keep the first scan's detection; doubts are not checkpointed. docs/accuracy.md
+gives the cases that set the margin.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +32,9 @@ from .. import defaults
 from ..wire import TIME_TOL
 from .gating import Gating
 from .life import LIFE_COLUMNS
+from .plot_association import scores
+from .protocols import Scene
+from .reach import Reach, extrapolated
 from .store import TrackArrays
 
 
@@ -70,13 +56,13 @@ class Doubt:
 
 
 class SecondLook:
-    """The doubtful assignments of confirmed tracks, kept one scan (`note`, `settle`,
-    `decide`). `moved(arrays, rows)` is told of rows whose columns were put back here
-    (the display's cache of them is stale)."""
+    """The doubtful assignments of confirmed tracks, kept one scan: an association stage
+    (`protocols.Stage`) with the `margin` below which a detection is doubtful and an
+    aircraft's `reach`."""
 
-    def __init__(self, margin: float, reach: float = defaults.SECOND_LOOK_REACH,
-                 moved: Callable[[TrackArrays, np.ndarray], None] | None = None) -> None:
-        self.margin, self.reach, self.moved = margin, reach, moved
+    def __init__(self, margin: float = defaults.SECOND_LOOK, reach: Reach | None = None
+                 ) -> None:
+        self.margin, self.reach = margin, reach or Reach()
         self.noted: dict[tuple[int, int], Doubt] = {}  # (layout's dim, row) -> doubt
         self.doubts: dict[tuple[int, int], Doubt] = {}  # settled, for the next scan
         self.reverted = 0  # doubts decided for the miss branch, since start
@@ -92,13 +78,13 @@ class SecondLook:
         sigma of the measurement)."""
         out = np.zeros(len(rows), dtype=bool)
         ok = det >= 0
-        if self.margin <= 0 or self.reach <= 0 or not ok.any():
+        if self.margin <= 0 or self.reach.accel <= 0 or not ok.any():
             return out
         rows, det = rows[ok], det[ok]
         dt = t - arrays.t[rows]
-        pred = _extrapolated(arrays.x[rows].T, arrays.dim, arrays.order, dt).T
-        noise = 3.0 * np.sqrt(np.trace(r[det], axis1=1, axis2=2))
-        out[ok] = np.linalg.norm(z[det] - pred, axis=1) > 0.5 * self.reach * dt * dt + noise
+        pred = extrapolated(arrays.x[rows].T, arrays.dim, arrays.order, dt).T
+        out[ok] = np.linalg.norm(z[det] - pred, axis=1) > \
+            self.reach.strayed(dt, np.trace(r[det], axis1=1, axis2=2))
         return out
 
     def note(self, arrays: TrackArrays, rows: np.ndarray, margins: np.ndarray,
@@ -133,12 +119,10 @@ class SecondLook:
             if d is None or arrays.ids[row] != d.track_id:
                 continue
             miss, dt = d.row["x"], d.t - float(d.row["t"])
-            pred = _extrapolated(miss, d_, o, dt)
-            # beyond reach: farther than the acceleration takes it, plus 3 sigma of the
-            # updated position (the measurement's noise in it)
-            noise = 3.0 * np.sqrt(np.trace(arrays.p[row, :d_, :d_]))
-            beyond = np.linalg.norm(arrays.x[row, :d_] - pred) > 0.5 * self.reach * dt * dt \
-                + noise
+            pred = extrapolated(miss, d_, o, dt)
+            # beyond reach, the updated position's sigma (the measurement's noise in it)
+            beyond = np.linalg.norm(arrays.x[row, :d_] - pred) > \
+                self.reach.strayed(dt, np.trace(arrays.p[row, :d_, :d_]))
             if d.far:  # no doubt by its score: weighed by the next scan only while beyond
                 if beyond:  # reach, shown meanwhile, its lead counted as a doubt's at most
                     d.margin, d.at = self.margin, float(arrays.t[row])
@@ -154,18 +138,18 @@ class SecondLook:
             self.doubts[d_, row] = d
         self.chances += chances
         self.deferred += int(out.sum()) - chances
-        if out.any() and self.moved is not None:
-            self.moved(arrays, rows[out])
         return out
 
-    def decide(self, arrays: TrackArrays, every: Gating, t: float, score: np.ndarray,
-               miss: float, gate_rows: Callable[[np.ndarray], tuple[Gating, np.ndarray]]
-               ) -> bool:
-        """At a scan part of `arrays`' layout at `t` gated as `every` (pair scores `score`,
-        a miss `miss`): each doubted track takes the branch that scores better on it;
-        `gate_rows(rows)` gates rows of the store against the same detections (the
-        gating and its pairs' scores). Whether any changed (the scan must then be gated
-        again)."""
+    def before(self, scene: Scene) -> None:
+        """At a scan part of the doubted tracks' layout: each takes the branch that scores
+        better on it; the scan is gated again when any changed."""
+        if self.decide(scene):
+            scene.regate()  # a track took its doubtful update after all
+
+    def decide(self, scene: Scene) -> bool:
+        """Each doubted track of the scene's layout takes its better branch (the rows put
+        back are told to the display: `scene.hyp.moved`); whether any changed."""
+        arrays, t = scene.arrays, scene.t
         self.noted.clear()  # noted but never updated (a non-finite result): no doubt
         for key in [key for key, d in self.doubts.items() if key[0] == arrays.dim
                     and arrays.ids[key[1]] != d.track_id]:
@@ -182,10 +166,13 @@ class SecondLook:
             return False
         rows = np.array([row for row, _ in live], dtype=np.intp)
         deferred = np.array([d.deferred for _, d in live])
-        here = _best(every, score, miss, rows)  # the branch in the row
+        score, miss = scores(scene.every, scene.pd, scene.lam)
+        here = _best(scene.every, score, miss, rows)  # the branch in the row
         now = {name: getattr(arrays, name)[rows].copy() for name in _kept(arrays)}
         _put(arrays, rows, [d.row for _, d in live])
-        aside = _best(*gate_rows(rows), miss, np.arange(len(rows)), local=True)
+        g = scene.gate(rows)
+        aside = _best(g, scores(g, scene.pd, scene.lam)[0], miss, np.arange(len(rows)),
+                      local=True)
         taken, missed = np.where(deferred, aside, here), np.where(deferred, here, aside)
         back = missed > taken + np.array([d.margin for _, d in live])  # the miss branch
         swap = back != deferred  # the branch set aside is the better
@@ -193,16 +180,34 @@ class SecondLook:
             getattr(arrays, name)[rows[~swap]] = values[~swap]
         self.reverted += int(back.sum())
         self.retaken += int((swap & np.array([d.missed for _, d in live])).sum())
-        if self.moved is not None:
-            self.moved(arrays, rows)
+        scene.hyp.moved.append((arrays, rows))
         return bool(swap.any())
 
+    def pairs(self, scene: Scene) -> None:
+        return None
 
-def _extrapolated(x: np.ndarray, d: int, order: int, dt: float | np.ndarray) -> np.ndarray:
-    """A state's position `dt` later by its own motion (velocity, acceleration); states
-    as columns of x, one dt each, too."""
-    pred = x[:d] + x[d:2 * d] * dt
-    return pred + 0.5 * x[2 * d:3 * d] * dt * dt if order == 3 else pred
+    def after(self, scene: Scene, taken: Gating, free: np.ndarray) -> np.ndarray:
+        """The established tracks' doubtful detections noted (their miss branches kept):
+        below the margin, or beyond reach (GNN's pairs; JPDA's weighted updates are
+        weighed by their margins alone)."""
+        arrays, hyp = scene.arrays, scene.hyp
+        seen = hyp.seen[-1]
+        rows = seen.rows[seen.detected]
+        far = None
+        if hyp.index and len(rows):  # where each took its detection
+            det = np.full(len(arrays.t), -1, dtype=np.intp)
+            det[hyp.rows[-1]] = hyp.index[-1]
+            far = self.far(arrays, rows, scene.z, scene.r, det[rows], scene.t)
+        self.note(arrays, rows, seen.gain[seen.detected] - seen.miss, scene.t, far)
+        return free
+
+    def counts(self) -> dict[str, int]:
+        """How often it acted since start (`status`)."""
+        return {"deferred": self.deferred, "reverted": self.reverted,
+                "chances": self.chances, "retaken": self.retaken}
+
+
+
 
 
 def _best(g: Gating, score: np.ndarray, miss: float, rows: np.ndarray,

@@ -12,9 +12,9 @@ that has missed every scan since the oldest detection in the new one's M-of-N wi
 was not updated by this scan (so the two never took the same scan: not two targets side
 by side):
 
-- its position within an aircraft's reach of the old track's extrapolation (0.5 reach
-  dt^2 from the old velocity, plus 3 sigma of both positions), and
-- its velocity within reach dt (plus 3 sigma of both velocities).
+- its position within an aircraft's reach of the old track's extrapolation, and its
+  velocity within the change an aircraft makes meanwhile (`reach.Reach.strayed`,
+  `Reach.turned`, with the sigmas of both tracks).
 
 A pair joins only when each has no other candidate (where several lost tracks or
 several new ones could match, as where targets cross, nothing is joined). The new
@@ -28,23 +28,23 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import defaults
 from ..wire import TIME_TOL
+from .reach import Reach
 from .store import TrackArrays, TrackStore
 
 
 class Stitcher:
-    """Joins each newly confirmed track to the one lost track it continues (`reach`:
-    an aircraft's acceleration, m/s^2; 0: never)."""
+    """Joins each newly confirmed track to the one lost track it continues, within an
+    aircraft's `reach`."""
 
-    def __init__(self, reach: float = defaults.STITCH_REACH) -> None:
-        self.reach = reach
+    def __init__(self, reach: Reach | None = None) -> None:
+        self.reach = reach or Reach()
         self.joined = 0  # tracks continued under an old id, since start
 
     def pairs(self, arrays: TrackArrays, new: np.ndarray) -> list[tuple[int, int]]:
         """(new row, old row) of the rows `new` just confirmed that continue a lost
         track."""
-        if self.reach <= 0 or not len(new):
+        if not len(new):
             return []
         rows, _ = arrays.live()
         old = rows[arrays.plot[rows] & arrays.confirmed[rows]]
@@ -73,10 +73,10 @@ class Stitcher:
         var_old = var_pp[None] + 2.0 * dt * var_pv[None] + dt * dt * var_vv[None]
         var_new = tr(pn[:, :d, :d], axis1=1, axis2=2)[:, None]
         near = np.linalg.norm(xn[:, None, :d] - pred, axis=2) <= \
-            0.5 * self.reach * dt * dt + 3.0 * np.sqrt(np.maximum(var_old + var_new, 0.0))
+            self.reach.strayed(dt, np.maximum(var_old + var_new, 0.0))
         var_v = var_vv[None] + tr(pn[:, d:2 * d, d:2 * d], axis1=1, axis2=2)[:, None]
         same = np.linalg.norm(xn[:, None, d:2 * d] - vel_o[None], axis=2) <= \
-            self.reach * dt + 3.0 * np.sqrt(np.maximum(var_v, 0.0))
+            self.reach.turned(dt, np.maximum(var_v, 0.0))
         ok = lost & near & same
         one = ok & (ok.sum(axis=1, keepdims=True) == 1) & (ok.sum(axis=0, keepdims=True) == 1)
         j, i = np.nonzero(one)

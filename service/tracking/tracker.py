@@ -19,21 +19,42 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import defaults
-from ..estimation.catalog import FilterSpec
+from ..estimation.catalog import Filter, FilterSpec
 from ..estimation.measurements import MeasurementBatch
 from ..wire import TIME_TOL
-from .batches import Detections, Instant, Labelled, Scan, StepOutcome, Unlabelled, Want, all_states
+from .batches import (
+    Detections,
+    Instant,
+    Labelled,
+    StepInput,
+    StepOutcome,
+    Unlabelled,
+    Want,
+    all_states,
+)
 from .deleter import CompositeDeleter, UpdateTimeDeleter
 from .display import DISPLAY_COLUMNS, DisplayConfig, DisplayState, Snapshot
 from .hypotheses import Hypotheses, WeightedUpdate
 from .initiator import SinglePointInitiator
 from .jpda import JPDAAssociator
 from .label_association import LabelAssociator
-from .life import LIFE_COLUMNS, MofNDeleter, restore_lost, update_life
+from .life import LIFE_COLUMNS, MofNDeleter, MofNLife, restore_lost
 from .noise_check import NoiseCheck
 from .plot_association import GNNAssociator, SensorModels
-from .protocols import Associator, Deleter, Initiator, Updater
+from .protocols import (
+    Deleter,
+    Display,
+    Initiator,
+    LabelledAssociator,
+    Life,
+    NoiseMonitor,
+    ScanAssociator,
+    Stage,
+    Updater,
+)
+from .reach import Reach
 from .second_look import SecondLook
+from .stages import SecondChance, SpeedGate
 from .stitcher import Stitcher
 from .store import States, TrackArrays, TrackStore
 
@@ -42,6 +63,16 @@ NON_FINITE = "update gave a non-finite state"
 # meanwhile waits for one part (bench/pass_cost.py measures a part's CPU)
 PART = 1024
 SCAN_ASSOCIATORS = {"gnn": GNNAssociator, "jpda": JPDAAssociator}  # --associator
+
+
+def stages(associator: str, reach: Reach, second_look: float) -> list[Stage]:
+    """The service's association stages: the speed gate, and with a second look's margin
+    (> 0) the second look and, for one-to-one assignments (GNN), the second chance."""
+    out: list[Stage] = [SpeedGate(reach)]
+    if second_look > 0:
+        look = SecondLook(second_look, reach)
+        out += [look, SecondChance(look)] if associator == "gnn" else [look]
+    return out
 
 
 @dataclass(frozen=True)
@@ -58,8 +89,9 @@ class TrackerConfig:
     sensors: SensorModels = field(default_factory=SensorModels)
     gate_probability: float = defaults.GATE_PROBABILITY
     second_look: float = defaults.SECOND_LOOK  # ln ratio below which a scan waits a scan
-    stitch_reach: float = defaults.STITCH_REACH  # m/s^2: a lost track continued (0: never)
-    max_speed: float = defaults.MAX_SPEED  # m/s: a new track's velocity std is a third
+    max_speed: float = defaults.MAX_SPEED  # m/s: an aircraft's reach (`reach.Reach`) ...
+    max_accel: float = defaults.MAX_ACCEL  # m/s^2: ... and its manoeuvres
+    stitch_reach: float | None = None  # m/s^2: a lost track continued (None: max_accel; 0: never)
     confirm_m: int = defaults.CONFIRM_M
     confirm_n: int = defaults.CONFIRM_N
     confirm_score: float = defaults.CONFIRM_SCORE
@@ -96,36 +128,66 @@ class TrackNumbers:
 
 
 class Tracker:
-    """All tracks, keyed by target id: one filtered state each, in a `TrackStore`."""
+    """All tracks, keyed by target id: one filtered state each, in a `TrackStore`. Given
+    its parts (`protocols`), it calls only what their protocols declare; `from_config`
+    builds the service's."""
 
-    def __init__(self, config: TrackerConfig | None = None) -> None:
-        self.config = c = config or TrackerConfig()
-        built = c.filter.build()
-        self.updater: Updater = built.updater
-        self.conversion = built.conversion
-        self.associator: Associator[Labelled, Labelled] = LabelAssociator()
-        self.scan_associator: Associator[Unlabelled, Detections] = SCAN_ASSOCIATORS[c.associator](
-            built.q, c.sensors, c.gate_probability)
-        # the filter's own gate (the IMM's widest mode), if it has one
-        self.scan_associator.predict = self.updater.gate_prediction
-        # a confirmed track's doubtful detection waits one scan (`second_look`)
-        self.scan_associator.second_look = SecondLook(c.second_look, moved=self._moved)
-        self.scan_associator.max_speed = c.max_speed  # the speed gate
-        self.stitcher = Stitcher(c.stitch_reach)  # a lost track continued by a new one
-        self.initiator: Initiator = SinglePointInitiator(c.init_speed, c.init_accel)
-        self.deleter: Deleter = CompositeDeleter(
-            UpdateTimeDeleter(c.delete_after),
-            MofNDeleter(c.confirm_m, c.confirm_n, c.delete_misses, c.delete_sigma))
-        self.display = DisplayState(c.display, built.q)
+    def __init__(self, *, filter: Filter, associator: LabelledAssociator,
+                 scan_associator: ScanAssociator, initiator: Initiator, deleter: Deleter,
+                 life: Life, display: Display, noise: NoiseMonitor,
+                 plot_speed: float = defaults.MAX_SPEED / 3) -> None:
+        """`filter`: the updater and its conversion (`estimation.catalog`); `plot_speed`:
+        the velocity prior's std of a new track of unlabelled scans (m/s per axis)."""
+        self.filter = filter
+        self.updater: Updater = filter.updater
+        self.conversion = filter.conversion
+        self.associator: LabelledAssociator = associator
+        self.scan_associator: ScanAssociator = scan_associator
+        self.initiator: Initiator = initiator
+        self.deleter: Deleter = deleter
+        self.life: Life = life
+        self.display: Display = display
+        self.noise: NoiseMonitor = noise  # each sensor's stated noise against its measurements
+        self.plot_speed = plot_speed
         self.store = TrackStore(self.updater.order, self.updater.fields,
                                 {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
         self.numbers = TrackNumbers()
-        self.noise = NoiseCheck()  # each sensor's stated noise against its measurements
+
+    @classmethod
+    def from_config(cls, config: TrackerConfig | None = None, **parts: object) -> Tracker:
+        """The service's tracker of `config` (every default from `zenoh_track.defaults`);
+        `parts`: any of the constructor's arguments instead of the one built."""
+        c = config or TrackerConfig()
+        built = parts.get("filter") or c.filter.build()
+        reach = Reach(c.max_speed, c.max_accel)
+        stitch = c.max_accel if c.stitch_reach is None else c.stitch_reach
+        made = dict(
+            filter=built, associator=LabelAssociator(),
+            initiator=SinglePointInitiator(c.init_speed, c.init_accel),
+            deleter=CompositeDeleter(
+                UpdateTimeDeleter(c.delete_after),
+                MofNDeleter(c.confirm_m, c.confirm_n, c.delete_misses, c.delete_sigma)),
+            life=MofNLife(c.confirm_m, c.confirm_n, c.confirm_score,
+                          Stitcher(Reach(c.max_speed, stitch)) if stitch > 0 else None),
+            display=DisplayState(c.display, built.q), noise=NoiseCheck(),
+            plot_speed=c.max_speed / 3)
+        if "scan_associator" not in parts:
+            made["scan_associator"] = SCAN_ASSOCIATORS[c.associator](
+                built.q, c.sensors, c.gate_probability, predict=built.updater.gate_prediction,
+                stages=stages(c.associator, reach, c.second_look))
+        return cls(**{**made, **parts})  # type: ignore[arg-type]
 
     def __len__(self) -> int:
         return len(self.store)
 
-    def step(self, scan: Scan, want: Want | None = all_states,
+    def __contains__(self, track_id: str) -> bool:
+        return track_id in self.store
+
+    def ids(self) -> list[str]:
+        """Every track's id."""
+        return list(self.store.where)
+
+    def step(self, scan: StepInput, want: Want | None = all_states,
              pause: Callable[[StepOutcome], None] | None = None) -> StepOutcome:
         """Apply one input: each part of it (`Associator.split`) associated, its tracks
         updated, the tracks in view counted as detected or missed, the stale tracks
@@ -141,11 +203,10 @@ class Tracker:
             return out
         for index, part, hyp in self._associated(scan):
             bad = hyp.rejected
-            sensors = part.sensors if isinstance(part, Labelled) else part.sensor
-            self._update(hyp, part.batch, sensors, bad, out, want, pause)
+            self._update(hyp, part, bad, out, want, pause)
             for weighted in hyp.weighted:
                 good, x, p = self._update_weighted(weighted, part.t)
-                good, x, p = self._settle(weighted.arrays, good, x, p)
+                good, x, p = self._settle(part, weighted.arrays, good, x, p)
                 out.keep(self._block(weighted.arrays, good, x, p), weighted.arrays.ids, good,
                          want)
             self.count_detections(hyp, out)
@@ -167,13 +228,18 @@ class Tracker:
                 yield index, part, self.associator.associate(self.store, part)
         else:
             for index, det in self.scan_associator.split(scan):
-                yield index, det, self.scan_associator.associate(self.store, det)
+                hyp = self.scan_associator.associate(self.store, det)
+                for arrays, rows in hyp.moved:  # put back behind the display's back
+                    self.display.forget(arrays, rows)
+                yield index, det, hyp
 
-    def _update(self, hyp: Hypotheses, batch: MeasurementBatch | None,
-                sensors: str | list[str], bad: dict[int, str], out: StepOutcome, want: Want | None,
+    def _update(self, hyp: Hypotheses, part_of: Labelled | Detections, bad: dict[int, str],
+                out: StepOutcome, want: Want | None,
                 pause: Callable[[StepOutcome], None] | None) -> None:
         """Predict and update the tracks associated, in store order, in parts of `PART`
         rows when paused between them; a non-finite result rejects its measurement."""
+        batch = part_of.batch
+        sensors = part_of.sensors if isinstance(part_of, Labelled) else part_of.sensor
         upd, rows = hyp.pairs()
         if not len(rows) or batch is None:
             return
@@ -190,21 +256,21 @@ class Tracker:
                 sensors if isinstance(sensors, str) else [sensors[i] for i in part])
             for j in np.flatnonzero(~ok).tolist():
                 bad[int(part[j])] = NON_FINITE
-            good, x, p = self._settle(arrays, good, x, p)
+            good, x, p = self._settle(part_of, arrays, good, x, p)
             out.keep(self._block(arrays, good, x, p), arrays.ids, good, want)
 
-    def _settle(self, arrays: TrackArrays, good: np.ndarray, x: np.ndarray, p: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The rows just updated less those whose update is in doubt (`SecondLook.settle`:
-        back on their miss branch until the next scan), with their states."""
-        doubt = self.scan_associator.second_look.settle(arrays, good)
+    def _settle(self, part: Labelled | Detections, arrays: TrackArrays, good: np.ndarray,
+                x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rows an unlabelled part just updated less those whose update its associator
+        keeps aside (`ScanAssociator.settle`: back on their branch before the update, drawn
+        afresh), with their states."""
+        if isinstance(part, Labelled):
+            return good, x, p
+        doubt = self.scan_associator.settle(arrays, good)
         if not doubt.any():
             return good, x, p
+        self.display.forget(arrays, good[doubt])
         return good[~doubt], x[~doubt], p[~doubt]
-
-    def _moved(self, arrays: TrackArrays, rows: np.ndarray) -> None:
-        """Rows whose columns were put back behind the display's back: drawn afresh."""
-        self.display.forget(arrays, rows)
 
     def update(self, arrays: TrackArrays, rows: np.ndarray, batch: MeasurementBatch,
                sensors: str | list[str] = "") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -247,9 +313,9 @@ class Tracker:
         updated, their new states and covariances."""
         arrays, rows = w.arrays, w.rows
         times = np.full(len(rows), t)
-        by_pda = getattr(self.updater, "update_pda", None)  # mode by mode (an IMM)
-        if by_pda is not None:
-            xn, pn, nis, ok = by_pda(arrays, rows, times - arrays.t[rows], w)
+        by_pda = self.updater.update_pda(arrays, rows, times - arrays.t[rows], w)
+        if by_pda is not None:  # the filter's own (an IMM: mode by mode)
+            xn, pn, nis, ok = by_pda
         else:
             xn, pn, nis, ok = self.updater.update(arrays, rows, times - arrays.t[rows],
                                                   EquivalentConversion(w.z, w.r, w.mass))
@@ -269,11 +335,9 @@ class Tracker:
         states there renamed). Tracks without a measurement keep their filtered state:
         the display predicts it to every instant, and labelled ones turn coasting with
         age."""
-        c = self.config
-        for arrays, rows in update_life(hyp.seen, c.confirm_m, c.confirm_n, c.confirm_score):
-            joined = self.stitcher.join(self.store, arrays, rows)
-            if joined:
-                out.renamed(joined)
+        joined = self.life.count(self.store, hyp.seen)
+        if joined:
+            out.renamed(joined)
 
     def delete(self, now: float) -> list[str]:
         """Remove the tracks the deleter picks at time `now`; their ids."""
@@ -303,7 +367,7 @@ class Tracker:
             ids, speed = [part.ids[i] for i in new], None
             batch = batch if len(new) == len(part) else batch.take(new)
         else:
-            ids, speed = self.numbers.new(part.sensor, len(new)), self.config.max_speed / 3
+            ids, speed = self.numbers.new(part.sensor, len(new)), self.plot_speed
             batch = batch.take(new)
         arrays, rows, reasons, x, p = self._start(hyp.dim, batch, ids, speed)
         for i, reason in zip(new, reasons, strict=True):
@@ -325,9 +389,7 @@ class Tracker:
         """`initiate`, and the new tracks' states and covariances."""
         arrays, rows, reasons = self.initiator.initiate(self.store, dim, batch, ids, speed)
         if speed is not None:
-            arrays.plot[rows], arrays.hits[rows], arrays.scans[rows] = True, 1, 1
-            arrays.confirmed[rows] = self.config.confirm_m <= 1 and \
-                self.config.confirm_score <= 0
+            self.life.start(arrays, rows)
         self.updater.initiate(arrays, rows)
         x, p = arrays.x[rows], arrays.p[rows]
         self.display.initiate(arrays, rows, x, p)
@@ -356,6 +418,12 @@ class Tracker:
                                   if k in self.store})
 
     # ------------------------------------------------------------ queries
+    def counts(self) -> dict[str, int]:
+        """What the association's stages and the track life did since start (`status`):
+        every count present, zero where a part is left out."""
+        return {"deferred": 0, "reverted": 0, "chances": 0, "retaken": 0, "continued": 0,
+                **self.scan_associator.counts(), **self.life.counts()}
+
     def states(self, arrays: TrackArrays, rows: Sequence[int] | np.ndarray) -> States:
         """The filtered states of rows of one layout, as columns."""
         r = np.asarray(rows, dtype=int)
