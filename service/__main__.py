@@ -312,7 +312,7 @@ def start(args: argparse.Namespace, session: Any, tracker: Tracker,
                        meas_keys=args.meas or None, plot_keys=args.plots or None,
                        scan_keys=args.scan or None,
                        reorder=args.reorder, max_jump=args.max_jump,
-                       state=args.state, state_period=args.state_period)
+                       state=args.state, state_period=args.state_period, origin=origin)
     if svc.state is not None:
         print(f"track-service: {svc.state.restore(svc.restore)}", file=sys.stderr, flush=True)
     return svc.start(), origin_answer

@@ -170,7 +170,9 @@ def test_track_web_takes_the_services_origin() -> None:
     from zenoh_track.clients.procs import stop as stop_proc
 
     with ServiceProcess("--origin", ORIGIN.text()) as svc:
-        svc.wait()
+        client = svc.wait()
+        assert client.status()["origin"] == {"frame": "enu", "datum": "WGS-84", "lat": 43.1,
+                                             "lon": 5.9, "alt": 0.0}
         port = free_port()
         web = subprocess.Popen([sys.executable, "-m", "zenoh_track.clients.web.web", "-e",
                                 svc.endpoint, "--port", str(port)],

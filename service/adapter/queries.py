@@ -12,7 +12,7 @@ import zenoh
 
 from .. import __version__
 from ..estimation import jit
-from ..wire import PROTOCOL_VERSION, Keys, pack
+from ..wire import PROTOCOL_VERSION, Keys, Origin, origin_message, pack, unpack
 from .admit import Admit
 from .ingest import Ingest, Query
 from .publish import MSGPACK, Publisher
@@ -26,9 +26,11 @@ class Queries:
     """What a service answers about itself and its tracks."""
 
     def __init__(self, keys: Keys, calls: TrackerCalls, out: Publisher, clock: Clock,
-                 admit: Admit, ingest: Ingest, instance: str, rate: float) -> None:
+                 admit: Admit, ingest: Ingest, instance: str, rate: float,
+                 origin: Origin | None = None) -> None:
         self.keys, self.calls, self.out, self.clock = keys, calls, out, clock
         self.admit, self.ingest, self.instance, self.rate = admit, ingest, instance, rate
+        self.origin = unpack(origin_message(origin))  # as `<ns>/origin` answers it
         self.started = time.monotonic()
 
     def status(self) -> dict[str, Any]:
@@ -52,7 +54,7 @@ class Queries:
             "second_look": self.calls.second_look(),
             "tracks_continued": self.calls.continued(),
             "display_puts": c.display_puts, "tracks_puts": c.tracks_puts,
-            "queue": self.ingest.waiting(),
+            "queue": self.ingest.waiting(), "origin": self.origin,
         }
 
     def answer(self, item: Query) -> None:

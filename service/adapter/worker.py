@@ -26,7 +26,7 @@ from .. import defaults
 from ..estimation.measurements import MeasurementBatch
 from ..tracking.batches import Labelled, StepOutcome
 from ..tracking.tracker import Tracker
-from ..wire import Keys, PlotScan
+from ..wire import Keys, Origin, PlotScan
 from .admit import Admit
 from .clocks import make_clock
 from .decode import Decoder
@@ -72,9 +72,10 @@ class TrackService:
                  plot_keys: list[str] | None = None, scan_keys: list[str] | None = None,
                  reorder: float = defaults.REORDER,
                  max_jump: float = defaults.MAX_JUMP, state: str | None = None,
-                 state_period: float = defaults.STATE_PERIOD) -> None:
+                 state_period: float = defaults.STATE_PERIOD,
+                 origin: Origin | None = None) -> None:
         """`state`: the `--state` file's path (None: no checkpoints), written every
-        `state_period` s."""
+        `state_period` s; `origin`: the deployment's geodetic frame, as `status` says it."""
         self.session, self.keys, self.tracker = session, keys, tracker
         self.calls = TrackerCalls(tracker)
         display = tracker.display.config
@@ -92,7 +93,7 @@ class TrackService:
         self.next_freeze = 0.0  # monotonic time of the worker's next gc.freeze()
         self.ingest = Ingest(session, keys, meas_keys, plot_keys, scan_keys)
         self.queries = Queries(keys, self.calls, self.out, self.clock, self.admit,
-                               self.ingest, instance, display.rate)
+                               self.ingest, instance, display.rate, origin)
         self.token = session.liveliness().declare_token(keys.alive(instance))
         self.thread = threading.Thread(target=self._run, name="track-worker", daemon=True)
 
