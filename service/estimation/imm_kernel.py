@@ -40,32 +40,33 @@ _FACT = np.array([1, 1, 2, 6])  # k! for the process noise's denominators
 
 @njit(**JIT)
 def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
-                values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+                values, sigmas, origin, sigma_t, xn, pn, nis, ok):  # pragma: no cover
     """The update of every row, 40 rows at a time (the last block padded with copies of
     its last row, which are not written back; not a power of two: with the six modes of
     the turns, 3.7-3.9 us a row against 4.4-4.6 at 32, docs/performance.md). `shared`:
     one R for every mode, averaged over the mixture of the modes' predictions; else each
-    mode's own."""
+    mode's own. `sigma_t` (N,): each measurement's time noise, s (0 or NaN: none;
+    `timing.time_noise`)."""
     _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 40, polar,
-          values, sigmas, origin, xn, pn, nis, ok)
+          values, sigmas, origin, sigma_t, xn, pn, nis, ok)
 
 
 @njit(**JIT)
 def update_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
-               values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+               values, sigmas, origin, sigma_t, xn, pn, nis, ok):  # pragma: no cover
     """`update_rows` 8 rows at a time: less padding for a pass of few rows."""
     _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 8, polar,
-          values, sigmas, origin, xn, pn, nis, ok)
+          values, sigmas, origin, sigma_t, xn, pn, nis, ok)
 
 
 @njit(**JIT, inline="always")
 def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, b, polar,
-          values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+          values, sigmas, origin, sigma_t, xn, pn, nis, ok):  # pragma: no cover - compiled
     """The body of both, inlined so that the block length b is a constant of each."""
     m, n = mode_x.shape[1], mode_x.shape[2]
     d = n // 3
     mx, mp, mu = np.empty((m, n, b)), np.empty((m, n, n, b)), np.empty((m, b))
-    h, pol = np.empty(b), np.empty(b, np.bool_)
+    h, pol, st2 = np.empty(b), np.empty(b, np.bool_), np.empty(b)
     val, sig, org = np.empty((d, b)), np.empty((d, b)), np.empty((3, b))
     w, c, z = np.empty((m, m, b)), np.empty((m, b)), np.empty((d, b))
     xp, pp = np.empty((m, n, b)), np.empty((m, n, n, b))  # each mode's prediction
@@ -82,6 +83,8 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
             i = min(lo + q, len(rows) - 1)
             row = rows[i]
             h[q], pol[q] = dt[i], polar[i]
+            st = sigma_t[i]
+            st2[q] = st * st if st > 0.0 else 0.0  # NaN: none
             for a in range(d):
                 val[a, q], sig[a, q] = values[a, i], sigmas[a, i]
             for a in range(3):
@@ -107,9 +110,11 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
         _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
         if shared:
             noise(pol, sig, org, const, mean, spread, d, rr[0], mats, nvec)
+            _time_noise(mean, spread, d, st2, rr[0])
         for j in range(m):
             if not shared:
                 noise(pol, sig, org, const, xp[j], pp[j], d, rr[j], mats, nvec)
+                _time_noise(xp[j], pp[j], d, st2, rr[j])
             elif j:
                 rr[j] = rr[0]
             s = n if _accelerating(kinds[j]) else 2 * d
@@ -467,6 +472,20 @@ def _inverse(s0, d, si, det, low, piv):  # pragma: no cover - compiled
                     v += low[r, i, q] * low[r, j, q] / piv[r, q]
                 si[i, j, q] = v
                 si[j, i, q] = v
+
+
+@njit(**JIT)
+def _time_noise(x, p, d, st2, out):  # pragma: no cover - compiled
+    """R (d, d, B) plus sigma_t^2 (v v' + P_vv) of the prediction x (n, B), P (n, n, B)
+    where st2 = sigma_t^2 > 0 (`timing.time_noise`, its reference); other rows as they
+    are."""
+    b = out.shape[2]
+    for q in range(b):
+        s2 = st2[q]
+        if s2 > 0.0:
+            for a in range(d):
+                for e in range(d):
+                    out[a, e, q] += s2 * (x[d + a, q] * x[d + e, q] + p[d + a, d + e, q])
 
 
 @njit(**JIT)
