@@ -107,7 +107,8 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
             else:
                 _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j],
                          ws[j] if kinds[j] == 0 else 0.0, wk[0], wv)
-        _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
+        # the mixture's prediction: its position, and its velocity for the time noise
+        _moments(xp, pp, c, 2 * d if st2.max() > 0.0 else d, mean, spread, dv)
         if shared:
             noise(pol, sig, org, const, mean, spread, d, rr[0], mats, nvec)
             _time_noise(mean, spread, d, st2, rr[0])
