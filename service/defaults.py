@@ -123,6 +123,13 @@ NOISE_RATIO = 3.0
 NOISE_FLOOR = 1.0  # m
 NOISE_NIS_LOW = 0.3
 NOISE_EVERY = 10.0  # s of wall time: at most one errors/<sensor> report per sensor
+# (estimation.timing, docs/timing.md) a time noise's term is weighted up where the
+# innovation along the track exceeds TIME_HUBER of its sigma (Huber's weight): the heavy
+# tails of time errors (repeats, late packets) neither pull the track nor switch the IMM's
+# modes. bench/timing.py, 50 aircraft, stated sigma_t, 3 seeds: 0.78, 0.78, 0.79 x linear
+# extrapolation's error without; 0.72, 0.75, 0.78 at 1.5; 0.72, 0.73, 0.76 at 2; 0.74,
+# 0.73, 0.75 at 3
+TIME_HUBER = 2.0
 
 # ---------------------------------------------------------------- time faults
 # (docs/protocol.md §6.1) the input limits themselves are protocol constants

@@ -11,6 +11,7 @@ import struct
 import numpy as np
 import pytest
 
+from zenoh_track import defaults
 from zenoh_track.clients.feeds import stamped
 from zenoh_track.estimation import kalman, models, timing
 from zenoh_track.estimation.filters import SingleModelFilter
@@ -31,14 +32,22 @@ from zenoh_track.wire import (
 NOISE = (10.0, 0.01, 0.01, 1.0)
 
 
-def plain(r: np.ndarray, vel: np.ndarray, vel_cov: np.ndarray, sigma_t: np.ndarray
-          ) -> np.ndarray:
-    """The reference: row by row, R + s^2 (v v' + P_vv); none where s is NaN or 0."""
+def plain(r: np.ndarray, vel: np.ndarray, vel_cov: np.ndarray, sigma_t: np.ndarray,
+          nu: np.ndarray | None = None, pos_cov: np.ndarray | None = None) -> np.ndarray:
+    """The reference: row by row, R + w s^2 (v v' + P_vv), w = max(1, |u' nu| / (k sd))
+    with u = v / |v| and sd^2 = u' (P_pos + R + s^2 (v v' + P_vv)) u (w = 1 without nu);
+    none where s is NaN or 0."""
     out = r.copy()
     for i in range(len(r)):
         s = sigma_t[i]
         if s == s and s > 0:
-            out[i] = r[i] + s * s * (np.outer(vel[i], vel[i]) + vel_cov[i])
+            term = s * s * (np.outer(vel[i], vel[i]) + vel_cov[i])
+            w = 1.0
+            if nu is not None:
+                u = vel[i] / np.linalg.norm(vel[i])
+                sd = math.sqrt(u @ (pos_cov[i] + r[i] + term) @ u)
+                w = max(1.0, abs(u @ nu[i]) / (defaults.TIME_HUBER * sd))
+            out[i] = r[i] + w * term
     return out
 
 
@@ -57,9 +66,18 @@ def test_time_noise_is_its_plain_form(d):
     sigma_t[::7], sigma_t[::11] = np.nan, 0.0
     want = plain(r, vel, cov, sigma_t)
     np.testing.assert_allclose(timing.time_noise(r, vel, cov, sigma_t), want, rtol=1e-13)
+    # innovations along the track up to 6 sigma: Huber's weight 1 for some, > 1 for others
+    pos_cov = spd(rng, n, d, 20.0)
+    along = np.nan_to_num(sigma_t) * np.linalg.norm(vel, axis=1) + 10.0
+    nu = rng.normal(0, 1, (n, d)) * 3 * along[:, None]
+    weighted = plain(r, vel, cov, sigma_t, nu, pos_cov)
+    assert (weighted > want + 1e-9).any() and (np.isclose(weighted, want)).all(axis=(1, 2)).any()
+    np.testing.assert_allclose(timing.time_noise(r, vel, cov, sigma_t, nu, pos_cov),
+                               weighted, rtol=1e-12)
     soa = np.ascontiguousarray(r.transpose(1, 2, 0))
-    timing.time_noise_soa(soa, vel.T.copy(), cov.transpose(1, 2, 0).copy(), sigma_t)
-    np.testing.assert_allclose(soa.transpose(2, 0, 1), want, rtol=1e-13)
+    timing.time_noise_soa(soa, vel.T.copy(), cov.transpose(1, 2, 0).copy(), sigma_t,
+                          nu.T.copy(), pos_cov.transpose(1, 2, 0).copy())
+    np.testing.assert_allclose(soa.transpose(2, 0, 1), weighted, rtol=1e-12)
     none = ~(sigma_t > 0)
     assert (soa.transpose(2, 0, 1)[none] == r[none]).all()  # bit for bit
 
@@ -94,7 +112,7 @@ def test_the_filter_core_updates_with_the_time_noise():
     got = f.update(Arrays(x, p), np.arange(n), dt, CMKFConversion(batch))
     xp, pp = models.predict(x, p, dt, 2, 3, 1.0)
     r = plain(np.broadcast_to(np.eye(3) * 9.0, (n, 3, 3)), xp[:, 3:], pp[:, 3:, 3:],
-              batch.sigma_t)
+              batch.sigma_t, z - xp[:, :3], pp[:, :3, :3])
     want = kalman.update(xp, pp, z, r)
     for a, b in zip(got[:3], want[:3], strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
@@ -105,7 +123,8 @@ def test_the_filter_core_updates_with_the_time_noise():
 def test_a_position_late_in_time_moves_the_track_along_it_less():
     """Two tracks flying +x at 200 m/s; a measurement 40 m ahead of and one 40 m beside
     the prediction: with sigma_t 0.2 s the one ahead (40 m is 1 sigma of 0.2 s) moves
-    the track a fraction of what the one beside does; without, both the same."""
+    the track a fraction of what the one beside does; without, both the same. One 400 m
+    ahead (a repeat, or a packet 2 s late) moves it as one at `TIME_HUBER` sigma would."""
     def moved(sigma_t: float | None) -> tuple[float, float]:
         x = np.tile([0.0, 0.0, 1e3, 200.0, 0.0, 0.0], (2, 1))
         p = np.tile(np.diag([25.0] * 3 + [4.0] * 3), (2, 1, 1))
@@ -118,6 +137,13 @@ def test_a_position_late_in_time_moves_the_track_along_it_less():
     assert ahead == pytest.approx(beside, rel=1e-9) and beside > 20.0
     ahead, beside = moved(0.2)
     assert beside > 20.0 and ahead < 0.35 * beside
+    x = np.array([[0.0, 0.0, 1e3, 200.0, 0.0, 0.0]])
+    p = np.diag([25.0] * 3 + [4.0] * 3)[None]
+    far = [SingleModelFilter("cv", q=0.1).update(
+        Arrays(x.copy(), p.copy()), np.arange(1), np.ones(1),
+        CMKFConversion(batch_of(np.array([[200.0 + e, 0.0, 1e3]]), 5.0, [0.2], 1.0))
+    )[0][0, 0] - 200.0 for e in (400.0, 4000.0)]
+    assert 0 < far[1] < 1.2 * far[0] < 2 * 40.0
 
 
 # ---------------------------------------------------------------- the wire

@@ -28,6 +28,7 @@ SOURCE_RATE = 4.0  # Hz: the source's samples, the time quantised to the nearest
 REPEAT = 0.005  # probability that a position is the previous one sent again
 TURN_RATE = (1.5, 3.0)  # deg/s
 CLIP = 1.5  # s: the jitter's largest magnitude
+LEGS = (0.3, 0.5, 0.1, 0.1)  # probabilities of a leg: straight, turn, climb, speed change
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ def paths(n: int, duration: float, rng: np.random.Generator
         due = t >= change
         if due.any():  # a new leg
             k = int(due.sum())
-            kind = rng.choice(4, k, p=[0.3, 0.5, 0.1, 0.1])
+            kind = rng.choice(4, k, p=LEGS)
             sign = rng.choice([-1.0, 1.0], k)
             turn[due] = np.where(kind == 1, sign * np.radians(rng.uniform(*TURN_RATE, k)), 0.0)
             vz[due] = np.where(kind == 2, rng.uniform(-15, 15, k), 0.0)

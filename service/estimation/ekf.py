@@ -43,6 +43,7 @@ class EKFConversion:
         z, r, h, hx = ekf_arrays(b, xp[:, :d])
         if stated(b.sigma_t):  # the time's noise: the velocity seen through the Jacobian
             v = slice(d, 2 * d)
-            r = time_noise(r, (h @ xp[:, v, None])[:, :, 0],
-                           h @ pp[:, v, v] @ h.transpose(0, 2, 1), b.sigma_t)
+            ht = h.transpose(0, 2, 1)
+            r = time_noise(r, (h @ xp[:, v, None])[:, :, 0], h @ pp[:, v, v] @ ht,
+                           b.sigma_t, z - hx, h @ pp[:, :d, :d] @ ht)
         return z, r, h, hx

@@ -120,7 +120,8 @@ def _step_chunk(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
     cmkf_soa(batch, xs[:dim], ps[:dim, :dim], zs, rs)
     if timing.stated(batch.sigma_t):  # the time's noise along the predicted velocity
         v = slice(dim, 2 * dim)
-        timing.time_noise_soa(rs, xs[v], ps[v, v], batch.sigma_t)
+        timing.time_noise_soa(rs, xs[v], ps[v, v], batch.sigma_t, zs - xs[:dim],
+                              ps[:dim, :dim])
     pout = scratch.buffer("step.pn", (n, n), k)
     kalman.update_soa(xs, ps, zs, rs, pout, nis, det)
     ok[:] = kalman.finite(xs, pout, nis, dim)

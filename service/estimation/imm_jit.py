@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import defaults
 from .measurements import MeasurementBatch
 
 if TYPE_CHECKING:
@@ -67,8 +68,8 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
                   tau, dest, kinds, qs, ws, not imm.mode_conversion,
                   np.ascontiguousarray(batch.polar),
                   np.ascontiguousarray(batch.values.T), np.ascontiguousarray(batch.sigmas.T),
-                  np.ascontiguousarray(batch.origin.T), _time_column(batch, k), xn, pn, nis,
-                  ok)
+                  np.ascontiguousarray(batch.origin.T), _time_column(batch, k),
+                  defaults.TIME_HUBER, xn, pn, nis, ok)
     return xn, pn, nis, ok
 
 
@@ -121,5 +122,5 @@ def warm() -> None:
             kernel(size)(mode_x, mode_p, np.full((1, m), 1.0 / m), np.zeros(1, np.int64),
                          np.ones(1), *design(imm), not imm.mode_conversion,
                          np.ones(1, np.bool_), np.full((d, 1), 1e3), np.full((d, 1), 0.01),
-                         np.zeros((3, 1)), np.zeros(1), np.empty((1, n)), np.empty((1, n, n)),
-                         np.empty(1), np.empty(1, np.bool_))
+                         np.zeros((3, 1)), np.zeros(1), defaults.TIME_HUBER, np.empty((1, n)),
+                         np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))

@@ -40,7 +40,7 @@ _FACT = np.array([1, 1, 2, 6])  # k! for the process noise's denominators
 
 @njit(**JIT)
 def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
-                values, sigmas, origin, sigma_t, xn, pn, nis, ok):  # pragma: no cover
+                values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover
     """The update of every row, 40 rows at a time (the last block padded with copies of
     its last row, which are not written back; not a power of two: with the six modes of
     the turns, 3.7-3.9 us a row against 4.4-4.6 at 32, docs/performance.md). `shared`:
@@ -48,20 +48,20 @@ def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, s
     mode's own. `sigma_t` (N,): each measurement's time noise, s (0 or NaN: none;
     `timing.time_noise`)."""
     _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 40, polar,
-          values, sigmas, origin, sigma_t, xn, pn, nis, ok)
+          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok)
 
 
 @njit(**JIT)
 def update_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
-               values, sigmas, origin, sigma_t, xn, pn, nis, ok):  # pragma: no cover
+               values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover
     """`update_rows` 8 rows at a time: less padding for a pass of few rows."""
     _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, 8, polar,
-          values, sigmas, origin, sigma_t, xn, pn, nis, ok)
+          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok)
 
 
 @njit(**JIT, inline="always")
 def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, b, polar,
-          values, sigmas, origin, sigma_t, xn, pn, nis, ok):  # pragma: no cover - compiled
+          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover - compiled
     """The body of both, inlined so that the block length b is a constant of each."""
     m, n = mode_x.shape[1], mode_x.shape[2]
     d = n // 3
@@ -111,11 +111,11 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
         _moments(xp, pp, c, 2 * d if st2.max() > 0.0 else d, mean, spread, dv)
         if shared:
             noise(pol, sig, org, const, mean, spread, d, rr[0], mats, nvec)
-            _time_noise(mean, spread, d, st2, rr[0])
+            _time_noise(mean, spread, z, d, st2, huber, rr[0])
         for j in range(m):
             if not shared:
                 noise(pol, sig, org, const, xp[j], pp[j], d, rr[j], mats, nvec)
-                _time_noise(xp[j], pp[j], d, st2, rr[j])
+                _time_noise(xp[j], pp[j], z, d, st2, huber, rr[j])
             elif j:
                 rr[j] = rr[0]
             s = n if _accelerating(kinds[j]) else 2 * d
@@ -476,17 +476,32 @@ def _inverse(s0, d, si, det, low, piv):  # pragma: no cover - compiled
 
 
 @njit(**JIT)
-def _time_noise(x, p, d, st2, out):  # pragma: no cover - compiled
-    """R (d, d, B) plus sigma_t^2 (v v' + P_vv) of the prediction x (n, B), P (n, n, B)
-    where st2 = sigma_t^2 > 0 (`timing.time_noise`, its reference); other rows as they
-    are."""
+def _time_noise(x, p, z, d, st2, huber, out):  # pragma: no cover - compiled
+    """R (d, d, B) plus w sigma_t^2 (v v' + P_vv) of the prediction x (n, B), P (n, n, B)
+    where st2 = sigma_t^2 > 0, w Huber's weight of the innovation z - x[:d] along the
+    velocity (`timing.time_noise`, its reference); other rows as they are."""
     b = out.shape[2]
     for q in range(b):
         s2 = st2[q]
         if s2 > 0.0:
+            speed2 = 0.0
             for a in range(d):
-                for e in range(d):
-                    out[a, e, q] += s2 * (x[d + a, q] * x[d + e, q] + p[d + a, d + e, q])
+                speed2 += x[d + a, q] * x[d + a, q]
+            w = 1.0
+            if speed2 > 0.0:
+                inv = 1.0 / math.sqrt(speed2)
+                s, e = 0.0, 0.0
+                for a in range(d):
+                    e += (z[a, q] - x[a, q]) * x[d + a, q] * inv
+                    for c in range(d):
+                        t = s2 * (x[d + a, q] * x[d + c, q] + p[d + a, d + c, q])
+                        s += x[d + a, q] * inv * (p[a, c, q] + out[a, c, q] + t) \
+                            * x[d + c, q] * inv
+                if s > 0.0:
+                    w = max(abs(e) / (huber * math.sqrt(s)), 1.0)
+            for a in range(d):
+                for c in range(d):
+                    out[a, c, q] += w * s2 * (x[d + a, q] * x[d + c, q] + p[d + a, d + c, q])
 
 
 @njit(**JIT)

@@ -36,7 +36,9 @@ class CMKFConversion:
         d, b = self.batch.dim, self.batch
         z, r = cmkf_arrays(b, xp[:, :d], pp[:, :d, :d])
         if stated(b.sigma_t):  # the time's noise along the predicted velocity
-            r = time_noise(r, xp[:, d:2 * d], pp[:, d:2 * d, d:2 * d], b.sigma_t)
+            v = slice(d, 2 * d)
+            r = time_noise(r, xp[:, v], pp[:, v, v], b.sigma_t, z - xp[:, :d],
+                           pp[:, :d, :d])
         return z, r
 
 
