@@ -126,9 +126,9 @@ NOISE_EVERY = 10.0  # s of wall time: at most one errors/<sensor> report per sen
 # (estimation.timing, docs/timing.md) a time noise's term is weighted up where the
 # innovation along the track exceeds TIME_HUBER of its sigma (Huber's weight): the heavy
 # tails of time errors (repeats, late packets) neither pull the track nor switch the IMM's
-# modes. bench/timing.py, 50 aircraft, stated sigma_t, 3 seeds: 0.78, 0.78, 0.79 x linear
-# extrapolation's error without; 0.72, 0.75, 0.78 at 1.5; 0.72, 0.73, 0.76 at 2; 0.74,
-# 0.73, 0.75 at 3
+# modes. `python bench/timing.py --seed S --huber K`, seeds 0-2, error / linear
+# extrapolation's, sigma_t learned and stated: without (K 0) 0.83-0.87 and 0.78-0.79;
+# K 1.5: 0.71-0.76 and 0.73-0.79; K 2: 0.71-0.74 and 0.73-0.76; K 3: 0.74-0.75 and 0.73-0.75
 TIME_HUBER = 2.0
 
 # ---------------------------------------------------------------- time faults
