@@ -10,8 +10,11 @@ import struct
 
 import numpy as np
 import pytest
+import zenoh
+from conftest import Collector
 
 from zenoh_track import defaults
+from zenoh_track.clients.evaluation import evaluate_heldout as held
 from zenoh_track.clients.feeds import stamped
 from zenoh_track.estimation import kalman, models, timing
 from zenoh_track.estimation.filters import SingleModelFilter
@@ -21,12 +24,14 @@ from zenoh_track.tracking.batches import Labelled
 from zenoh_track.tracking.noise_check import NoiseCheck
 from zenoh_track.tracking.tracker import Tracker, TrackerConfig
 from zenoh_track.wire import (
+    MSGPACK_ENCODING,
     Measurement,
     Rejected,
     pack,
     parse_full,
     parse_scan,
     parse_scan_columns,
+    unpack,
 )
 
 NOISE = (10.0, 0.01, 0.01, 1.0)
@@ -224,3 +229,56 @@ def test_a_stated_time_noise_that_is_right_is_not_reported():
         check.observe("feed", [f"a{i}" for i in range(30)], np.arange(30), b,
                       np.full(30, 3.0), np.ones(30, bool))
     assert check.status() == {}
+
+
+# ---------------------------------------------------------------- through the service
+@pytest.mark.slow
+@pytest.mark.parametrize("stated", [False, True])
+def test_the_display_beats_linear_extrapolation_along_the_track(stated):
+    """The stamped feed through the real service on loopback (lockstep), every other
+    position sent stated exact (and with each aircraft's sigma_t), the frame 1 s later
+    against the position held out: at most 0.8 x linear extrapolation's RMS, in turns
+    too. Measured (`track-eval heldout --feed stamped --runs 1 --aircraft 100`): 0.73
+    learned and stated, turns 0.77; without the time noise's model 1.11."""
+    f = stamped.generate(aircraft=100, runs=1, seed=7, duration=300.0)
+    got = held.run_service(f.ts, f.pos, 0.0, [], f.sigma_t if stated else None)
+    lin = held.linear(f.ts, f.pos)
+    first = np.zeros(len(f.pos))
+    for where in (None, f.turning):
+        rms = held.score(got, f.pos, f.ts, first, where)
+        assert rms["missing"] == 0
+        assert rms["rms"] <= 0.8 * held.score(lin, f.pos, f.ts, first, where)["rms"]
+
+
+@pytest.mark.slow
+def test_service_reports_a_sensor_whose_times_jitter(service_factory):
+    """20 aircraft at 1 Hz stated exact, their times off by 0.1-0.2 s: reported on
+    `errors/<sensor>` (code `noise`) and in `status` with the time noise measured, the
+    along-track jitter far beyond the across-track one; the stated sigma_t of a batched
+    scan accepted, a bad one rejected with its reason."""
+    svc, s = service_factory("--clock", "lockstep")
+    errors = Collector(s, "track/errors/*")
+    f = stamped.generate(aircraft=20, runs=1, seed=8, duration=40.0)
+    enc, block = zenoh.Encoding(MSGPACK_ENCODING), zenoh.CongestionControl.BLOCK
+    for k in range(len(f.ts)):
+        for i in range(20):
+            s.put(svc.keys.meas("adsb", f"a{i}"), pack({"t": float(f.ts[k]),
+                                                        "pos": f.pos[i, k].tolist(),
+                                                        "sigma": 0.0}),
+                  encoding=enc, congestion_control=block)
+    scan = {"t": 41.0, "ids": ["a0", "a1"], "pos": f64([*f.pos[0, -1], *f.pos[1, -1]]),
+            "dim": 3, "sigma_t": f64([0.15, -1.0])}
+    s.put(svc.keys.scan("adsb"), pack(scan), encoding=enc, congestion_control=block)
+    s.put(svc.keys.clock, pack({"t": 42.0}), encoding=enc, congestion_control=block)
+    assert errors.wait_for(lambda ss: any(b and b.get("code") == "noise" for _, _, b in ss))
+    assert errors.wait_for(lambda ss: any(b and "sigma_t" in b.get("reason", "")
+                                          and b.get("code") != "noise" for _, _, b in ss))
+    body = next(b for _, _, b in errors.samples if b and b.get("code") == "noise")
+    rms = float(np.sqrt(np.mean(f.sigma_t ** 2)))
+    assert 0.5 * rms < body["measured_t"] < 1.3 * rms and body["stated_t"] == 0.0
+    assert body["along"] > 5 * body["across"] and "times are off by about" in body["reason"]
+    bad = next(b for _, _, b in errors.samples if b and "sigma_t" in b.get("reason", "")
+               and b.get("code") != "noise")
+    assert "row 1 (a1): field 'sigma_t' is not finite or out of bounds (-1.0)" in bad["reason"]
+    status = unpack(next(iter(s.get(svc.keys.status, timeout=10))).ok.payload.to_bytes())
+    assert status["sensor_noise"]["adsb"]["measured_t"] > 0.05
