@@ -5,6 +5,7 @@ measures the service itself).
     python bench/timing.py               # 50 aircraft, 300 s, seed 0
     python bench/timing.py --aircraft 100 --seed 1
     python bench/timing.py --huber 1.5  # Huber's k of the time term (defaults.TIME_HUBER)
+    python bench/timing.py --accelerating  # legs straight or changing speed (+-2 m/s^2)
 
 The feed of `zenoh_track.clients.feeds.stamped` (80-300 m/s, straight and turning, time
 stamps off by 0.1-0.2 s RMS, heavy-tailed, with repeats and quantisation), every other
@@ -64,7 +65,11 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--huber", type=float, default=defaults.TIME_HUBER,
                    help="Huber's k of the time term (0: no weighting)")
+    p.add_argument("--accelerating", action="store_true",
+                   help="legs straight or changing speed only, half each")
     args = p.parse_args()
+    if args.accelerating:
+        stamped.LEGS = (0.5, 0.0, 0.0, 0.5)
     # the keyword's default, read at each call: the value of this run
     for fn in (timing.time_noise, timing.time_noise_soa):
         fn.__defaults__ = (None, None, args.huber or math.inf)

@@ -238,9 +238,10 @@ def score(pred: np.ndarray, ref: np.ndarray, ts: np.ndarray, first: np.ndarray,
     diff = (pred - ref)[sel]
     err = np.linalg.norm(diff, axis=-1)
     ok = np.isfinite(err)
-    out = {"rms": float(np.sqrt(np.mean(err[ok] ** 2))),
-           "p95": float(np.percentile(err[ok], 95)), "n": int(ok.sum()),
-           "missing": int((~ok).sum())}
+    some = bool(ok.any())  # none: a part without instants (a feed without turns)
+    out = {"rms": _rms(err[ok]),
+           "p95": float(np.percentile(err[ok], 95)) if some else float("nan"),
+           "n": int(ok.sum()), "missing": int((~ok).sum())}
     if heading is not None:
         along_u, across_u = _frame(heading[sel][ok])
         e = diff[ok]
