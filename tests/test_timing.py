@@ -282,3 +282,24 @@ def test_service_reports_a_sensor_whose_times_jitter(service_factory):
     assert "row 1 (a1): field 'sigma_t' is not finite or out of bounds (-1.0)" in bad["reason"]
     status = unpack(next(iter(s.get(svc.keys.status, timeout=10))).ok.payload.to_bytes())
     assert status["sensor_noise"]["adsb"]["measured_t"] > 0.05
+
+
+@pytest.mark.slow
+def test_a_client_states_the_time_noise_it_knows(track):
+    """The client library's feed sends `sigma_t` (a measurement, a batched scan), checked
+    before sending; an aircraft flying +x at 200 m/s whose last position is 40 m ahead,
+    stated 0.2 s late or early, moves its track along less than one 40 m beside."""
+    feed = track.feed
+    with pytest.raises(Rejected, match="field 'sigma_t' must be >= 0.0"):
+        feed.measure("x", t=0.0, pos=[0.0, 0.0, 1e3], sigma_t=-0.1)
+    for k in range(10):
+        for name, dy in (("ahead", 0.0), ("beside", 5e3)):
+            feed.measure(name, t=float(k), pos=[200.0 * k, dy, 1e3], sigma=5.0, sigma_t=0.2)
+    feed.scan(10.0, ["ahead", "beside"], pos=np.array([[2040.0, 0.0, 1e3],
+                                                       [2000.0, 5040.0, 1e3]]),
+              sigma=5.0, sigma_t=np.array([0.2, 0.2]))
+    frame = track.advance(10.0)
+    ahead = frame.track("ahead")["pos"][0] - 2000.0
+    beside = frame.track("beside")["pos"][1] - 5000.0
+    assert 0.0 < ahead < 0.5 * beside
+    assert track.client.status()["meas_accepted"] == 22
