@@ -57,13 +57,22 @@ def test_compiled_imm_is_the_textbook_imm(dim, count, own_r, modes):
 
 @pytest.mark.parametrize("own_r", [False, True])
 @pytest.mark.parametrize("dim", [3, 2])
+def test_compiled_imm_is_the_textbook_imm_with_time_noise(dim, own_r):
+    """Measurements with a stated sigma_t (some rows without: NaN, or 0): the term
+    sigma_t^2 (v v' + P_vv) of `timing.time_noise` at the same prediction in both."""
+    compare(dim, imm_jit.BLOCK + 1, own_r, "default", 0.0, time_noise=True)
+
+
+@pytest.mark.parametrize("own_r", [False, True])
+@pytest.mark.parametrize("dim", [3, 2])
 def test_compiled_imm_is_the_textbook_imm_after_a_long_gap(dim, own_r):
     """Measurements ~10 s after the tracks' last: the widest CV mode's noise is bounded
     (`imm.cv_noise`) in both."""
     compare(dim, imm_jit.BLOCK + 1, own_r, "default", 8.5)
 
 
-def compare(dim: int, count: int, own_r: bool, modes: str, gap: float) -> None:
+def compare(dim: int, count: int, own_r: bool, modes: str, gap: float,
+            time_noise: bool = False) -> None:
     """The update of `count` rows by both, `gap` s later than the scan after the last."""
     rng = np.random.default_rng(5)
     built = FilterSpec("imm", imm_turn=2.0 * (modes == "turns")).build()
@@ -83,6 +92,9 @@ def compare(dim: int, count: int, own_r: bool, modes: str, gap: float) -> None:
     if count > 1:
         arrays.mode_p[rows[bad], 1, 0, 0] = np.nan  # a row whose update cannot be finite
     batch = MeasurementBatch.of(measurements(40, 5.5 + gap, dim, rng)[::-1][:count], dim)
+    if time_noise:
+        batch.sigma_t = rng.uniform(0.05, 0.5, len(batch))
+        batch.sigma_t[::5], batch.sigma_t[::7] = np.nan, 0.0
     dt = batch.t - arrays.t[rows]
     assert (dt * imm.modes[-1][2] > imm.dv_cap).any() == (gap > 0)  # the bound bites
     ref_arrays = copy.deepcopy(arrays)

@@ -12,8 +12,14 @@ percentile of the 3-D error, m, and their ratios to linear extrapolation's.
 The feed: generated (`--aircraft` targets per run, `--runs` Monte Carlo runs, all at
 once): aircraft at 100-250 m/s with turns, climbs and speed changes, positions jittered by
 10-30 m per axis (a level per aircraft), quantised to 1 m, with a dead-reckoning error
-that drifts to 50 m and snaps back now and then; or recorded (`--recording`, an MCAP of
-`track-record`): its `meas/` messages with Cartesian `pos`, one second apart per target.
+that drifts to 50 m and snaps back now and then; or (`--feed stamped`) positions of 80-300
+m/s aircraft whose time stamps are off by 0.1-0.2 s RMS, heavy-tailed, with repeats and
+quantisation (`clients.feeds.stamped`, docs/timing.md), sent with `sigma_t` as each
+aircraft's timing is (`--stated-sigma-t true`) or without; or recorded (`--recording`, an
+MCAP of `track-record`): its `meas/` messages with Cartesian `pos`, one second apart per
+target. The errors are also split along the track (the direction of the held-out
+positions' chord, or of the true velocity), across it horizontally and vertically, and,
+for the stamped feed, in turns and straight.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ import numpy as np
 import zenoh
 
 from zenoh_track.clients.evaluation.collect import lockstep_service
+from zenoh_track.clients.feeds import stamped
 from zenoh_track.clients.lib import Frame, Merge
 from zenoh_track.wire import (
     MSGPACK_ENCODING,
@@ -163,9 +170,10 @@ def cv_filter(ts: np.ndarray, pos: np.ndarray, sigma: float, q: float) -> np.nda
 
 # ---------------------------------------------------------------- the service
 def run_service(ts: np.ndarray, pos: np.ndarray, sigma: float | None,
-                service_args: list[str]) -> np.ndarray:
-    """Send the even-indexed positions to a lockstep service; its frame positions at the
-    odd-indexed instants (N, K, 3), NaN elsewhere."""
+                service_args: list[str], sigma_t: np.ndarray | None = None) -> np.ndarray:
+    """Send the even-indexed positions to a lockstep service (with each target's
+    `sigma_t` (N,) s, if given); its frame positions at the odd-indexed instants
+    (N, K, 3), NaN elsewhere."""
     ns = f"held{uuid.uuid4().hex[:8]}"
     proc = lockstep_service(ns, ["--no-display-keys", *service_args])
     endpoint = proc.endpoint
@@ -203,6 +211,8 @@ def run_service(ts: np.ndarray, pos: np.ndarray, sigma: float | None,
                 body = {"t": float(ts[k]), "pos": pos[i, k].tolist()}
                 if sigma is not None:
                     body["sigma"] = sigma
+                if sigma_t is not None:
+                    body["sigma_t"] = float(sigma_t[i])
                 session.put(meas_keys[i], pack(body), encoding=enc, congestion_control=block)
         session.put(keys.clock, pack({"t": float(ts[-1]) + 2.0}), encoding=enc,
                     congestion_control=block)
@@ -216,43 +226,90 @@ def run_service(ts: np.ndarray, pos: np.ndarray, sigma: float | None,
 
 
 # ---------------------------------------------------------------- scores
-def score(pred: np.ndarray, ref: np.ndarray, ts: np.ndarray, first: np.ndarray
+def score(pred: np.ndarray, ref: np.ndarray, ts: np.ndarray, first: np.ndarray,
+          where: np.ndarray | None = None, heading: np.ndarray | None = None
           ) -> dict[str, float]:
     """RMS and 95th percentile of the 3-D error at the held-out instants after each
-    target's warm-up (`first`: each target's first time)."""
+    target's warm-up (`first`: each target's first time; `where` (N, K): only there),
+    and, with `heading` (N, K, 3), the RMS along it, across it horizontally and
+    vertically."""
     held = np.zeros(len(ts), bool)
     held[1::2] = True
     sel = held[None, :] & (ts[None, :] >= first[:, None] + WARMUP)
-    err = np.linalg.norm(pred - ref, axis=-1)[sel]
+    if where is not None:
+        sel = sel & where
+    diff = (pred - ref)[sel]
+    err = np.linalg.norm(diff, axis=-1)
     ok = np.isfinite(err)
-    return {"rms": float(np.sqrt(np.mean(err[ok] ** 2))), "p95": float(np.percentile(err[ok], 95)),
-            "n": int(ok.sum()), "missing": int((~ok).sum())}
+    some = bool(ok.any())  # none: a part without instants (a feed without turns)
+    out = {"rms": _rms(err[ok]),
+           "p95": float(np.percentile(err[ok], 95)) if some else float("nan"),
+           "n": int(ok.sum()), "missing": int((~ok).sum())}
+    if heading is not None:
+        along_u, across_u = _frame(heading[sel][ok])
+        e = diff[ok]
+        out |= {"along": _rms(np.sum(e * along_u, 1)),
+                "across": _rms(np.sum(e * across_u, 1)), "vertical": _rms(e[:, 2])}
+    return out
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x ** 2))) if len(x) else float("nan")
+
+
+def _frame(heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal unit vectors along (N, 3) and across the headings (N, 3)."""
+    h = heading.copy()
+    h[:, 2] = 0.0
+    along = h / np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    return along, np.column_stack([-along[:, 1], along[:, 0], np.zeros(len(h))])
+
+
+def chord(pos: np.ndarray) -> np.ndarray:
+    """The heading at each instant from the positions around it (N, K, 3)."""
+    out = np.full_like(pos, np.nan)
+    out[:, 1:-1] = pos[:, 2:] - pos[:, :-2]
+    return out
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    sigma_t, turning, heading = None, None, None
     if args.recording:
         ts, pos, truth = recorded(args.recording)
+    elif args.feed == "stamped":
+        f = stamped.generate(args.aircraft, args.runs or 20, args.seed, args.duration)
+        ts, pos, truth, turning, heading = f.ts, f.pos, f.truth, f.turning, f.vel
+        if args.stated_sigma_t == "true":
+            sigma_t = f.sigma_t
+        elif args.stated_sigma_t != "absent":
+            sigma_t = np.full(len(pos), float(args.stated_sigma_t))
     else:
         ts, pos, truth = generate(args.aircraft, args.runs or 20, args.seed, args.duration)
+    if heading is None:
+        heading = chord(pos)
     sigma = None if args.stated_sigma == "absent" else float(args.stated_sigma)
     first = ts[np.argmax(np.isfinite(pos).all(-1), axis=1)]
-    preds = {"service": run_service(ts, pos, sigma, args.service_arg),
+    preds = {"service": run_service(ts, pos, sigma, args.service_arg, sigma_t),
              "linear": linear(ts, pos),
              "cv filter": cv_filter(ts, pos, 1.0 if sigma is None else sigma, args.cv_q)}
     refs = {"held-out positions": pos} | ({} if truth is None else {"truth": truth})
-    report = {r: {k: score(p, ref, ts, first) for k, p in preds.items()}
-              for r, ref in refs.items()}
+    parts = {"": None} | ({} if turning is None else {" (turns)": turning,
+                                                        " (straight)": ~turning})
+    report = {r + part: {k: score(p, ref, ts, first, where, heading) for k, p in preds.items()}
+              for r, ref in refs.items() for part, where in parts.items()}
     print(f"track-eval heldout: {pos.shape[0]} targets, {len(ts)} s, every other position "
-          f"sent with sigma {args.stated_sigma}, the frame 1 s later scored; "
-          f"service options {args.service_arg or 'none'}")
-    print(f"{'against':<20}{'predictor':<12}{'RMS, m':>10}{'p95, m':>10}{'RMS/lin':>9}"
-          f"{'p95/lin':>9}{'scored':>9}{'missing':>9}")
+          f"sent with sigma {args.stated_sigma}"
+          + ("" if args.feed != "stamped" else f" and sigma_t {args.stated_sigma_t}")
+          + f", the frame 1 s later scored; service options {args.service_arg or 'none'}")
+    print(f"{'against':<32}{'predictor':<12}{'RMS, m':>9}{'p95, m':>9}{'RMS/lin':>8}"
+          f"{'p95/lin':>8}{'along':>8}{'across':>8}{'vert.':>7}{'scored':>8}{'missing':>8}")
     for r, rows in report.items():
         lin = rows["linear"]
         for k, v in rows.items():
-            print(f"{r:<20}{k:<12}{v['rms']:>10.2f}{v['p95']:>10.2f}"
-                  f"{v['rms'] / lin['rms']:>9.3f}{v['p95'] / lin['p95']:>9.3f}"
-                  f"{v['n']:>9}{v['missing']:>9}")
+            print(f"{r:<32}{k:<12}{v['rms']:>9.2f}{v['p95']:>9.2f}"
+                  f"{v['rms'] / lin['rms']:>8.3f}{v['p95'] / lin['p95']:>8.3f}"
+                  f"{v['along']:>8.2f}{v['across']:>8.2f}{v['vertical']:>7.2f}"
+                  f"{v['n']:>8}{v['missing']:>8}")
     sys.stdout.flush()
     return report
 
@@ -266,3 +323,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--cv-q", type=float, default=1.0,
                    help="heldout: the CV filter's white acceleration density, m/s^1.5")
     g.add_argument("--recording", help="heldout: an MCAP recording of a labelled feed")
+    g.add_argument("--feed", choices=("jitter", "stamped"), default="jitter",
+                   help="heldout: the generated feed: positions jittered (default) or "
+                        "stamped with times that are not theirs (docs/timing.md)")
+    g.add_argument("--stated-sigma-t", default="absent",
+                   help="heldout, stamped feed: the sigma_t sent, s: 'absent' (default), "
+                        "'true' (each aircraft's own) or a number")

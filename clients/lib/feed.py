@@ -92,15 +92,17 @@ class Feed:
                 pos: Sequence[float] | npt.NDArray[np.floating[Any]] | None = None,
                 sigma: float | Sequence[float] | None = None, sr: float | None = None,
                 saz: float | None = None, sel: float | None = None,
-                sensor_pos: Sequence[float] | None = None, seq: int | None = None) -> None:
+                sensor_pos: Sequence[float] | None = None, seq: int | None = None,
+                sigma_t: float | None = None) -> None:
         """One labelled measurement of `target`: polar (`r`, `az`[, `el`]) or Cartesian
-        (`pos`), noise optional (the service's defaults)."""
+        (`pos`), noise optional (the service's defaults); `sigma_t`: the std of the time
+        `t`, s (docs/timing.md; absent: the service measures it)."""
         def plain(v: Any) -> Any:
             return None if v is None else [float(x) for x in np.ravel(v)]
 
         msg = _fields(t=float(t), r=r, az=az, el=el, pos=plain(pos), sr=sr, saz=saz, sel=sel,
                       sigma=sigma if sigma is None or np.isscalar(sigma) else plain(sigma),
-                      sensor_pos=plain(sensor_pos), seq=seq)
+                      sensor_pos=plain(sensor_pos), seq=seq, sigma_t=sigma_t)
         payload = pack(msg)
         if self.check:
             parse_full(self.sensor, target, payload, _NOISE)
@@ -127,12 +129,16 @@ class Feed:
     def scan(self, t: Values, ids: Sequence[str], *, r: Values | None = None,
              az: Values | None = None, el: Values | None = None, pos: Any = None,
              sigma: Values | None = None, sr: Values | None = None, saz: Values | None = None,
-             sel: Values | None = None, sensor_pos: Sequence[float] | None = None) -> None:
+             sel: Values | None = None, sensor_pos: Sequence[float] | None = None,
+             sigma_t: Values | None = None) -> None:
         """Many labelled measurements in one message (`<ns>/scan/<sensor>`): row i for
-        target `ids[i]`; `t` one time or one per row; `pos` an (N, 2|3) array."""
+        target `ids[i]`; `t` one time or one per row; `pos` an (N, 2|3) array; `sigma_t`
+        the std of the times, s, one for all or one per row (docs/timing.md)."""
         msg = {"ids": [str(i) for i in ids], **self._columns(
             t, r, az, el, pos, dict(zip(_NOISE_KEYS, (sr, saz, sel, sigma), strict=True)),
             sensor_pos)}
+        if sigma_t is not None:
+            msg["sigma_t"] = _column(sigma_t)
         payload = pack(msg)
         if self.check:
             rejected = parse_scan(self.sensor, payload, _NOISE).rejected

@@ -9,6 +9,7 @@ import numpy as np
 
 from .measurements import MeasurementBatch
 from .polar import polar_linearised
+from .timing import stated, time_noise
 from .ucm import cmkf_arrays
 
 
@@ -38,4 +39,11 @@ class EKFConversion:
     batch: MeasurementBatch
 
     def __call__(self, xp: np.ndarray, pp: np.ndarray) -> tuple:
-        return ekf_arrays(self.batch, xp[:, :self.batch.dim])
+        d, b = self.batch.dim, self.batch
+        z, r, h, hx = ekf_arrays(b, xp[:, :d])
+        if stated(b.sigma_t):  # the time's noise: the velocity seen through the Jacobian
+            v = slice(d, 2 * d)
+            ht = h.transpose(0, 2, 1)
+            r = time_noise(r, (h @ xp[:, v, None])[:, :, 0], h @ pp[:, v, v] @ ht,
+                           b.sigma_t, z - hx, h @ pp[:, :d, :d] @ ht)
+        return z, r, h, hx

@@ -16,7 +16,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from . import kalman, models, scratch
+from . import kalman, models, scratch, timing
 from .batch import einsum
 from .measurements import MeasurementBatch
 from .ucm import CMKFConversion, cmkf_soa
@@ -124,6 +124,10 @@ def _step_chunk(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
     models.predict_blocks(xs, blocks, dt, order, dim, q, ps)
     zs, rs = scratch.buffer("step.z", (dim,), k), scratch.buffer("step.r", (dim, dim), k)
     cmkf_soa(batch, xs[:dim], ps[:dim, :dim], zs, rs)
+    if timing.stated(batch.sigma_t):  # the time's noise along the predicted velocity
+        v = slice(dim, 2 * dim)
+        timing.time_noise_soa(rs, xs[v], ps[v, v], batch.sigma_t, zs - xs[:dim],
+                              ps[:dim, :dim])
     pout = scratch.buffer("step.pn", (n, n), k)
     kalman.update_soa(xs, ps, zs, rs, pout, nis, det)
     ok[:] = kalman.finite(xs, pout, nis, dim)

@@ -81,17 +81,22 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
     update = kernel(k)  # one kernel for every part: each block the same rows, the same bits
     rows, dt = np.ascontiguousarray(rows, dtype=np.int64), _writable(dt, k)
     polar, values = np.ascontiguousarray(batch.polar), batch.values.T
-    sigmas, origin = batch.sigmas.T, batch.origin.T
+    sigmas, origin, sigma_t = batch.sigmas.T, batch.origin.T, _time_column(batch, k)
 
     def part(lo: int, hi: int) -> None:  # rows lo..hi, distinct store rows from the others'
         update(arrays.mode_x, arrays.mode_p, arrays.mode_prob, rows[lo:hi], dt[lo:hi],
                tau, dest, kinds, qs, ws, not imm.mode_conversion, polar[lo:hi],
                np.ascontiguousarray(values[:, lo:hi]), np.ascontiguousarray(sigmas[:, lo:hi]),
-               np.ascontiguousarray(origin[:, lo:hi]), xn[lo:hi], pn[lo:hi], nis[lo:hi],
-               ok[lo:hi])
+               np.ascontiguousarray(origin[:, lo:hi]), sigma_t[lo:hi], defaults.TIME_HUBER,
+               xn[lo:hi], pn[lo:hi], nis[lo:hi], ok[lo:hi])
 
     blocks.over_rows(k, BLOCK, part, threads)
     return xn, pn, nis, ok
+
+
+def _time_column(batch: MeasurementBatch, k: int) -> np.ndarray:
+    """The batch's time noise, s, as a (k,) array (0: none)."""
+    return np.zeros(k) if batch.sigma_t is None else _writable(batch.sigma_t, k)
 
 
 def _writable(dt: np.ndarray | float, k: int) -> np.ndarray:
@@ -136,5 +141,5 @@ def warm() -> None:
             kernel(size)(mode_x, mode_p, np.full((1, m), 1.0 / m), np.zeros(1, np.int64),
                          np.ones(1), *design(imm), not imm.mode_conversion,
                          np.ones(1, np.bool_), np.full((d, 1), 1e3), np.full((d, 1), 0.01),
-                         np.zeros((3, 1)), np.empty((1, n)), np.empty((1, n, n)), np.empty(1),
-                         np.empty(1, np.bool_))
+                         np.zeros((3, 1)), np.zeros(1), defaults.TIME_HUBER, np.empty((1, n)),
+                         np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))

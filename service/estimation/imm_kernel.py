@@ -42,30 +42,31 @@ BLOCK, SMALL = defaults.IMM_BLOCK, defaults.IMM_SMALL  # `update_rows`, `update_
 
 @njit(**JIT)
 def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
-                values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+                values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover
     """The update of every row, `BLOCK` rows at a time (the last block padded with copies of
     its last row, which are not written back). `shared`: one R for every mode, averaged
-    over the mixture of the modes' predictions; else each mode's own."""
+    over the mixture of the modes' predictions; else each mode's own. `sigma_t` (N,): each
+    measurement's time noise, s (0 or NaN: none; `timing.time_noise`)."""
     _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, BLOCK, polar,
-          values, sigmas, origin, xn, pn, nis, ok)
+          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok)
 
 
 @njit(**JIT)
 def update_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
-               values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+               values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover
     """`update_rows` `SMALL` rows at a time: less padding for a pass of few rows."""
     _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, SMALL, polar,
-          values, sigmas, origin, xn, pn, nis, ok)
+          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok)
 
 
 @njit(**JIT, inline="always")
 def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, b, polar,
-          values, sigmas, origin, xn, pn, nis, ok):  # pragma: no cover - compiled
+          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover - compiled
     """The body of both, inlined so that the block length b is a constant of each."""
     m, n = mode_x.shape[1], mode_x.shape[2]
     d = n // 3
     mx, mp, mu = np.empty((m, n, b)), np.empty((m, n, n, b)), np.empty((m, b))
-    h, pol = np.empty(b), np.empty(b, np.bool_)
+    h, pol, st2 = np.empty(b), np.empty(b, np.bool_), np.empty(b)
     val, sig, org = np.empty((d, b)), np.empty((d, b)), np.empty((3, b))
     w, c, z = np.empty((m, m, b)), np.empty((m, b)), np.empty((d, b))
     xp, pp = np.empty((m, n, b)), np.empty((m, n, n, b))  # each mode's prediction
@@ -82,6 +83,8 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
             i = min(lo + q, len(rows) - 1)
             row = rows[i]
             h[q], pol[q] = dt[i], polar[i]
+            st = sigma_t[i]
+            st2[q] = st * st if st > 0.0 else 0.0  # NaN: none
             for a in range(d):
                 val[a, q], sig[a, q] = values[a, i], sigmas[a, i]
             for a in range(3):
@@ -104,12 +107,15 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
             else:
                 _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j],
                          ws[j] if kinds[j] == 0 else 0.0, wk[0], wv)
-        _moments(xp, pp, c, d, mean, spread, dv)  # the mixture's prediction
+        # the mixture's prediction: its position, and its velocity for the time noise
+        _moments(xp, pp, c, 2 * d if st2.max() > 0.0 else d, mean, spread, dv)
         if shared:
             noise(pol, sig, org, const, mean, spread, d, rr[0], mats, nvec)
+            _time_noise(mean, spread, z, d, st2, huber, rr[0])
         for j in range(m):
             if not shared:
                 noise(pol, sig, org, const, xp[j], pp[j], d, rr[j], mats, nvec)
+                _time_noise(xp[j], pp[j], z, d, st2, huber, rr[j])
             elif j:
                 rr[j] = rr[0]
             s = n if _accelerating(kinds[j]) else 2 * d
@@ -467,6 +473,35 @@ def _inverse(s0, d, si, det, low, piv):  # pragma: no cover - compiled
                     v += low[r, i, q] * low[r, j, q] / piv[r, q]
                 si[i, j, q] = v
                 si[j, i, q] = v
+
+
+@njit(**JIT)
+def _time_noise(x, p, z, d, st2, huber, out):  # pragma: no cover - compiled
+    """R (d, d, B) plus w sigma_t^2 (v v' + P_vv) of the prediction x (n, B), P (n, n, B)
+    where st2 = sigma_t^2 > 0, w Huber's weight of the innovation z - x[:d] along the
+    velocity (`timing.time_noise`, its reference); other rows as they are."""
+    b = out.shape[2]
+    for q in range(b):
+        s2 = st2[q]
+        if s2 > 0.0:
+            speed2 = 0.0
+            for a in range(d):
+                speed2 += x[d + a, q] * x[d + a, q]
+            w = 1.0
+            if speed2 > 0.0:
+                inv = 1.0 / math.sqrt(speed2)
+                s, e = 0.0, 0.0
+                for a in range(d):
+                    e += (z[a, q] - x[a, q]) * x[d + a, q] * inv
+                    for c in range(d):
+                        t = s2 * (x[d + a, q] * x[d + c, q] + p[d + a, d + c, q])
+                        s += x[d + a, q] * inv * (p[a, c, q] + out[a, c, q] + t) \
+                            * x[d + c, q] * inv
+                if s > 0.0:
+                    w = max(abs(e) / (huber * math.sqrt(s)), 1.0)
+            for a in range(d):
+                for c in range(d):
+                    out[a, c, q] += w * s2 * (x[d + a, q] * x[d + c, q] + p[d + a, d + c, q])
 
 
 @njit(**JIT)

@@ -31,6 +31,9 @@ class MeasurementBatch:
     # or, for a batch taken from another (`take`), that one's conversion and the rows
     # taken: `at_point` takes them when first asked (a filter update never asks)
     point_of: tuple[tuple[np.ndarray, np.ndarray], np.ndarray] | None = None
+    # (N,) s: the std of each measurement's time (`timing`; NaN: not stated, the noise
+    # check may learn it), or None: no row states one
+    sigma_t: np.ndarray | None = None
 
     @classmethod
     def of(cls, meas: Sequence[Measurement], dim: int) -> MeasurementBatch:
@@ -53,9 +56,12 @@ class MeasurementBatch:
             origin[:] = first
         else:
             origin[:] = [m.sensor_pos for m in meas]
+        sigma_t = None
+        if any(m.sigma_t is not None for m in meas):
+            sigma_t = np.array([np.nan if m.sigma_t is None else m.sigma_t for m in meas])
         return cls(np.array([m.t for m in meas], dtype=float),
                    np.array([m.polar for m in meas], dtype=bool), values.reshape(dim, n).T,
-                   sigmas.reshape(dim, n).T, origin)
+                   sigmas.reshape(dim, n).T, origin, sigma_t=sigma_t)
 
     @classmethod
     def of_scan(cls, scan: ScanColumns) -> MeasurementBatch:
@@ -76,22 +82,32 @@ class MeasurementBatch:
         origin = np.empty((k, 3))
         origin[:] = scan.sensor_pos
         polar = np.full(k, scan.polar)
+        stated = scan.sigma_t is not None or any(r.sigma_t is not None
+                                                 for r in scan.fixed.values())
+        sigma_t = (column(np.nan if scan.sigma_t is None else scan.sigma_t) if stated
+                   else None)
         for row, rec in scan.fixed.items():  # rows the full check accepted as they are
             j = int(np.searchsorted(good, row))
             values[j], sigmas[j], origin[j], polar[j] = (rec.values, rec.sigmas,
                                                          rec.sensor_pos, rec.polar)
-        return cls(column(scan.t), polar, values, sigmas, origin)
+            if sigma_t is not None:
+                sigma_t[j] = np.nan if rec.sigma_t is None else rec.sigma_t
+        return cls(column(scan.t), polar, values, sigmas, origin, sigma_t=sigma_t)
 
     @classmethod
     def joined(cls, parts: Sequence[MeasurementBatch]) -> MeasurementBatch:
         """The measurements of `parts` (of one dimension), in order."""
         if len(parts) == 1:
             return parts[0]
+        sigma_t = None
+        if any(p.sigma_t is not None for p in parts):
+            sigma_t = np.concatenate([np.full(len(p), np.nan) if p.sigma_t is None
+                                      else p.sigma_t for p in parts])
         return cls(np.concatenate([p.t for p in parts]),
                    np.concatenate([p.polar for p in parts]),
                    np.asfortranarray(np.concatenate([p.values for p in parts])),
                    np.asfortranarray(np.concatenate([p.sigmas for p in parts])),
-                   np.concatenate([p.origin for p in parts]))
+                   np.concatenate([p.origin for p in parts]), sigma_t=sigma_t)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -107,18 +123,22 @@ class MeasurementBatch:
         # the column-major (N, d) columns taken as columns of their (d, N) transposes:
         # the result is column-major without a second copy
         return MeasurementBatch(self.t[i], self.polar[i], self.values.T.take(i, 1).T,
-                                self.sigmas.T.take(i, 1).T, self.origin[i], None, point_of)
+                                self.sigmas.T.take(i, 1).T, self.origin[i], None, point_of,
+                                None if self.sigma_t is None else self.sigma_t[i])
 
     def tiled(self, m: int) -> MeasurementBatch:
         """The batch m times over, one copy after another."""
         return MeasurementBatch(np.tile(self.t, m), np.tile(self.polar, m),
                                 np.asfortranarray(np.tile(self.values, (m, 1))),
                                 np.asfortranarray(np.tile(self.sigmas, (m, 1))),
-                                np.tile(self.origin, (m, 1)))
+                                np.tile(self.origin, (m, 1)),
+                                sigma_t=None if self.sigma_t is None
+                                else np.tile(self.sigma_t, m))
 
     def rows(self, lo: int, hi: int) -> MeasurementBatch:
         point = None if self.point is None else (self.point[0][lo:hi], self.point[1][lo:hi])
         point_of = None if self.point_of is None else (self.point_of[0],
                                                        self.point_of[1][lo:hi])
         return MeasurementBatch(self.t[lo:hi], self.polar[lo:hi], self.values[lo:hi],
-                                self.sigmas[lo:hi], self.origin[lo:hi], point, point_of)
+                                self.sigmas[lo:hi], self.origin[lo:hi], point, point_of,
+                                None if self.sigma_t is None else self.sigma_t[lo:hi])

@@ -18,6 +18,7 @@ from .batch import einsum
 from .linalg import cos_sin, eigh
 from .measurements import MeasurementBatch
 from .polar import ucm_covariance, unbiased
+from .timing import stated, time_noise
 
 # relative size below which an eigenvalue of a prediction's covariance is rounding (zero)
 ROUNDING = 1e-12
@@ -32,8 +33,13 @@ class CMKFConversion:
     batch: MeasurementBatch
 
     def __call__(self, xp: np.ndarray, pp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        d = self.batch.dim
-        return cmkf_arrays(self.batch, xp[:, :d], pp[:, :d, :d])
+        d, b = self.batch.dim, self.batch
+        z, r = cmkf_arrays(b, xp[:, :d], pp[:, :d, :d])
+        if stated(b.sigma_t):  # the time's noise along the predicted velocity
+            v = slice(d, 2 * d)
+            r = time_noise(r, xp[:, v], pp[:, v, v], b.sigma_t, z - xp[:, :d],
+                           pp[:, :d, :d])
+        return z, r
 
 
 def cmkf_arrays(batch: MeasurementBatch, pred: np.ndarray | None,

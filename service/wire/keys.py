@@ -29,12 +29,14 @@ MAX_AZ = 2 * math.pi + ANGLE_MARGIN  # rad: |az| ([-pi, pi] and [0, 2 pi) conven
 MAX_EL = math.pi / 2 + ANGLE_MARGIN  # rad: |el|
 MAX_ANGLE_NOISE = math.pi / 2  # rad: saz, sel (a wider 1-sigma says nothing of the angle)
 MAX_SEQ = 2**53  # seq in [0, MAX_SEQ]
+# s: sigma_t, the std of a measurement's time (a time a minute off locates nothing)
+MAX_TIME_NOISE = 60.0
 # the inclusive bounds of every numeric field (list fields: of each element)
 BOUNDS: dict[str, tuple[float, float]] = {
     "t": (-MAX_TIME, MAX_TIME),
     "r": (0.0, MAX_DISTANCE), "az": (-MAX_AZ, MAX_AZ), "el": (-MAX_EL, MAX_EL),
     "sr": (0.0, MAX_DISTANCE), "saz": (0.0, MAX_ANGLE_NOISE), "sel": (0.0, MAX_ANGLE_NOISE),
-    "sigma": (0.0, MAX_DISTANCE),
+    "sigma": (0.0, MAX_DISTANCE), "sigma_t": (0.0, MAX_TIME_NOISE),
     "pos": (-MAX_DISTANCE, MAX_DISTANCE), "sensor_pos": (-MAX_DISTANCE, MAX_DISTANCE),
 }
 

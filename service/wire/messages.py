@@ -37,6 +37,7 @@ class Measurement:
     sigmas: tuple[float, ...]  # polar: (sr, saz[, sel]); Cartesian: one per axis
     sensor_pos: tuple[float, float, float]
     seq: int | None
+    sigma_t: float | None = None  # s: the std of the time t (None: not stated)
 
 
 _ANY = (-math.inf, math.inf)
@@ -106,6 +107,7 @@ def parse_full(
         raise Rejected("field 'seq' must be an integer")
     if seq is not None and not 0 <= seq <= MAX_SEQ:
         raise Rejected(f"field 'seq' must be in [0, 2^53], got {seq}")
+    sigma_t = _num(msg, "sigma_t") if "sigma_t" in msg else None
     if polar:
         if "r" not in msg or "az" not in msg:
             raise Rejected("polar measurement needs both 'r' and 'az'")
@@ -117,7 +119,8 @@ def parse_full(
             sig.append(msg.get("sel", defaults[2]))
             names.append("sel")
         sigmas = tuple(_num({n: s}, n) for n, s in zip(names, sig, strict=True))
-        return Measurement(sensor, target, t, len(values), True, values, sigmas, sensor_pos, seq)
+        return Measurement(sensor, target, t, len(values), True, values, sigmas, sensor_pos, seq,
+                           sigma_t)
     pos = _vec(msg, "pos", (2, 3))
     raw = msg.get("sigma", defaults[3])
     if isinstance(raw, list | tuple):
@@ -127,7 +130,8 @@ def parse_full(
     else:
         sig = (_num({"sigma": raw}, "sigma"),)
     sigmas = sig * len(pos) if len(sig) == 1 else sig
-    return Measurement(sensor, target, t, len(pos), False, pos, sigmas, sensor_pos, seq)
+    return Measurement(sensor, target, t, len(pos), False, pos, sigmas, sensor_pos, seq,
+                       sigma_t)
 
 
 def _fast_polar(sensor: str, target: str, payload: bytes) -> tuple | None:

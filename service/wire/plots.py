@@ -134,7 +134,7 @@ class _Scan:
                       f"must be a map {{r, az[, el]}} or {{pos}}, got {type(det).__name__}")
         records = _records(len(good), sensor=self.sensor, target="", t=self.t,
                            dim=[len(v) for v in vals], polar=polar, values=vals, sigmas=sigs,
-                           sensor_pos=self.sensor_pos, seq=None)
+                           sensor_pos=self.sensor_pos, seq=None, sigma_t=None)
         for i, m in zip(good, records, strict=True):
             out[i] = m
         return out, slow
@@ -191,7 +191,8 @@ class _Scan:
         bad = self.bad(polar, width, n, cols)
         out: list[Measurement | str] = _records(
             n, sensor=self.sensor, target="", t=self.t, dim=len(names) if polar else width,
-            polar=polar, values=vals, sigmas=sigs, sensor_pos=self.sensor_pos, seq=None)
+            polar=polar, values=vals, sigmas=sigs, sensor_pos=self.sensor_pos, seq=None,
+            sigma_t=None)
         for i in bad:
             out[i] = self.row(i, polar, cols)
         return out, bad
