@@ -55,12 +55,12 @@ def router_config(args: argparse.Namespace):  # -> zenoh.Config
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
-    stop = on_signals(interrupt=True)  # a stop while the router opens: at once
+    stop = on_signals()
     if args.config:
         read_file(args.config, "the Zenoh configuration", prog=PROG)
-    session = open_or_exit(lambda: router_config(args), prog=PROG,
-                           what=f" {args.config}" if args.config else "")
-    stop.interrupt = False
+    with stop.interrupting():  # a stop while the router opens: at once
+        session = open_or_exit(lambda: router_config(args), prog=PROG,
+                               what=f" {args.config}" if args.config else "")
     listen = json.loads(router_config(args).get_json("listen/endpoints"))
     print(f"{PROG} {__version__}: router {session.info.zid()} listening on "
           f"{', '.join(map(str, listen))} (zenoh {zenoh_version()})", flush=True)

@@ -198,11 +198,11 @@ def test_a_confident_detection_beyond_reach_is_weighed_by_the_next_scan(reach):
 
 
 def test_a_turn_ending_in_a_missed_scan_keeps_its_track():
-    """The traced break of issue 30 at 4 s (docs/accuracy.md, "Far detections weighed
-    too"): a 4 g turn ends as a scan is missed, and the track takes a false detection
-    1.8 km off with confidence (its wide manoeuvre mode still allows the turn); the
-    aircraft's detections at the next scan put it back. Before, the aircraft started a
-    second track there and was not held at 2 of its 46 scans."""
+    """A traced case at 4 s (the manoeuvres scenario, docs/accuracy.md "Manoeuvres"): a
+    4 g turn ends as a scan is missed, and the track takes a false detection 1.8 km off
+    with confidence (its wide manoeuvre mode still allows the turn); the aircraft's
+    detections at the next scan put it back. Without the second look the aircraft starts
+    a second track there and is not held at 2 of its 46 scans."""
     tracker = Tracker.from_config()
     aircraft = manoeuvre_runs.aircraft(tracker, 4.0, 12, "4g-0")
     assert aircraft.breaks == 0 and aircraft.held == aircraft.scans
