@@ -43,7 +43,7 @@ TIMING = noise_check.NoiseCheck._timing
 
 def run(f: stamped.StampedFeed, sigma_t: np.ndarray | None) -> tuple[np.ndarray, Tracker]:
     """The frames at the held-out instants (N, K, 3) of a tracker fed the even ones."""
-    tr = Tracker(TrackerConfig())
+    tr = Tracker.from_config(TrackerConfig())
     n = len(f.pos)
     pred = np.full_like(f.pos, np.nan)
     for k in range(0, len(f.ts), 2):

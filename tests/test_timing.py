@@ -191,7 +191,7 @@ def test_a_batched_scan_states_its_time_noise():
 
 # ---------------------------------------------------------------- the noise check
 def feed_tracker(pos: np.ndarray, ts: np.ndarray, sigma: float, every: int = 1) -> Tracker:
-    tr = Tracker(TrackerConfig())
+    tr = Tracker.from_config(TrackerConfig())
     for k in range(0, len(ts), every):
         tr.step(Labelled.of([Measurement("feed", f"t{i}", float(ts[k]), 3, False,
                                          tuple(pos[i, k]), (sigma,) * 3, (0.0,) * 3, None)
