@@ -34,6 +34,7 @@ except ImportError as exc:
 
     missing_extra(exc, "web", "track-web")
 
+from zenoh_track.clients.lib.origin import deployment_origin, parse_origin
 from zenoh_track.clients.web.web_frames import FrameHub
 from zenoh_track.clients.web.web_link import Link
 
@@ -41,17 +42,6 @@ WINDOW = 2  # frames in flight to one browser (unanswered)
 HEALTH_PERIOD = 1.0  # s between health messages
 TRAIL = 30.0  # s of history drawn behind each track
 STATIC = resources.files("zenoh_track.clients.web") / "web_static"
-
-
-def parse_origin(text: str) -> list[float]:
-    """`LAT,LON,ALT` (degrees, degrees, metres) of the ENU frame's origin."""
-    try:
-        lat, lon, alt = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected LAT,LON,ALT, got {text!r}") from None
-    if not (-90 <= lat <= 90 and -180 <= lon <= 360):
-        raise argparse.ArgumentTypeError(f"latitude/longitude out of range: {text!r}")
-    return [lat, lon, alt]
 
 
 class Browser:
@@ -193,7 +183,8 @@ class WebServer:
 async def serve(args: argparse.Namespace, stop: Stop) -> None:
     session = open_session(args, log=True)
     try:
-        server = WebServer(session, Keys(args.ns), args.origin, args.trail)
+        origin = deployment_origin(args.origin, session)
+        server = WebServer(session, Keys(args.ns), list(origin) if origin else None, args.trail)
     except BaseException:
         session.close()
         raise
