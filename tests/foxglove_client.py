@@ -23,6 +23,15 @@ SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 1
 
 
+def message_class(name: str, descriptor_set: bytes) -> Any:
+    """The protobuf class of message `name` from a FileDescriptorSet (a channel's schema)."""
+    fds = descriptor_pb2.FileDescriptorSet.FromString(descriptor_set)
+    pool = descriptor_pool.DescriptorPool()
+    for f in fds.file:
+        pool.Add(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+
+
 class FoxgloveClient:
     """One connection: `channels` by topic, `receive()` the next message's
     (topic, log time ns, payload)."""
@@ -92,12 +101,8 @@ class FoxgloveClient:
             raise ValueError(f"{topic}: encoding {ch['encoding']!r}")
         cls = self._classes.get(topic)
         if cls is None:
-            fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(ch["schema"]))
-            pool = descriptor_pool.DescriptorPool()
-            for f in fds.file:
-                pool.Add(f)
-            cls = self._classes[topic] = message_factory.GetMessageClass(
-                pool.FindMessageTypeByName(ch["schemaName"]))
+            cls = self._classes[topic] = message_class(ch["schemaName"],
+                                                       base64.b64decode(ch["schema"]))
         return cls.FromString(payload)
 
     async def close(self) -> None:

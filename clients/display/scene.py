@@ -86,22 +86,21 @@ def _vec3(number: int, xyz: F64) -> pb.Parts:
                                *pb.double(3, xyz[:, 2])])
 
 
-def _pose(pos: F64, quat: F64 | None = None) -> pb.Parts:
-    """A Pose field (1 in every primitive): position, orientation (identity when None)."""
-    q = pb.message(2, pb.double(4, 1.0)) if quat is None else pb.message(2, [
-        *pb.double(1, quat[:, 0]), *pb.double(2, quat[:, 1]), *pb.double(3, quat[:, 2]),
-        *pb.double(4, quat[:, 3])])
+def _pose(pos: F64, turn: F64 | None = None) -> pb.Parts:
+    """A Pose field (1 in every primitive): position, orientation (identity when None,
+    else `headings`' y, z, w: their x is 0)."""
+    q = pb.message(2, pb.double(4, 1.0)) if turn is None else pb.message(2, [
+        *pb.double(2, turn[:, 0]), *pb.double(3, turn[:, 1]), *pb.double(4, turn[:, 2])])
     return pb.message(1, [*_vec3(1, pos), *q])
 
 
 def headings(vel: F64) -> F64:
-    """Quaternions (x, y, z, w) turning +x onto each velocity (an arrow points along its
-    pose's +x): the half-angle form of the rotation from (1, 0, 0) to u, axis (1,0,0) x u;
-    half a turn about z for u = -x."""
+    """Quaternions (y, z, w; x is 0) turning +x onto each velocity (an arrow points along
+    its pose's +x): the half-angle form of the rotation from (1, 0, 0) to u, about the
+    axis (1, 0, 0) x u = (0, -uz, uy); half a turn about z for u = -x."""
     u = vel / np.linalg.norm(vel, axis=1, keepdims=True)
-    q = np.column_stack([np.zeros(len(u)), -u[:, 2], u[:, 1], 1.0 + u[:, 0]])
-    back = q[:, 3] < 1e-9
-    q[back] = (0.0, 0.0, 1.0, 0.0)
+    q = np.column_stack([-u[:, 2], u[:, 1], 1.0 + u[:, 0]])
+    q[q[:, 2] < 1e-9] = (0.0, 1.0, 0.0)
     out: F64 = q / np.linalg.norm(q, axis=1, keepdims=True)
     return out
 
@@ -113,14 +112,7 @@ def _entity(m: Markers, stamp: pb.Parts, marker: float, arrow_s: float,
     head = [*stamp, *pb.string(E_FRAME, FRAME_ID), *pb.string(E_ID, m.entity),
             *pb.message(E_METADATA, [*pb.string(1, "count"), *pb.string(2, str(n))])]
     blocks: list[pb.Block] = [b"".join(p for p in head if isinstance(p, bytes))]
-    size = np.full((n, 3), marker)
-    blocks.append(pb.Rows(pb.message(E_CUBES, [*_pose(pos), *_vec3(2, size),
-                                              *_colour(3, m.rgb, 1.0)]), n))
-    if m.sigma is not None:
-        big = np.flatnonzero(2.0 * m.sigma > marker)
-        diameter = np.repeat(2.0 * m.sigma[big, None], 3, axis=1)
-        blocks.append(pb.Rows(pb.message(E_SPHERES, [
-            *_pose(pos[big]), *_vec3(2, diameter), *_colour(3, m.rgb, SIGMA_ALPHA)]), len(big)))
+    # in field order (arrows 7, cubes 8, spheres 9, texts 13), as the SDK writes them
     if m.vel is not None:
         vel = np.ascontiguousarray(m.vel, dtype=np.float64).reshape(n, 3)
         speed = np.linalg.norm(vel, axis=1)
@@ -131,6 +123,14 @@ def _entity(m: Markers, stamp: pb.Parts, marker: float, arrow_s: float,
             *pb.double(3, np.maximum(marker / 5.0, 0.02 * length)),
             *pb.double(4, 0.2 * length), *pb.double(5, np.maximum(marker / 2.0, 0.06 * length)),
             *_colour(6, m.rgb, 0.9)]), len(moving)))
+    size = np.full((n, 3), marker)
+    blocks.append(pb.Rows(pb.message(E_CUBES, [*_pose(pos), *_vec3(2, size),
+                                              *_colour(3, m.rgb, 1.0)]), n))
+    if m.sigma is not None:
+        big = np.flatnonzero(2.0 * m.sigma > marker)
+        diameter = np.repeat(2.0 * m.sigma[big, None], 3, axis=1)
+        blocks.append(pb.Rows(pb.message(E_SPHERES, [
+            *_pose(pos[big]), *_vec3(2, diameter), *_colour(3, m.rgb, SIGMA_ALPHA)]), len(big)))
     if labels:
         for rows, text in pb.by_length(m.names):
             blocks.append(pb.Rows(pb.message(E_TEXTS, [
