@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
+import socket
 import struct
 from typing import Any
 
@@ -45,9 +46,20 @@ class FoxgloveClient:
         self._classes: dict[str, Any] = {}
 
     async def connect(self, url: str, subprotocol: str = SUBPROTOCOL,
-                      advertised: set[str] | None = None, timeout: float = 20.0) -> None:
-        """Connect and read until serverInfo and the `advertised` topics have come."""
-        self.http = aiohttp.ClientSession()
+                      advertised: set[str] | None = None, timeout: float = 20.0,
+                      rcvbuf: int | None = None) -> None:
+        """Connect and read until serverInfo and the `advertised` topics have come.
+        `rcvbuf`: the socket's receive buffer, bytes (None: the system's, which grows to
+        tens of MB and holds many frames that a slow reader has not taken)."""
+        def make_socket(addr: Any) -> socket.socket:
+            family, kind, proto, _, _ = addr
+            sock = socket.socket(family, kind, proto)
+            if rcvbuf is not None:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+            return sock
+
+        self.http = aiohttp.ClientSession(
+            connector=aiohttp.TCPConnector(socket_factory=make_socket))
         self.ws = await self.http.ws_connect(url, protocols=(subprotocol,), max_msg_size=0,
                                              autoping=True)
         want = advertised or set()

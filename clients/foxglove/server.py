@@ -14,7 +14,9 @@ Open Foxglove or Lichtblick on ws://127.0.0.1:8765 with the layout of `--layout`
 
 A channel nobody subscribes is not encoded. A slow viewer never makes anything queue:
 the frames wait in the client library's queue of one (the newest wins), and the server
-keeps at most `--backlog` messages per viewer, dropping the oldest.
+keeps at most `--backlog` messages per viewer, dropping the oldest; beyond that only the
+TCP connection's buffers hold frames (the protocol has no acknowledgement), so a viewer
+that reads one frame a second sees one a few seconds old, never an ever older one.
 """
 
 from __future__ import annotations
@@ -42,7 +44,9 @@ from zenoh_track.wire import (
 
 PROG = "track-foxglove"
 PORT = 8765  # Foxglove's default WebSocket port
-BACKLOG = 8  # messages kept per viewer: about two frames' scene, fixes and counters
+# messages kept per viewer: one frame's scene, fixes and counters and a status; fewer would
+# let a frame's counters push out its scene
+BACKLOG = 4
 STATUS_PERIOD = 1.0  # s between /status messages
 LAYOUT = "track-foxglove.layout.json"
 FIXES_TOPIC = "/tracks/fixes"
