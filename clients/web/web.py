@@ -44,6 +44,15 @@ TRAIL = 30.0  # s of history drawn behind each track
 STATIC = resources.files("zenoh_track.clients.web") / "web_static"
 
 
+def tile_url(text: str) -> str:
+    """An XYZ tile URL template: http(s), with {z}, {x} and {y}."""
+    if not text.startswith(("http://", "https://")) or not all(
+            f"{{{k}}}" in text for k in "zxy"):
+        raise argparse.ArgumentTypeError(
+            f"expected an http(s) URL with {{z}}, {{x}} and {{y}}, got {text!r}")
+    return text
+
+
 class Browser:
     """One connected page: what it holds and how many frames it has not answered."""
 
@@ -60,8 +69,8 @@ class WebServer:
     """The aiohttp application of one namespace."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, origin: list[float] | None,
-                 trail: float) -> None:
-        self.keys, self.origin, self.trail = keys, origin, trail
+                 trail: float, tiles: str | None = None) -> None:
+        self.keys, self.origin, self.trail, self.tiles = keys, origin, trail, tiles
         self.hub = FrameHub()
         self.browsers: set[Browser] = set()
         self.loop = asyncio.get_running_loop()
@@ -124,7 +133,8 @@ class WebServer:
         browser = Browser(ws)
         self.browsers.add(browser)
         await ws.send_str(json.dumps({"type": "config", "ns": self.keys.ns,
-                                      "origin": self.origin, "trail": self.trail}))
+                                      "origin": self.origin, "trail": self.trail,
+                                      "tiles": self.tiles}))
         await ws.send_str(json.dumps(self._health_message()))
         sender = asyncio.create_task(self._send_frames(browser))
         browser.wake.set()
@@ -184,7 +194,8 @@ async def serve(args: argparse.Namespace, stop: Stop) -> None:
     session = open_session(args, log=True)
     try:
         origin = deployment_origin(args.origin, session)
-        server = WebServer(session, Keys(args.ns), list(origin) if origin else None, args.trail)
+        server = WebServer(session, Keys(args.ns), list(origin) if origin else None, args.trail,
+                           args.tiles)
     except BaseException:
         session.close()
         raise
@@ -212,6 +223,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--port", type=int, default=8080, help="HTTP port (default %(default)s)")
     p.add_argument("--origin", type=parse_origin, metavar="LAT,LON,ALT",
                    help="geodetic origin of the ENU frame: positions also in lat/lon")
+    p.add_argument("--tiles", type=tile_url, metavar="URL",
+                   help="an operator's own map tile server under the basemap, e.g. "
+                        "'https://tiles.example/{z}/{x}/{y}.png' (XYZ, Web Mercator); never "
+                        "fetched unless given")
     p.add_argument("--trail", type=float, default=TRAIL,
                    help="seconds of history behind each track (default %(default)s)")
     args = p.parse_args(argv)

@@ -66,7 +66,7 @@ function filtered(d) {
   const n = d.x.length, dim = dimension(d);
   const names = ['x', 'y', 'z'].slice(0, dim);
   const labels = [...names, ...names.map((a) => `v${a}`), ...names.map((a) => `a${a}`)].slice(0, n);
-  out.push('<h3>state and covariance</h3><table class="matrix"><tr><th></th><th>value</th><th>σ</th>');
+  out.push('<h3>state and covariance</h3><div class="scroll"><table class="matrix" id="detail-matrix"><tr><th></th><th>value</th><th>σ</th>');
   labels.forEach((l) => out.push(`<th>${l}</th>`));
   out.push('</tr>');
   for (let i = 0; i < n; i++) {
@@ -74,7 +74,7 @@ function filtered(d) {
     for (let j = 0; j < n; j++) out.push(`<td>${sci(d.P[i * n + j])}</td>`);
     out.push('</tr>');
   }
-  out.push('</table>');
+  out.push('</table></div>');
   return out.join('');
 }
 

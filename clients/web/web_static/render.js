@@ -5,6 +5,11 @@
 // pixel loop a fraction of a microsecond per mark. The few marks with text or antialiasing
 // (labels, sensors, interceptors, the selection, scale bar) are drawn by the canvas on top.
 
+import {
+  BORDER, COAST, COVERAGE, drawLines, formatDegrees, GRATICULE, graticule, RING,
+} from './basemap.js';
+import { drawLabels as placeLabels } from './labels.js';
+
 export const STATUS_NAMES = ['tentative', 'confirmed', 'coasting'];
 export const STATUS_COLORS = ['#f5c542', '#4ade80', '#94a3b8', '#60a5fa']; // last: unknown
 const BACKGROUND = '#0b1320';
@@ -194,15 +199,27 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
   const k = view.dpr, step = niceBelow(view.mpp * 160);
   const visible = frame ? markVisible(view, frame) : null;
   const m = deviceMap(view);
-  // the background, grid and trail history change only every trail sample or view change:
-  // kept as a base layer, copied under each frame (10,000 trails of 16 points each are
-  // 150,000 line segments, the largest part of a draw)
+  const geo = options.origin ? options.origin : null;
+  const base = geo && options.basemap ? options.basemap : null;
+  const span = view.mpp * Math.max(view.width, view.height);
+  const map = base ? base.lines(span) : null;
+  const grat = geo ? graticule(geo, view) : null;
+  // the background, grid or graticule, basemap, sensor rings and trail history change
+  // only every trail sample or view change: kept as a base layer, copied under each frame
+  // (10,000 trails of 16 points each are 150,000 line segments, the largest part of a draw)
   const history = options.trails && frame;
   const key = `${view.width},${view.height},${k},${view.cx},${view.cy},${view.mpp},` +
-    `${history ? trails.version : -1}`;
+    `${history ? trails.version : -1},${geo ? geo.join(',') : ''},` +
+    `${base ? `${base.version},${map ? map.name : ''}` : ''},${sensorKey(overlay.sensors)}`;
   raster.begin(ctx, Math.round(view.width * k), Math.round(view.height * k), key, () => {
-    raster.px.fill(pixel(BACKGROUND));
-    drawGrid(raster, view, step);
+    raster.px.fill(options.transparent ? 0 : pixel(BACKGROUND));
+    if (grat) drawGraticule(raster, m, grat); else drawGrid(raster, view, step);
+    if (map) {
+      const bounds = [view.wx(0), view.wy(view.height), view.wx(view.width), view.wy(0)];
+      drawLines(raster, m, map.borders, pixel(BORDER), bounds);
+      drawLines(raster, m, map.coast, pixel(COAST), bounds);
+    }
+    drawRings(raster, m, overlay.sensors);
     if (history) drawTrails(raster, m, frame, trails, visible);
   });
   if (frame) {
@@ -213,16 +230,110 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
   }
   raster.end(ctx);
   ctx.setTransform(k, 0, 0, k, 0, 0);
-  drawGridText(ctx, view, step);
-  drawSensors(ctx, view, overlay.sensors);
-  drawInterceptors(ctx, view, overlay.interceptors, frame);
+  if (grat) drawGraticuleText(ctx, view, grat); else drawGridText(ctx, view, step);
+  drawRingText(ctx, view, overlay.sensors);
+  const marks = [];
+  drawSensors(ctx, view, overlay.sensors, marks);
+  drawInterceptors(ctx, view, overlay.interceptors, frame, marks);
+  const items = [];
+  if (frame && overlay.selectedRow >= 0) drawSelected(ctx, view, frame, overlay.selectedRow, marks, items);
+  for (const s of overlay.sensors) {
+    items.push({ text: s.id, x: view.sx(s.pos[0]), y: view.sy(s.pos[1]), font: FONT, size: 11, colour: SENSOR });
+  }
+  for (const ic of overlay.interceptors) {
+    items.push({ text: ic.id + (ic.captured ? ' (captured)' : ''), x: view.sx(ic.pos[0]),
+                 y: view.sy(ic.pos[1]), font: FONT, size: 11, colour: INTERCEPTOR });
+  }
   const inView = visible ? visible.length : 0;
   if (frame && (options.labels === 'all' || (options.labels === 'auto' && inView <= LABEL_LIMIT))) {
-    drawLabels(ctx, view, frame, visible);
+    for (let r = 0; r < visible.length; r++) { // the dots: no label covers another track
+      const x = view.sx(frame.pos[3 * visible[r]]), y = view.sy(frame.pos[3 * visible[r] + 1]);
+      marks.push([x - DOT / 2, y - DOT / 2, x + DOT / 2, y + DOT / 2]);
+    }
+    for (let r = 0; r < visible.length; r++) {
+      const i = visible[r];
+      if (i === overlay.selectedRow) continue;
+      items.push({ text: frame.ids[i], x: view.sx(frame.pos[3 * i]), y: view.sy(frame.pos[3 * i + 1]),
+                   font: FONT, size: 11, colour: LABEL });
+    }
   }
-  if (frame && overlay.selectedRow >= 0) drawSelected(ctx, view, frame, overlay.selectedRow);
+  overlay.labelsDrawn = placeLabels(ctx, view.width, view.height, marks, items);
+  overlay.labelsWanted = items.length;
+  overlay.basemapLevel = map ? map.name : '';
   drawScaleBar(ctx, view);
   return inView;
+}
+
+const FONT = '11px sans-serif';
+
+function sensorKey(sensors) {
+  return sensors.map((s) => `${s.id}:${s.pos[0]},${s.pos[1]},${s.reach || 0}`).join(';');
+}
+
+/** Range rings every "nice" step up to each sensor's coverage (the farthest range it
+ *  has reported), the coverage circle brighter. */
+function ringSteps(reach) {
+  if (!(reach > 0)) return { step: 0, cover: 0 };
+  const step = niceBelow(reach / 3);
+  return { step, cover: Math.ceil(reach / step) * step };
+}
+
+function drawRings(raster, m, sensors) {
+  const ring = pixel(RING), cover = pixel(COVERAGE), { a, bx, by } = m;
+  for (const s of sensors) {
+    const r = ringSteps(s.reach);
+    if (!r.step) continue;
+    const x = s.pos[0] * a + bx, y = by - s.pos[1] * a;
+    for (let d = r.step; d < r.cover; d += r.step) {
+      if (d * a > 4) raster.circle(x, y, d * a, ring);
+    }
+    if (r.cover * a > 4) raster.circle(x, y, r.cover * a, cover);
+  }
+}
+
+function drawRingText(ctx, view, sensors) {
+  ctx.fillStyle = GRID_TEXT; ctx.font = '10px sans-serif'; ctx.textBaseline = 'bottom';
+  ctx.textAlign = 'center';
+  for (const s of sensors) {
+    const r = ringSteps(s.reach);
+    if (!r.step || r.cover / view.mpp < 40) continue;
+    const x = view.sx(s.pos[0]), y = view.sy(s.pos[1]);
+    for (let d = r.step; d <= r.cover; d += r.step) {
+      if (d / view.mpp > 30) ctx.fillText(formatDistance(d), x, y - d / view.mpp - 1);
+    }
+  }
+  ctx.textAlign = 'left';
+}
+
+function drawGraticule(raster, m, grat) {
+  const c = pixel(GRATICULE), { a, bx, by } = m;
+  for (const line of grat.lines) {
+    const p = line.pts;
+    for (let i = 1; i < p.length; i++) {
+      raster.line(p[i - 1][0] * a + bx, by - p[i - 1][1] * a, p[i][0] * a + bx, by - p[i][1] * a, c);
+    }
+  }
+}
+
+/** Latitudes along the right edge, longitudes along the bottom, where each line meets it. */
+function drawGraticuleText(ctx, view, grat) {
+  ctx.fillStyle = GRID_TEXT; ctx.font = '11px sans-serif'; ctx.textBaseline = 'bottom';
+  ctx.textAlign = 'right';
+  for (const line of grat.lines) {
+    const edge = line.kind === 'lon' ? view.height - 3 : view.width - 4;
+    let best = null, bestD = Infinity;
+    for (const [e, n] of line.pts) {
+      const px = view.sx(e), py = view.sy(n);
+      const d = line.kind === 'lon' ? Math.abs(py - view.height) : Math.abs(px - view.width);
+      const inside = line.kind === 'lon' ? px > 180 && px < view.width : py > 0 && py < view.height - 40;
+      if (inside && d < bestD) { bestD = d; best = [px, py]; }
+    }
+    if (!best || bestD > 60) continue;
+    const text = formatDegrees(line.value, grat.step, line.kind);
+    if (line.kind === 'lon') ctx.fillText(text, best[0] - 3, edge);
+    else ctx.fillText(text, edge, best[1] - 2);
+  }
+  ctx.textAlign = 'left';
 }
 
 /** The rows within 40 px of the view. */
@@ -321,34 +432,25 @@ function drawDots(raster, m, size, frame, rows) {
   }
 }
 
-function drawLabels(ctx, view, frame, rows) {
-  ctx.fillStyle = LABEL; ctx.font = '11px sans-serif'; ctx.textBaseline = 'middle';
-  for (let r = 0; r < rows.length; r++) {
-    const i = rows[r];
-    ctx.fillText(frame.ids[i], view.sx(frame.pos[3 * i]) + 6, view.sy(frame.pos[3 * i + 1]) - 7);
-  }
-}
-
-function drawSelected(ctx, view, frame, i) {
+function drawSelected(ctx, view, frame, i, marks, items) {
   const x = view.sx(frame.pos[3 * i]), y = view.sy(frame.pos[3 * i + 1]);
   ctx.beginPath(); ctx.arc(x, y, 9, 0, 2 * Math.PI);
   ctx.strokeStyle = SELECTED; ctx.lineWidth = 2; ctx.stroke();
-  ctx.fillStyle = SELECTED; ctx.font = 'bold 12px sans-serif'; ctx.textBaseline = 'middle';
-  ctx.fillText(frame.ids[i], x + 12, y - 10);
+  marks.push([x - 10, y - 10, x + 10, y + 10]);
+  items.push({ text: frame.ids[i], x, y, font: 'bold 12px sans-serif', size: 12, colour: SELECTED });
 }
 
-function drawSensors(ctx, view, sensors) {
-  ctx.fillStyle = SENSOR; ctx.font = '11px sans-serif'; ctx.textBaseline = 'top';
+function drawSensors(ctx, view, sensors, marks) {
+  ctx.fillStyle = SENSOR;
   for (const s of sensors) {
     const x = view.sx(s.pos[0]), y = view.sy(s.pos[1]);
     ctx.beginPath(); ctx.moveTo(x, y - 7); ctx.lineTo(x + 6, y + 5); ctx.lineTo(x - 6, y + 5);
     ctx.closePath(); ctx.fill();
-    ctx.fillText(s.id, x + 8, y + 2);
+    marks.push([x - 6, y - 7, x + 6, y + 5]);
   }
 }
 
-function drawInterceptors(ctx, view, interceptors, frame) {
-  ctx.font = '11px sans-serif'; ctx.textBaseline = 'middle';
+function drawInterceptors(ctx, view, interceptors, frame, marks) {
   for (const ic of interceptors) {
     const x = view.sx(ic.pos[0]), y = view.sy(ic.pos[1]);
     const row = frame && ic.target ? frame.rowOf(ic.target) : -1;
@@ -361,7 +463,7 @@ function drawInterceptors(ctx, view, interceptors, frame) {
     ctx.moveTo(x, y - 7); ctx.lineTo(x + 7, y); ctx.lineTo(x, y + 7); ctx.lineTo(x - 7, y);
     ctx.closePath();
     ctx.fillStyle = INTERCEPTOR; ctx.fill();
-    ctx.fillText(ic.id + (ic.captured ? ' (captured)' : ''), x + 10, y);
+    marks.push([x - 7, y - 7, x + 7, y + 7]);
   }
 }
 
