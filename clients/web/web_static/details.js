@@ -8,7 +8,9 @@ let shown = { id: null, data: null, at: 0, pending: false };
 
 const esc = (s) => String(s).replace(/[&<>"]/g, (c) => `&#${c.charCodeAt(0)};`);
 const num = (v, d = 1) => (typeof v === 'number' ? v.toFixed(d) : '–');
-const sci = (v) => (Math.abs(v) >= 1e5 || (v !== 0 && Math.abs(v) < 1e-2) ? v.toExponential(2) : v.toFixed(2));
+// covariance entries in at most 7 characters: the 9 x 9 table of a CA state fits the panel
+const sci = (v) => (Math.abs(v) >= 1e4 || (v !== 0 && Math.abs(v) < 1e-2)
+  ? v.toExponential(1).replace('e+', 'e') : v.toFixed(Math.abs(v) >= 100 ? 0 : 2));
 
 export function showDetails(id, state, now) {
   document.getElementById('detail-id').textContent = id;
