@@ -255,11 +255,11 @@ def test_the_covariance_table_is_whole_at_1400_px(service_factory, browser):  # 
             return { last: last.textContent, right: last.getBoundingClientRect().right,
                      panel: panel.right, scroll: t.parentElement.scrollWidth,
                      shown: t.parentElement.clientWidth,
-                     heights: [...t.rows].map((r) => Math.round(r.getBoundingClientRect().height)) };
+                     heights: [...t.rows].map((r) => r.getBoundingClientRect().height) };
         }""")
         assert got["last"] in ("az", "vz", "z"), got
         assert got["right"] <= got["panel"] and got["scroll"] <= got["shown"], got  # not cut
-        assert len(set(got["heights"])) == 1, got  # no row wraps
+        assert max(got["heights"]) - min(got["heights"]) < 2, got  # no row wraps
         page.close()
     finally:
         web.stop()

@@ -203,7 +203,7 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
   const base = geo && options.basemap ? options.basemap : null;
   const span = view.mpp * Math.max(view.width, view.height);
   const map = base ? base.lines(span) : null;
-  const grat = geo ? graticule(geo, view) : null;
+  const grat = geo ? graticuleOf(geo, view) : null;
   // the background, grid or graticule, basemap, sensor rings and trail history change
   // only every trail sample or view change: kept as a base layer, copied under each frame
   // (10,000 trails of 16 points each are 150,000 line segments, the largest part of a draw)
@@ -265,6 +265,17 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
 }
 
 const FONT = '11px sans-serif';
+let gratKey = '', gratLines = null;
+
+/** The graticule of the view, made again only when the view or origin changes. */
+function graticuleOf(origin, view) {
+  const key = `${origin.join(',')},${view.width},${view.height},${view.cx},${view.cy},${view.mpp}`;
+  if (key !== gratKey) {
+    gratKey = key; gratLines = graticule(origin, view);
+    gratLines.labels = graticuleLabels(view, gratLines);
+  }
+  return gratLines;
+}
 
 function sensorKey(sensors) {
   return sensors.map((s) => `${s.id}:${s.pos[0]},${s.pos[1]},${s.reach || 0}`).join(';');
@@ -315,12 +326,11 @@ function drawGraticule(raster, m, grat) {
   }
 }
 
-/** Latitudes along the right edge, longitudes along the bottom, where each line meets it. */
-function drawGraticuleText(ctx, view, grat) {
-  ctx.fillStyle = GRID_TEXT; ctx.font = '11px sans-serif'; ctx.textBaseline = 'bottom';
-  ctx.textAlign = 'right';
+/** Latitudes along the right edge, longitudes along the bottom, where each line meets it
+ *  (found once per view: `graticuleOf` keeps them with the lines). */
+function graticuleLabels(view, grat) {
+  const out = [];
   for (const line of grat.lines) {
-    const edge = line.kind === 'lon' ? view.height - 3 : view.width - 4;
     let best = null, bestD = Infinity;
     for (const [e, n] of line.pts) {
       const px = view.sx(e), py = view.sy(n);
@@ -330,9 +340,15 @@ function drawGraticuleText(ctx, view, grat) {
     }
     if (!best || bestD > 60) continue;
     const text = formatDegrees(line.value, grat.step, line.kind);
-    if (line.kind === 'lon') ctx.fillText(text, best[0] - 3, edge);
-    else ctx.fillText(text, edge, best[1] - 2);
+    out.push(line.kind === 'lon' ? [text, best[0] - 3, view.height - 3] : [text, view.width - 4, best[1] - 2]);
   }
+  return out;
+}
+
+function drawGraticuleText(ctx, view, grat) {
+  ctx.fillStyle = GRID_TEXT; ctx.font = '11px sans-serif'; ctx.textBaseline = 'bottom';
+  ctx.textAlign = 'right';
+  for (const [text, x, y] of grat.labels) ctx.fillText(text, x, y);
   ctx.textAlign = 'left';
 }
 
