@@ -21,7 +21,7 @@ from zenoh_track.clients import connect
 from zenoh_track.wire import Keys, free_port, pack
 
 ORIGIN = [50.95, 1.85, 0.0]  # the Strait of Dover: coast within a few km
-COAST_RGB = (0x5B, 0x7F, 0xA8)  # basemap.js COAST
+COAST_RGB = (0x7F, 0xA7, 0xD6)  # basemap.js COAST
 COVERAGE_RGB = (0x2D, 0x4F, 0x6B)  # basemap.js COVERAGE
 BASEMAP = resources.files("zenoh_track.clients.web") / "web_static" / "basemap"
 

@@ -12,7 +12,7 @@ export const LEVELS = [
   { name: '110m', minSpan: 4e6 }, { name: '50m', minSpan: 6e5 }, { name: '10m', minSpan: 0 },
 ];
 const HORIZON = 60; // degrees from the origin beyond which nothing is drawn (a plane of ENU)
-export const COAST = '#5b7fa8';
+export const COAST = '#7fa7d6';
 export const BORDER = '#3e5068';
 export const GRATICULE = '#1c2b44';
 export const RING = '#1b2d44';
