@@ -73,6 +73,14 @@ def double(number: int, value: float | npt.ArrayLike) -> Parts:
     return [tag(number, F64), Column(col.view(np.uint8).reshape(len(col), 8))]
 
 
+def doubles(number: int, table: npt.NDArray[np.float64], j: int) -> Parts:
+    """A `double` field from column j of a C-contiguous float64 table, read in place (a
+    view of its bytes, no copy)."""
+    t = np.ascontiguousarray(table, dtype="<f8")
+    raw = t.view(np.uint8).reshape(len(t), 8 * t.shape[1])
+    return [tag(number, F64), Column(raw[:, 8 * j:8 * j + 8])]
+
+
 def boolean(number: int, value: bool) -> Parts:
     return [tag(number, VARINT) + b"\x01"] if value else []
 

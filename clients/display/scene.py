@@ -81,16 +81,19 @@ def _colour(number: int, rgb: tuple[float, float, float], alpha: float) -> pb.Pa
                                *pb.double(3, rgb[2]), *pb.double(4, alpha)])
 
 
-def _vec3(number: int, xyz: F64) -> pb.Parts:
-    return pb.message(number, [*pb.double(1, xyz[:, 0]), *pb.double(2, xyz[:, 1]),
-                               *pb.double(3, xyz[:, 2])])
+def _vec3(number: int, xyz: F64 | float) -> pb.Parts:
+    """A Vector3 field: three columns of an (n, 3) table, or the same length thrice."""
+    if isinstance(xyz, float):
+        return pb.message(number, [*pb.double(1, xyz), *pb.double(2, xyz), *pb.double(3, xyz)])
+    return pb.message(number, [*pb.doubles(1, xyz, 0), *pb.doubles(2, xyz, 1),
+                               *pb.doubles(3, xyz, 2)])
 
 
 def _pose(pos: F64, turn: F64 | None = None) -> pb.Parts:
     """A Pose field (1 in every primitive): position, orientation (identity when None,
     else `headings`' y, z, w: their x is 0)."""
     q = pb.message(2, pb.double(4, 1.0)) if turn is None else pb.message(2, [
-        *pb.double(2, turn[:, 0]), *pb.double(3, turn[:, 1]), *pb.double(4, turn[:, 2])])
+        *pb.doubles(2, turn, 0), *pb.doubles(3, turn, 1), *pb.doubles(4, turn, 2)])
     return pb.message(1, [*_vec3(1, pos), *q])
 
 
@@ -123,8 +126,7 @@ def _entity(m: Markers, stamp: pb.Parts, marker: float, arrow_s: float,
             *pb.double(3, np.maximum(marker / 5.0, 0.02 * length)),
             *pb.double(4, 0.2 * length), *pb.double(5, np.maximum(marker / 2.0, 0.06 * length)),
             *_colour(6, m.rgb, 0.9)]), len(moving)))
-    size = np.full((n, 3), marker)
-    blocks.append(pb.Rows(pb.message(E_CUBES, [*_pose(pos), *_vec3(2, size),
+    blocks.append(pb.Rows(pb.message(E_CUBES, [*_pose(pos), *_vec3(2, float(marker)),
                                               *_colour(3, m.rgb, 1.0)]), n))
     if m.sigma is not None:
         big = np.flatnonzero(2.0 * m.sigma > marker)
@@ -185,7 +187,8 @@ def location_fixes(frame: Frame, origin: tuple[float, float, float] | list[float
     codes = np.minimum(frame.codes if codes is None else codes, NO_STATUS)
     lat, lon, alt = pymap3d.enu2geodetic(frame.pos[:, 0], frame.pos[:, 1], frame.pos[:, 2],
                                          *origin)
-    lat, lon, alt = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (lat, lon, alt))
+    table = np.column_stack([np.asarray(v, dtype=np.float64).reshape(-1)
+                             for v in (lat, lon, alt)])
     var = frame.sigma ** 2
     cov = np.zeros((len(frame), 9))
     cov[:, 0] = cov[:, 4] = cov[:, 8] = var
@@ -195,9 +198,10 @@ def location_fixes(frame: Frame, origin: tuple[float, float, float] | list[float
         for code in np.unique(codes[rows]):
             keep = codes[rows] == code
             sub = rows[keep]
-            cov_bytes = np.ascontiguousarray(cov[sub]).view(np.uint8).reshape(len(sub), 72)
+            geo = table[sub]
+            cov_bytes = cov[sub].view(np.uint8).reshape(len(sub), 72)
             out.append(pb.Rows(pb.message(1, [
-                *pb.double(1, lat[sub]), *pb.double(2, lon[sub]), *pb.double(3, alt[sub]),
+                *pb.doubles(1, geo, 0), *pb.doubles(2, geo, 1), *pb.doubles(3, geo, 2),
                 pb.tag(4, pb.LEN) + pb.varint(72), pb.Column(cov_bytes),
                 *pb.enum(5, DIAGONAL_KNOWN), *stamp, *pb.strings(7, names[keep]),
                 *_colour(8, COLOURS[int(code)], 1.0)]), len(sub)))
