@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import socket
 import subprocess
 import sys
 import threading
@@ -345,3 +346,21 @@ def test_a_slow_viewer_gets_recent_frames_and_nothing_queues():
     assert got[-1][1] - got[-4][1] > 2.0, lags  # 3 s of reads: frames 1 s apart, not 1/30
     assert max(lags[-4:]) < 10.0, lags
     assert memory[-1] - memory[3] < 30, memory
+
+
+def test_a_viewers_send_buffer_is_trimmed_once():
+    from zenoh_track.clients.foxglove.sockets import trim_send_buffers
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    port = listener.getsockname()[1]
+    client = socket.create_connection(("127.0.0.1", port))
+    accepted, _ = listener.accept()
+    try:
+        done: set = set()
+        assert trim_send_buffers(port, 64 * 1024, done) == 1  # not the listening socket
+        assert accepted.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF) == 2 * 64 * 1024
+        assert client.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF) != 2 * 64 * 1024
+        assert trim_send_buffers(port, 64 * 1024, done) == 0
+    finally:
+        for s in (client, accepted, listener):
+            s.close()

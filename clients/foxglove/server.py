@@ -24,11 +24,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from importlib import resources
 from typing import Any
 
 from zenoh_track.clients.display import scene
+from zenoh_track.clients.foxglove.sockets import trim_send_buffers
 from zenoh_track.clients.lib.frames import Frame
 from zenoh_track.clients.lib.origin import Origin, deployment_origin, parse_origin
 from zenoh_track.clients.lib.session import Client
@@ -48,6 +50,7 @@ PORT = 8765  # Foxglove's default WebSocket port
 # messages kept per viewer: one frame's scene, fixes and counters and a status; fewer would
 # let a frame's counters push out its scene
 BACKLOG = 4
+SEND_BUFFER = 256 * 1024  # bytes of a viewer's connection send buffer (clients/foxglove/sockets.py)
 STATUS_PERIOD = 1.0  # s between /status messages
 MAP_HZ = 10.0  # location fixes per second at most
 LAYOUT = "track-foxglove.layout.json"
@@ -89,6 +92,9 @@ def parser() -> argparse.ArgumentParser:
                    help="no id labels (fewer bytes per frame)")
     p.add_argument("--backlog", type=int, default=BACKLOG, metavar="N",
                    help="messages kept for a slow viewer, oldest dropped (default %(default)s)")
+    p.add_argument("--send-buffer", type=int, default=SEND_BUFFER, metavar="BYTES",
+                   help="a viewer's connection send buffer (default %(default)s; 0: the "
+                        "system's, which grows to MBs of old frames for a slow viewer)")
     p.add_argument("--layout", action="store_true",
                    help="print the Foxglove/Lichtblick layout (JSON) and exit")
     add_zenoh_args(p)
@@ -145,6 +151,20 @@ class Publisher:
                                 if isinstance(s.get(k), int | float)}})
 
 
+class Viewers:
+    """The server's listener: each viewer's send buffer trimmed when it subscribes."""
+
+    def __init__(self, send_buffer: int) -> None:
+        self.send_buffer, self.port = send_buffer, 0
+        self.trimmed: set[tuple[int, tuple]] = set()
+        self.lock = threading.Lock()
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        if self.send_buffer > 0 and self.port:
+            with self.lock:
+                trim_send_buffers(self.port, self.send_buffer, self.trimmed)
+
+
 def serve(args: argparse.Namespace, stop: Stop) -> None:
     import foxglove
 
@@ -156,9 +176,12 @@ def serve(args: argparse.Namespace, stop: Stop) -> None:
         link = Link(session, keys, lambda payload: None)  # sensors, interceptors, status
         client = Client(session, args.ns, own=False)
         picture = client.picture(maxlen=1)
+        listener = Viewers(args.send_buffer)
         try:
             server = foxglove.start_server(name=f"{PROG} ({keys.ns})", host=args.host,
-                                           port=args.port, message_backlog_size=args.backlog)
+                                           port=args.port, message_backlog_size=args.backlog,
+                                           server_listener=listener)
+            listener.port = server.port
         except RuntimeError as exc:
             picture.close()
             link.close()
