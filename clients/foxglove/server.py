@@ -29,9 +29,11 @@ import time
 from importlib import resources
 from typing import Any
 
+import numpy as np
+
 from zenoh_track.clients.display import scene
 from zenoh_track.clients.foxglove.sockets import trim_send_buffers
-from zenoh_track.clients.lib.frames import Frame
+from zenoh_track.clients.lib.frames import NO_STATUS, Frame
 from zenoh_track.clients.lib.origin import Origin, deployment_origin, parse_origin
 from zenoh_track.clients.lib.session import Client
 from zenoh_track.wire import (
@@ -135,8 +137,8 @@ class Publisher:
                 and start >= self.map_next:
             self.map_next = start + self.map_period
             self.fixes.log(scene.location_fixes(frame, self.origin), log_time=log_time)
-        counts = [int(c) for c in (frame.codes[:, None] == range(len(STATUSES) + 1)).sum(0)] \
-            if len(frame) else [0] * (len(STATUSES) + 1)
+        counts = np.bincount(np.minimum(frame.codes, NO_STATUS), minlength=NO_STATUS + 1)
+        counts = [int(c) for c in counts]
         self.encode_ms = 1e3 * (time.perf_counter() - start)
         self.counters.log({"t": frame.t, "tracks": len(frame),
                            **dict(zip(STATUSES, counts, strict=False)),

@@ -5,16 +5,19 @@
 // pixel loop a fraction of a microsecond per mark. The few marks with text or antialiasing
 // (labels, sensors, interceptors, the selection, scale bar) are drawn by the canvas on top.
 
-import {
-  BORDER, COAST, COVERAGE, drawLines, formatDegrees, GRATICULE, graticule, RING,
-} from './basemap.js';
+import { BORDER, COAST, drawLines } from './basemap.js';
 import { drawLabels as placeLabels } from './labels.js';
+import {
+  drawGraticule, drawGraticuleText, drawRings, drawRingText, graticuleOf, sensorKey,
+} from './mapdraw.js';
+import { formatDistance, GRID_TEXT, niceBelow, pixel } from './paint.js';
+
+export { formatDistance, niceBelow };
 
 export const STATUS_NAMES = ['tentative', 'confirmed', 'coasting'];
 export const STATUS_COLORS = ['#f5c542', '#4ade80', '#94a3b8', '#60a5fa']; // last: unknown
 const BACKGROUND = '#0b1320';
 const GRID = '#17243a';
-const GRID_TEXT = '#5d6f86';
 const TRAIL = '#2f6f8f';
 const VECTOR = '#c8d2e0';
 const SIGMA = '#3b5f99';
@@ -22,12 +25,6 @@ const INTERCEPTOR = '#f472b6';
 const SENSOR = '#e2e8f0';
 const LABEL = '#cbd5e1';
 const SELECTED = '#ffffff';
-
-/** '#rrggbb' as the 32-bit pixel of an ImageData on a little-endian machine. */
-function pixel(hex) {
-  const v = parseInt(hex.slice(1), 16);
-  return (0xff000000 | ((v & 0xff) << 16) | (v & 0xff00) | (v >> 16)) >>> 0;
-}
 
 /** Pixels of one frame: lines, squares and circles written into an ImageData. */
 export class Raster {
@@ -106,17 +103,6 @@ export class Raster {
 export const LABEL_LIMIT = 80; // ids drawn when at most this many tracks are in view
 const VECTOR_SECONDS = 20; // a velocity vector shows the way covered in this time
 const DOT = 4; // px
-
-/** A "nice" length (1, 2 or 5 x 10^k) not above `x`. */
-export function niceBelow(x) {
-  const k = 10 ** Math.floor(Math.log10(x));
-  const m = x / k;
-  return (m >= 5 ? 5 : m >= 2 ? 2 : 1) * k;
-}
-
-export function formatDistance(m) {
-  return m >= 1000 ? `${+(m / 1000).toPrecision(3)} km` : `${+m.toPrecision(3)} m`;
-}
 
 /** World (ENU metres) <-> screen (CSS pixels): centre (cx, cy), `mpp` metres per CSS
  *  pixel; `dpr` device pixels per CSS pixel. */
@@ -265,92 +251,6 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
 }
 
 const FONT = '11px sans-serif';
-let gratKey = '', gratLines = null;
-
-/** The graticule of the view, made again only when the view or origin changes. */
-function graticuleOf(origin, view) {
-  const key = `${origin.join(',')},${view.width},${view.height},${view.cx},${view.cy},${view.mpp}`;
-  if (key !== gratKey) {
-    gratKey = key; gratLines = graticule(origin, view);
-    gratLines.labels = graticuleLabels(view, gratLines);
-  }
-  return gratLines;
-}
-
-function sensorKey(sensors) {
-  return sensors.map((s) => `${s.id}:${s.pos[0]},${s.pos[1]},${s.reach || 0}`).join(';');
-}
-
-/** Range rings every "nice" step up to each sensor's coverage (the farthest range it
- *  has reported), the coverage circle brighter. */
-function ringSteps(reach) {
-  if (!(reach > 0)) return { step: 0, cover: 0 };
-  const step = niceBelow(reach / 3);
-  return { step, cover: Math.ceil(reach / step) * step };
-}
-
-function drawRings(raster, m, sensors) {
-  const ring = pixel(RING), cover = pixel(COVERAGE), { a, bx, by } = m;
-  for (const s of sensors) {
-    const r = ringSteps(s.reach);
-    if (!r.step) continue;
-    const x = s.pos[0] * a + bx, y = by - s.pos[1] * a;
-    for (let d = r.step; d < r.cover; d += r.step) {
-      if (d * a > 4) raster.circle(x, y, d * a, ring);
-    }
-    if (r.cover * a > 4) raster.circle(x, y, r.cover * a, cover);
-  }
-}
-
-function drawRingText(ctx, view, sensors) {
-  ctx.fillStyle = GRID_TEXT; ctx.font = '10px sans-serif'; ctx.textBaseline = 'bottom';
-  ctx.textAlign = 'center';
-  for (const s of sensors) {
-    const r = ringSteps(s.reach);
-    if (!r.step || r.cover / view.mpp < 40) continue;
-    const x = view.sx(s.pos[0]), y = view.sy(s.pos[1]);
-    for (let d = r.step; d <= r.cover; d += r.step) {
-      if (d / view.mpp > 30) ctx.fillText(formatDistance(d), x, y - d / view.mpp - 1);
-    }
-  }
-  ctx.textAlign = 'left';
-}
-
-function drawGraticule(raster, m, grat) {
-  const c = pixel(GRATICULE), { a, bx, by } = m;
-  for (const line of grat.lines) {
-    const p = line.pts;
-    for (let i = 1; i < p.length; i++) {
-      raster.line(p[i - 1][0] * a + bx, by - p[i - 1][1] * a, p[i][0] * a + bx, by - p[i][1] * a, c);
-    }
-  }
-}
-
-/** Latitudes along the right edge, longitudes along the bottom, where each line meets it
- *  (found once per view: `graticuleOf` keeps them with the lines). */
-function graticuleLabels(view, grat) {
-  const out = [];
-  for (const line of grat.lines) {
-    let best = null, bestD = Infinity;
-    for (const [e, n] of line.pts) {
-      const px = view.sx(e), py = view.sy(n);
-      const d = line.kind === 'lon' ? Math.abs(py - view.height) : Math.abs(px - view.width);
-      const inside = line.kind === 'lon' ? px > 180 && px < view.width : py > 0 && py < view.height - 40;
-      if (inside && d < bestD) { bestD = d; best = [px, py]; }
-    }
-    if (!best || bestD > 60) continue;
-    const text = formatDegrees(line.value, grat.step, line.kind);
-    out.push(line.kind === 'lon' ? [text, best[0] - 3, view.height - 3] : [text, view.width - 4, best[1] - 2]);
-  }
-  return out;
-}
-
-function drawGraticuleText(ctx, view, grat) {
-  ctx.fillStyle = GRID_TEXT; ctx.font = '11px sans-serif'; ctx.textBaseline = 'bottom';
-  ctx.textAlign = 'right';
-  for (const [text, x, y] of grat.labels) ctx.fillText(text, x, y);
-  ctx.textAlign = 'left';
-}
 
 /** The rows within 40 px of the view. */
 function markVisible(view, frame) {
