@@ -11,7 +11,7 @@ England, France and Belgium in view) fed by bench_web's publisher (N tracks over
 view, and with it the basemap's layer, changes every 2 s). The two pages are measured
 in turns, `--rounds` times each, so that a change of the machine's load falls on both;
 each figure is bench_web's: frames drawn in the last second (median over the window),
-milliseconds per draw.
+milliseconds per draw; the ratios on / off of the medians and means over the rounds.
 """
 
 from __future__ import annotations
@@ -83,9 +83,11 @@ def main() -> None:
             fps = {v: statistics.median(x["fps_median"] for x in r[v]) for v in r}
             ms = {v: statistics.median(x["draw_ms"] for x in r[v]) for v in r}
             load = statistics.mean(x["load"] for v in r for x in r[v])
-            print(f"{n:>6} tracks: basemap off {fps['off']:.0f} frames/s ({ms['off']:.1f} ms a "
-                  f"draw), on {fps['on']:.0f} frames/s ({ms['on']:.1f} ms); on/off "
-                  f"{fps['on'] / fps['off']:.2f} (rounds off "
+            mean = {v: statistics.mean(x["fps_median"] for x in r[v]) for v in r}
+            print(f"{n:>6} tracks: basemap off {fps['off']:.1f} frames/s ({ms['off']:.1f} ms a "
+                  f"draw), on {fps['on']:.1f} frames/s ({ms['on']:.1f} ms); on/off "
+                  f"{fps['on'] / fps['off']:.2f} (means {mean['on'] / mean['off']:.2f}; "
+                  f"ms a draw {ms['on'] / ms['off']:.2f}) (rounds off "
                   f"{[x['fps_median'] for x in r['off']]}, on "
                   f"{[x['fps_median'] for x in r['on']]}), load {load:.1f}", flush=True)
 

@@ -48,7 +48,7 @@ export class Basemap {
   setOrigin(origin) {
     const key = origin ? origin.join(',') : '';
     if (key === (this.origin ? this.origin.join(',') : '')) return;
-    this.origin = origin; this.projected.clear(); this.version++;
+    this.origin = origin; this.projected.clear(); this.topologies.clear(); this.version++;
   }
   /** The level for a view `span` metres wide, fetched when first needed. */
   wanted(span) { return LEVELS.find((l) => span >= l.minSpan).name; }
@@ -59,15 +59,18 @@ export class Basemap {
     this.load(want);
     const order = LEVELS.map((l) => l.name);
     const candidates = order.slice(0, order.indexOf(want) + 1).reverse();
-    const ready = candidates.find((n) => this.topologies.get(n) instanceof Object
-                                         && !(this.topologies.get(n) instanceof Promise));
+    const ready = candidates.find((n) => this.projected.has(n) || this.topologies.get(n)
+                                         instanceof Object && !(this.topologies.get(n) instanceof Promise));
     if (!ready) return null;
     if (!this.projected.has(ready)) {
+      // projected once for this origin; the decoded file (tens of MB of JavaScript
+      // objects for 1:10m) is let go, so that it does not weigh on every garbage collection
       const topo = this.topologies.get(ready), tj = window.topojson;
       const coast = tj.mesh(topo, topo.objects.land).coordinates;
       const borders = tj.mesh(topo, topo.objects.countries, (a, b) => a !== b).coordinates;
       this.projected.set(ready, { name: ready, coast: project(this.origin, coast),
                                   borders: project(this.origin, borders) });
+      this.topologies.set(ready, 'projected');
     }
     return this.projected.get(ready);
   }
