@@ -14,6 +14,7 @@ import subprocess
 import sys
 import webbrowser
 
+from zenoh_track.clients.lib.origin import parse_origin
 from zenoh_track.clients.procs import stop_all
 from zenoh_track.wire import STOP_GRACE, add_version, free_port, missing_extra, on_signals
 
@@ -38,6 +39,9 @@ def _alive(service: subprocess.Popen, endpoint: str) -> bool:
     return False
 
 
+DEMO_ORIGIN = "51.0,1.45,0"
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-demo", description=__doc__)
     p.add_argument("--scenario", default="swarm",
@@ -49,6 +53,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--web", action="store_true",
                    help="show the live map in a browser (track-web) instead of the terminal")
     p.add_argument("--port", type=int, default=8080, help="track-web's port with --web")
+    p.add_argument("--origin", type=parse_origin, default=DEMO_ORIGIN, metavar="LAT,LON,ALT",
+                   help="where on Earth the scenario's frame sits (the service's origin), "
+                        "for the basemap of --web (default %(default)s: the Strait of Dover, "
+                        "both coasts in view)")
     add_version(p)
     return p
 
@@ -64,7 +72,8 @@ def main(argv: list[str] | None = None) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     py = sys.executable
     service = subprocess.Popen([py, "-m", "zenoh_track", "-l", endpoint, "--clock", "realtime",
-                                "--blend", "1"])
+                                "--blend", "1", "--origin",
+                                ",".join(f"{v:g}" for v in args.origin)])
     try:
         if not _alive(service, endpoint):
             stop_all([service], timeout=STOP_GRACE)
@@ -82,7 +91,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         if args.web:
             web = subprocess.Popen([py, "-m", "zenoh_track.clients.web.web", "-e", endpoint,
-                                    "--port", str(args.port)])
+                                    "--port", str(args.port)])  # the service's origin
             url = f"http://127.0.0.1:{args.port}/"
             print(f"track-demo: the live map is on {url} (Ctrl-C stops the demo)", flush=True)
             if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") \

@@ -15,6 +15,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # each console script (or option) that needs an extra, with that extra
 NEEDS = [
     (["track-web"], "web"),
+    (["track-foxglove"], "foxglove"),
     (["track-demo", "--web"], "web"),
     (["track-eval", "display", "--plot", "figures"], "plot"),
     (["track-replay", "any.mcap", "--plot", "out.png"], "plot"),

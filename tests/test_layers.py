@@ -30,7 +30,7 @@ RULES: dict[str, tuple[set[str], set[str]]] = {
                              "zenoh_track.estimation", "zenoh_track.wire",
                              "zenoh_track.defaults", "zenoh_track.__version__"}),
     "zenoh_track.clients": ({"numpy", "scipy", "zenoh", "msgpack", "matplotlib", "mcap", "rich",
-                             "tqdm", "aiohttp", "pytest", "pymap3d"},
+                             "tqdm", "aiohttp", "pytest", "foxglove", "pymap3d"},
                             {"zenoh_track.wire", "zenoh_track.clients"}),
 }
 # the folders of the import names (pyproject.toml's package-dir)

@@ -12,11 +12,13 @@ import sys
 import time
 from collections import Counter, defaultdict
 
+import numpy as np
 import pytest
 import zenoh
 from conftest import Collector, ServiceProc, client_session
+from foxglove_client import message_class
 
-from zenoh_track.clients.display.scene import SCHEMA_NAME, TOPIC, _heading
+from zenoh_track.clients.display.scene import SCENE_SCHEMA, TOPIC, headings, schema
 from zenoh_track.clients.feeds.replay import remapper
 from zenoh_track.clients.record.record import distinct
 from zenoh_track.clients.record.recording import Recording, RecordingWriter, payload_time_ns
@@ -94,24 +96,24 @@ def test_frames_give_a_foxglove_scene_at_the_asked_rate():
     scenes = [(sch, ch, m) for sch, ch, m in rec.reader.iter_messages() if ch.topic == TOPIC]
     assert len(scenes) == 3
     sch, ch, m = scenes[1]
-    assert sch.name == SCHEMA_NAME and sch.encoding == "jsonschema"
-    assert json.loads(sch.data)["title"] == SCHEMA_NAME
-    assert ch.message_encoding == "json"
+    assert sch.name == SCENE_SCHEMA and sch.encoding == "protobuf"
+    assert sch.data == schema(SCENE_SCHEMA)
+    assert ch.message_encoding == "protobuf"
     assert m.publish_time == 500_000_000
-    scene = json.loads(m.data)
-    assert scene["deletions"][0]["type"] == 1  # all: ended tracks disappear
-    a, b = scene["entities"]
-    assert (a["id"], b["id"]) == ("a", "b")
-    assert a["timestamp"] == {"sec": 0, "nsec": 500_000_000}
-    assert a["spheres"][0]["pose"]["position"] == {"x": 1.0, "y": 2.0, "z": 3.0}
-    assert a["spheres"][0]["size"]["x"] == 800.0  # 2 sigma
-    assert b["spheres"][0]["size"]["x"] == 50.0  # the marker: sigma 3 m would be a dot
-    assert a["texts"][0]["text"] == "a"
-    assert {"key": "status", "value": "confirmed"} in a["metadata"]
-    assert a["spheres"][0]["color"]["g"] > a["spheres"][0]["color"]["r"]  # confirmed: green
-    assert {"key": "status", "value": "-"} in b["metadata"]  # no display/ message: unknown
-    assert "arrows" not in b  # standing still
-    q = a["arrows"][0]["pose"]["orientation"]
+    update = message_class(SCENE_SCHEMA, sch.data).FromString(m.data)
+    assert update.deletions[0].type == 1  # all: ended tracks disappear
+    confirmed, unknown = update.entities  # a by its display/ status, b without one
+    assert (confirmed.id, unknown.id) == ("tracks/confirmed", "tracks/unknown")
+    assert (confirmed.timestamp.seconds, confirmed.timestamp.nanos) == (0, 500_000_000)
+    a = confirmed.cubes[0].pose.position
+    assert (a.x, a.y, a.z) == (1.0, 2.0, 3.0)
+    assert confirmed.spheres[0].size.x == 800.0  # 2 sigma
+    assert not unknown.spheres  # sigma 3 m: within the 50 m cube
+    assert unknown.cubes[0].size.x == 50.0
+    assert [t.text for t in confirmed.texts] == ["a"]
+    assert confirmed.cubes[0].color.g > confirmed.cubes[0].color.r  # confirmed: green
+    assert not unknown.arrows  # standing still
+    q = confirmed.arrows[0].pose.orientation
     assert rotate_x(q) == pytest.approx((0.0, 1.0, 0.0))  # +x turned to the velocity
 
 
@@ -130,23 +132,26 @@ def test_the_scene_of_several_instances_holds_every_instance_s_tracks():
     w.finish(received=62)
     rec = Recording(io.BytesIO(out.getvalue()))
     last: dict[int, list[str]] = {}  # the last scene of each instant
-    for _, ch, m in rec.reader.iter_messages(log_time_order=True):
+    for sch, ch, m in rec.reader.iter_messages(log_time_order=True):
         if ch.topic == TOPIC:
-            last[m.publish_time] = sorted(e["id"] for e in json.loads(m.data)["entities"])
+            update = message_class(SCENE_SCHEMA, sch.data).FromString(m.data)
+            last[m.publish_time] = sorted(t.text for e in update.entities for t in e.texts)
     assert sorted(last) == [0, 500_000_000, 1_000_000_000]
     assert all(ids == ["a0", "b1"] for ids in last.values()), last
 
 
-def rotate_x(q: dict[str, float]) -> tuple[float, float, float]:
+def rotate_x(q) -> tuple[float, float, float]:
     """The unit x vector rotated by quaternion q."""
-    x, y, z, w = q["x"], q["y"], q["z"], q["w"]
+    x, y, z, w = q.x, q.y, q.z, q.w
     return (1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y))
 
 
 @pytest.mark.parametrize("v", [(1, 0, 0), (-1, 0, 0), (0, 0, 2), (3, -4, 5), (-1, 1e-12, 0)])
 def test_arrow_heading_turns_x_onto_the_velocity(v):
     n = math.sqrt(sum(c * c for c in v))
-    assert rotate_x(_heading(v)) == pytest.approx(tuple(c / n for c in v), abs=1e-9)
+    q = headings(np.array([v], dtype=float))[0]
+    quat = type("Q", (), dict(zip("xyzw", [0.0, *q], strict=True)))
+    assert rotate_x(quat) == pytest.approx(tuple(c / n for c in v), abs=1e-9)
 
 
 def test_remap_moves_whole_prefixes_only():

@@ -1,11 +1,14 @@
 """The deployment's geodetic frame as a client takes it: from the service
-(`get <ns>/origin`, contract 1.2), an explicit option only where it agrees."""
+(`get <ns>/origin`, contract 1.2), an explicit option only where it agrees. Every client
+that draws geography or writes latitudes asks `deployment_origin`, the one place that
+decides where it comes from."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import argparse
+from typing import TYPE_CHECKING, Any
 
-from zenoh_track.wire import Origin, Rejected, parse_origin_message
+from zenoh_track.wire import Origin, Rejected, fail, parse_origin_message
 
 if TYPE_CHECKING:
     from zenoh_track.clients.lib.session import Client
@@ -58,3 +61,29 @@ def agreed_origin(client: Client, given: Origin | None, timeout: float = 5.0
 
 def _text(origin: Origin | None) -> str:
     return "local" if origin is None else origin.text()
+
+
+def parse_origin(text: str) -> list[float]:
+    """`--origin LAT,LON,ALT` (degrees, degrees, metres) of the ENU frame's origin."""
+    try:
+        lat, lon, alt = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LAT,LON,ALT, got {text!r}") from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 360):
+        raise argparse.ArgumentTypeError(f"latitude/longitude out of range: {text!r}")
+    return [lat, lon, alt]
+
+
+def deployment_origin(session: Any, ns: str, given: list[float] | None, prog: str
+                      ) -> tuple[float, float, float] | None:
+    """The origin to draw with (lat, lon, alt), or None (positions stay in ENU metres):
+    the service's; `given` (`--origin`) where the service states none; a `given` that
+    disagrees with the service's ends the program with one line (exit 2)."""
+    from zenoh_track.clients.lib.session import Client
+
+    try:
+        origin, _ = agreed_origin(Client(session, ns, own=False),
+                                  Origin(*given) if given else None, timeout=2.0)
+    except OriginConflict as exc:
+        fail(str(exc), prog)
+    return None if origin is None else (origin.lat, origin.lon, origin.alt)

@@ -9,9 +9,9 @@ order, log-time order and receive order agree) and publish_time = the Zenoh time
 the sample when it has one, else the payload's `t` (simulation seconds, as ns), else the
 receive time. A metadata record `zenoh-track` names the namespace, the protocol version,
 the package version and the key expressions recorded; `zenoh-track-end` the counts.
-The display channel (`/scene`, foxglove.SceneUpdate in JSON: clients/display/scene.py) is
-derived from the `frame` samples, every instance's merged into one picture as the client
-library merges them (`Merge`).
+The display channel (`/scene`, foxglove.SceneUpdate in protobuf: clients/display/scene.py,
+the drawing that `track-foxglove` serves live) is derived from the `frame` samples, every
+instance's merged into one picture as the client library merges them (`Merge`).
 """
 
 from __future__ import annotations
@@ -24,14 +24,15 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import IO, Any
 
+import numpy as np
 from mcap.reader import make_reader
 from mcap.well_known import SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
 from zenoh_track.clients.display import scene
-from zenoh_track.clients.lib.frames import Frame
+from zenoh_track.clients.lib.frames import NO_STATUS, Frame
 from zenoh_track.clients.lib.merge import Merge
-from zenoh_track.wire import MSGPACK_ENCODING, PROTOCOL_VERSION, Keys, unpack
+from zenoh_track.wire import MSGPACK_ENCODING, PROTOCOL_VERSION, STATUSES, Keys, unpack
 
 META = "zenoh-track"
 META_END = "zenoh-track-end"
@@ -153,26 +154,31 @@ class RecordingWriter:
                 continue
             self.scene_t = pic.t
             self.scene_next = pic.t + self.scene_period  # type: ignore[operator]
-            status = {}
-            for tid in pic.id_list:
-                raw = self.last_display.get(tid)
-                if raw is not None:
-                    try:
-                        status[tid] = unpack(raw).get("status")
-                    except (ValueError, AttributeError):
-                        pass
-            body = scene.scene_update(pic.t, pic.id_list, pic.pos.ravel().tolist(),
-                                      pic.vel.ravel().tolist(), pic.sigma.tolist(), status,
-                                      marker=self.scene_marker)
+            body = scene.scene_update(pic, marker=self.scene_marker, codes=self._codes(pic))
             if self.scene_channel is None:
-                sid = self.writer.register_schema(scene.SCHEMA_NAME,
-                                                  SchemaEncoding.JSONSchema, scene.SCHEMA_BYTES)
+                sid = self.writer.register_schema(scene.SCENE_SCHEMA, SchemaEncoding.Protobuf,
+                                                  scene.schema(scene.SCENE_SCHEMA))
                 self.scene_channel = self.writer.register_channel(
-                    topic=scene.TOPIC, message_encoding="json", schema_id=sid,
+                    topic=scene.TOPIC, message_encoding="protobuf", schema_id=sid,
                     metadata={"derived_from": self.keys.frame})
             self.writer.add_message(self.scene_channel, self._log_time(log), body,
                                     max(int(round(pic.t * 1e9)), 0))
             self.scenes += 1
+
+    def _codes(self, frame: Frame) -> np.ndarray | None:
+        """The status codes of a frame without a status bin, from the `display/` keys
+        recorded (None: the frame's own)."""
+        if not self.last_display or (frame.codes != NO_STATUS).any():
+            return None
+        codes = np.full(len(frame), NO_STATUS, np.uint8)
+        for row, tid in enumerate(frame.id_list):
+            raw = self.last_display.get(tid)
+            if raw is not None:
+                try:
+                    codes[row] = STATUSES.index(unpack(raw).get("status"))
+                except (ValueError, AttributeError):
+                    pass
+        return codes
 
     def finish(self, received: int) -> None:
         self.writer.add_metadata(META_END, {

@@ -28,7 +28,6 @@ import zenoh
 from zenoh_track.wire import (
     CHUNK,
     Keys,
-    Origin,
     Stop,
     add_zenoh_args,
     fail,
@@ -44,8 +43,7 @@ except ImportError as exc:
     missing_extra(exc, "web", "track-web")
 
 from zenoh_track.clients.lib import Frame as Columns
-from zenoh_track.clients.lib.origin import OriginConflict, agreed_origin
-from zenoh_track.clients.lib.session import Client
+from zenoh_track.clients.lib.origin import deployment_origin, parse_origin
 from zenoh_track.clients.web.web_frames import FrameHub
 from zenoh_track.clients.web.web_link import Link
 
@@ -55,15 +53,13 @@ TRAIL = 30.0  # s of history drawn behind each track
 STATIC = resources.files("zenoh_track.clients.web") / "web_static"
 
 
-def parse_origin(text: str) -> list[float]:
-    """`LAT,LON,ALT` (degrees, degrees, metres) of the ENU frame's origin."""
-    try:
-        lat, lon, alt = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected LAT,LON,ALT, got {text!r}") from None
-    if not (-90 <= lat <= 90 and -180 <= lon <= 360):
-        raise argparse.ArgumentTypeError(f"latitude/longitude out of range: {text!r}")
-    return [lat, lon, alt]
+def tile_url(text: str) -> str:
+    """An XYZ tile URL template: http(s), with {z}, {x} and {y}."""
+    if not text.startswith(("http://", "https://")) or not all(
+            f"{{{k}}}" in text for k in "zxy"):
+        raise argparse.ArgumentTypeError(
+            f"expected an http(s) URL with {{z}}, {{x}} and {{y}}, got {text!r}")
+    return text
 
 
 class Browser:
@@ -82,8 +78,8 @@ class WebServer:
     """The aiohttp application of one namespace."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, origin: list[float] | None,
-                 trail: float) -> None:
-        self.keys, self.origin, self.trail = keys, origin, trail
+                 trail: float, tiles: str | None = None) -> None:
+        self.keys, self.origin, self.trail, self.tiles = keys, origin, trail, tiles
         self.hub = FrameHub()
         self.browsers: set[Browser] = set()
         self.loop = asyncio.get_running_loop()
@@ -146,7 +142,8 @@ class WebServer:
         browser = Browser(ws)
         self.browsers.add(browser)
         await ws.send_str(json.dumps({"type": "config", "ns": self.keys.ns,
-                                      "origin": self.origin, "trail": self.trail}))
+                                      "origin": self.origin, "trail": self.trail,
+                                      "tiles": self.tiles}))
         await ws.send_str(json.dumps(self._health_message()))
         sender = asyncio.create_task(self._send_frames(browser))
         browser.wake.set()
@@ -202,21 +199,12 @@ class WebServer:
         self.link.close()
 
 
-def service_origin(session: zenoh.Session, args: argparse.Namespace) -> list[float] | None:
-    """The service's geodetic origin (`<ns>/origin`); --origin only where it agrees, or
-    where the service states none (one line and exit 2 when it disagrees)."""
-    given = Origin(*args.origin) if args.origin else None
-    try:
-        origin, _ = agreed_origin(Client(session, args.ns, own=False), given, timeout=2.0)
-    except OriginConflict as exc:
-        fail(str(exc), "track-web")
-    return None if origin is None else [origin.lat, origin.lon, origin.alt]
-
-
 async def serve(args: argparse.Namespace, stop: Stop) -> None:
     session = open_session(args, log=True)
     try:
-        server = WebServer(session, Keys(args.ns), service_origin(session, args), args.trail)
+        origin = deployment_origin(session, args.ns, args.origin, "track-web")
+        server = WebServer(session, Keys(args.ns), list(origin) if origin else None, args.trail,
+                           args.tiles)
     except BaseException:
         session.close()
         raise
@@ -246,6 +234,10 @@ def parser() -> argparse.ArgumentParser:
                    help="geodetic origin of the ENU frame: positions also in lat/lon "
                         "(default: the service's, track-service --origin; one that differs "
                         "is refused)")
+    p.add_argument("--tiles", type=tile_url, metavar="URL",
+                   help="an operator's own map tile server under the basemap, e.g. "
+                        "'https://tiles.example/{z}/{x}/{y}.png' (XYZ, Web Mercator); never "
+                        "fetched unless given")
     p.add_argument("--trail", type=float, default=TRAIL,
                    help="seconds of history behind each track (default %(default)s)")
     return p

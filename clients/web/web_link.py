@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from zenoh_track.clients.lib import Client, Frame
@@ -32,6 +33,23 @@ def _vector(value: Any, size: int = 3) -> list[float] | None:
     except (TypeError, ValueError):
         return None
     return out if all(math.isfinite(v) for v in out) else None
+
+
+def _reach(msg: dict[str, Any]) -> float:
+    """The farthest range (m) in a polar measurement or scan (`r` a number or a float64
+    bin, or the `r` of each of `dets`), 0 when it has none: the sensor's coverage drawn
+    on the map is the farthest range it has reported."""
+    r = msg.get("r")
+    values: list[float] = []
+    if isinstance(r, int | float) and not isinstance(r, bool):
+        values = [float(r)]
+    elif isinstance(r, bytes) and len(r) % 8 == 0:
+        values = np.frombuffer(r, "<f8").tolist()
+    elif isinstance(msg.get("dets"), list):
+        values = [float(d["r"]) for d in msg["dets"]
+                  if isinstance(d, dict) and isinstance(d.get("r"), int | float)]
+    finite = [v for v in values if math.isfinite(v) and v > 0]
+    return max(finite, default=0.0)
 
 
 class Link:
@@ -115,7 +133,8 @@ class Link:
         pos = _vector(msg.get("sensor_pos", [0.0, 0.0, 0.0]))
         if pos is not None:
             with self.lock:
-                self.sensors[sensor] = {"id": sensor, "pos": pos}
+                reach = max(_reach(msg), self.sensors.get(sensor, {}).get("reach", 0.0))
+                self.sensors[sensor] = {"id": sensor, "pos": pos, "reach": reach}
 
     def _interceptor(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]

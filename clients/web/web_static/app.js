@@ -4,19 +4,27 @@
 import { enuToGeodetic, formatLatLon } from './geo.js';
 import { drawFrame, Raster, STATUS_NAMES, Trails, View } from './render.js';
 import { showDetails } from './details.js';
+import { Basemap } from './basemap.js';
+import { Tiles } from './tiles.js';
 
 const TRAIL_POINTS = 16;
 const FIT_PERIOD = 2000; // ms: how often the view follows the tracks (key F)
 const $ = (id) => document.getElementById(id);
 const canvas = $('map');
-const ctx = canvas.getContext('2d', { alpha: false });
+// with alpha: an operator's tiles (--tiles) show through the background it leaves clear
+const ctx = canvas.getContext('2d');
+let tiles = null;
 const view = new View();
 const raster = new Raster();
 const trails = new Trails(TRAIL_POINTS);
+// the basemap unless the address says ?basemap=off (key G toggles it)
+const basemap = new Basemap((name) => `/static/basemap/countries-${name}.json`,
+                            () => { state.moved = true; });
 const state = {
   config: { ns: '', origin: null, trail: 30 },
   frame: null, fresh: false, ids: [], idsSeq: -1,
   overlay: { sensors: [], interceptors: [], selectedRow: -1 },
+  basemap: new URLSearchParams(location.search).get('basemap') !== 'off',
   selected: null, follow: true, fitted: -Infinity, fitFrame: null, moved: true, labels: 'auto', trails: true,
   drawn: [], drawMs: 0, received: 0, dropped: 0,
 };
@@ -77,6 +85,10 @@ function onText(msg) {
   if (msg.type === 'config') {
     state.config = msg;
     trails.step = msg.trail / TRAIL_POINTS;
+    basemap.setOrigin(msg.origin);
+    tiles = msg.tiles && msg.origin
+      ? new Tiles(msg.tiles, $('tiles'), () => { state.moved = true; }) : null;
+    state.moved = true;
     setText('ns', msg.ns);
   } else if (msg.type === 'health') {
     state.overlay.sensors = msg.sensors;
@@ -130,7 +142,10 @@ function tick(now) {
   }
   state.overlay.interceptors = f ? f.interceptors : [];
   state.overlay.selectedRow = f && state.selected ? f.rowOf(state.selected) : -1;
-  drawFrame(ctx, raster, view, f, trails, state.overlay, { labels: state.labels, trails: state.trails });
+  if (tiles && state.basemap) tiles.draw(view, state.config.origin);
+  drawFrame(ctx, raster, view, f, trails, state.overlay, {
+    labels: state.labels, trails: state.trails, origin: state.config.origin,
+    basemap: state.basemap ? basemap : null, transparent: Boolean(tiles && state.basemap) });
   if (state.fresh) {
     state.drawn.push(now);
     state.drawMs = 0.9 * state.drawMs + 0.1 * (performance.now() - start);
@@ -206,6 +221,7 @@ window.addEventListener('keydown', (e) => {
   if (e.key === 'f') { state.follow = true; state.fitted = -Infinity; state.moved = true; history.replaceState(null, '', ' '); }
   else if (e.key === 'l') { state.labels = { auto: 'all', all: 'none', none: 'auto' }[state.labels]; state.moved = true; }
   else if (e.key === 't') { state.trails = !state.trails; state.moved = true; }
+  else if (e.key === 'g') { state.basemap = !state.basemap; state.moved = true; }
   else if (e.key === 'Escape') select(null);
   else if (e.key === '+' || e.key === '=') zoomKey(1 / 1.5);
   else if (e.key === '-') zoomKey(1.5);

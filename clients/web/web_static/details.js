@@ -8,7 +8,9 @@ let shown = { id: null, data: null, at: 0, pending: false };
 
 const esc = (s) => String(s).replace(/[&<>"]/g, (c) => `&#${c.charCodeAt(0)};`);
 const num = (v, d = 1) => (typeof v === 'number' ? v.toFixed(d) : '–');
-const sci = (v) => (Math.abs(v) >= 1e5 || (v !== 0 && Math.abs(v) < 1e-2) ? v.toExponential(2) : v.toFixed(2));
+// covariance entries in at most 7 characters: the 9 x 9 table of a CA state fits the panel
+const sci = (v) => (Math.abs(v) >= 1e4 || (v !== 0 && Math.abs(v) < 1e-2)
+  ? v.toExponential(1).replace('e+', 'e') : v.toFixed(Math.abs(v) >= 100 ? 0 : 2));
 
 export function showDetails(id, state, now) {
   document.getElementById('detail-id').textContent = id;
@@ -66,7 +68,7 @@ function filtered(d) {
   const n = d.x.length, dim = dimension(d);
   const names = ['x', 'y', 'z'].slice(0, dim);
   const labels = [...names, ...names.map((a) => `v${a}`), ...names.map((a) => `a${a}`)].slice(0, n);
-  out.push('<h3>state and covariance</h3><table class="matrix"><tr><th></th><th>value</th><th>σ</th>');
+  out.push('<h3>state and covariance</h3><div class="scroll"><table class="matrix" id="detail-matrix"><tr><th></th><th>value</th><th>σ</th>');
   labels.forEach((l) => out.push(`<th>${l}</th>`));
   out.push('</tr>');
   for (let i = 0; i < n; i++) {
@@ -74,7 +76,7 @@ function filtered(d) {
     for (let j = 0; j < n; j++) out.push(`<td>${sci(d.P[i * n + j])}</td>`);
     out.push('</tr>');
   }
-  out.push('</table>');
+  out.push('</table></div>');
   return out.join('');
 }
 

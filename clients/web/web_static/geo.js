@@ -35,3 +35,23 @@ export function formatLatLon(lat, lon) {
   const ns = lat >= 0 ? 'N' : 'S', ew = lon >= 0 ? 'E' : 'W';
   return `${Math.abs(lat).toFixed(6)}° ${ns} ${Math.abs(lon).toFixed(6)}° ${ew}`;
 }
+
+/** WGS-84 latitude, longitude (degrees), height (m) -> East-North-Up metres about
+ *  `origin`, by ECEF and the local rotation (the inverse of enuToGeodetic's first step). */
+export function geodeticToEnu(origin, latDeg, lonDeg, h) {
+  const [lat0, lon0, h0] = origin;
+  const [x0, y0, z0] = geodeticToEcef(lat0, lon0, h0);
+  const [x, y, z] = geodeticToEcef(latDeg, lonDeg, h);
+  const dx = x - x0, dy = y - y0, dz = z - z0;
+  const sp = Math.sin(lat0 * RAD), cp = Math.cos(lat0 * RAD);
+  const sl = Math.sin(lon0 * RAD), cl = Math.cos(lon0 * RAD);
+  return [-sl * dx + cl * dy, -sp * cl * dx - sp * sl * dy + cp * dz,
+          cp * cl * dx + cp * sl * dy + sp * dz];
+}
+
+/** The angle (degrees) between two places seen from the Earth's centre (a sphere). */
+export function centralAngle(lat1, lon1, lat2, lon2) {
+  const a = lat1 * RAD, b = lat2 * RAD, d = (lon2 - lon1) * RAD;
+  const c = Math.sin(a) * Math.sin(b) + Math.cos(a) * Math.cos(b) * Math.cos(d);
+  return Math.acos(Math.min(Math.max(c, -1), 1)) / RAD;
+}

@@ -5,11 +5,19 @@
 // pixel loop a fraction of a microsecond per mark. The few marks with text or antialiasing
 // (labels, sensors, interceptors, the selection, scale bar) are drawn by the canvas on top.
 
+import { BORDER, COAST, drawLines } from './basemap.js';
+import { drawLabels as placeLabels } from './labels.js';
+import {
+  drawGraticule, drawGraticuleText, drawRings, drawRingText, graticuleOf, sensorKey,
+} from './mapdraw.js';
+import { formatDistance, GRID_TEXT, niceBelow, pixel } from './paint.js';
+
+export { formatDistance, niceBelow };
+
 export const STATUS_NAMES = ['tentative', 'confirmed', 'coasting'];
 export const STATUS_COLORS = ['#f5c542', '#4ade80', '#94a3b8', '#60a5fa']; // last: unknown
 const BACKGROUND = '#0b1320';
 const GRID = '#17243a';
-const GRID_TEXT = '#5d6f86';
 const TRAIL = '#2f6f8f';
 const VECTOR = '#c8d2e0';
 const SIGMA = '#3b5f99';
@@ -17,12 +25,6 @@ const INTERCEPTOR = '#f472b6';
 const SENSOR = '#e2e8f0';
 const LABEL = '#cbd5e1';
 const SELECTED = '#ffffff';
-
-/** '#rrggbb' as the 32-bit pixel of an ImageData on a little-endian machine. */
-function pixel(hex) {
-  const v = parseInt(hex.slice(1), 16);
-  return (0xff000000 | ((v & 0xff) << 16) | (v & 0xff00) | (v >> 16)) >>> 0;
-}
 
 /** Pixels of one frame: lines, squares and circles written into an ImageData. */
 export class Raster {
@@ -101,17 +103,6 @@ export class Raster {
 export const LABEL_LIMIT = 80; // ids drawn when at most this many tracks are in view
 const VECTOR_SECONDS = 20; // a velocity vector shows the way covered in this time
 const DOT = 4; // px
-
-/** A "nice" length (1, 2 or 5 x 10^k) not above `x`. */
-export function niceBelow(x) {
-  const k = 10 ** Math.floor(Math.log10(x));
-  const m = x / k;
-  return (m >= 5 ? 5 : m >= 2 ? 2 : 1) * k;
-}
-
-export function formatDistance(m) {
-  return m >= 1000 ? `${+(m / 1000).toPrecision(3)} km` : `${+m.toPrecision(3)} m`;
-}
 
 /** World (ENU metres) <-> screen (CSS pixels): centre (cx, cy), `mpp` metres per CSS
  *  pixel; `dpr` device pixels per CSS pixel. */
@@ -194,15 +185,27 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
   const k = view.dpr, step = niceBelow(view.mpp * 160);
   const visible = frame ? markVisible(view, frame) : null;
   const m = deviceMap(view);
-  // the background, grid and trail history change only every trail sample or view change:
-  // kept as a base layer, copied under each frame (10,000 trails of 16 points each are
-  // 150,000 line segments, the largest part of a draw)
+  const geo = options.origin ? options.origin : null;
+  const base = geo && options.basemap ? options.basemap : null;
+  const span = view.mpp * Math.max(view.width, view.height);
+  const map = base ? base.lines(span) : null;
+  const grat = geo ? graticuleOf(geo, view) : null;
+  // the background, grid or graticule, basemap, sensor rings and trail history change
+  // only every trail sample or view change: kept as a base layer, copied under each frame
+  // (10,000 trails of 16 points each are 150,000 line segments, the largest part of a draw)
   const history = options.trails && frame;
   const key = `${view.width},${view.height},${k},${view.cx},${view.cy},${view.mpp},` +
-    `${history ? trails.version : -1}`;
+    `${history ? trails.version : -1},${geo ? geo.join(',') : ''},` +
+    `${base ? `${base.version},${map ? map.name : ''}` : ''},${sensorKey(overlay.sensors)}`;
   raster.begin(ctx, Math.round(view.width * k), Math.round(view.height * k), key, () => {
-    raster.px.fill(pixel(BACKGROUND));
-    drawGrid(raster, view, step);
+    raster.px.fill(options.transparent ? 0 : pixel(BACKGROUND));
+    if (grat) drawGraticule(raster, m, grat); else drawGrid(raster, view, step);
+    if (map) {
+      const bounds = [view.wx(0), view.wy(view.height), view.wx(view.width), view.wy(0)];
+      drawLines(raster, m, map.borders, pixel(BORDER), bounds);
+      drawLines(raster, m, map.coast, pixel(COAST), bounds);
+    }
+    drawRings(raster, m, overlay.sensors);
     if (history) drawTrails(raster, m, frame, trails, visible);
   });
   if (frame) {
@@ -213,17 +216,41 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
   }
   raster.end(ctx);
   ctx.setTransform(k, 0, 0, k, 0, 0);
-  drawGridText(ctx, view, step);
-  drawSensors(ctx, view, overlay.sensors);
-  drawInterceptors(ctx, view, overlay.interceptors, frame);
+  if (grat) drawGraticuleText(ctx, view, grat); else drawGridText(ctx, view, step);
+  drawRingText(ctx, view, overlay.sensors);
+  const marks = [];
+  drawSensors(ctx, view, overlay.sensors, marks);
+  drawInterceptors(ctx, view, overlay.interceptors, frame, marks);
+  const items = [];
+  if (frame && overlay.selectedRow >= 0) drawSelected(ctx, view, frame, overlay.selectedRow, marks, items);
+  for (const s of overlay.sensors) {
+    items.push({ text: s.id, x: view.sx(s.pos[0]), y: view.sy(s.pos[1]), font: FONT, size: 11, colour: SENSOR });
+  }
+  for (const ic of overlay.interceptors) {
+    items.push({ text: ic.id + (ic.captured ? ' (captured)' : ''), x: view.sx(ic.pos[0]),
+                 y: view.sy(ic.pos[1]), font: FONT, size: 11, colour: INTERCEPTOR });
+  }
   const inView = visible ? visible.length : 0;
   if (frame && (options.labels === 'all' || (options.labels === 'auto' && inView <= LABEL_LIMIT))) {
-    drawLabels(ctx, view, frame, visible);
+    for (let r = 0; r < visible.length; r++) { // the dots: no label covers another track
+      const x = view.sx(frame.pos[3 * visible[r]]), y = view.sy(frame.pos[3 * visible[r] + 1]);
+      marks.push([x - DOT / 2, y - DOT / 2, x + DOT / 2, y + DOT / 2]);
+    }
+    for (let r = 0; r < visible.length; r++) {
+      const i = visible[r];
+      if (i === overlay.selectedRow) continue;
+      items.push({ text: frame.ids[i], x: view.sx(frame.pos[3 * i]), y: view.sy(frame.pos[3 * i + 1]),
+                   font: FONT, size: 11, colour: LABEL });
+    }
   }
-  if (frame && overlay.selectedRow >= 0) drawSelected(ctx, view, frame, overlay.selectedRow);
+  overlay.labelsDrawn = placeLabels(ctx, view.width, view.height, marks, items);
+  overlay.labelsWanted = items.length;
+  overlay.basemapLevel = map ? map.name : '';
   drawScaleBar(ctx, view);
   return inView;
 }
+
+const FONT = '11px sans-serif';
 
 /** The rows within 40 px of the view. */
 function markVisible(view, frame) {
@@ -321,34 +348,25 @@ function drawDots(raster, m, size, frame, rows) {
   }
 }
 
-function drawLabels(ctx, view, frame, rows) {
-  ctx.fillStyle = LABEL; ctx.font = '11px sans-serif'; ctx.textBaseline = 'middle';
-  for (let r = 0; r < rows.length; r++) {
-    const i = rows[r];
-    ctx.fillText(frame.ids[i], view.sx(frame.pos[3 * i]) + 6, view.sy(frame.pos[3 * i + 1]) - 7);
-  }
-}
-
-function drawSelected(ctx, view, frame, i) {
+function drawSelected(ctx, view, frame, i, marks, items) {
   const x = view.sx(frame.pos[3 * i]), y = view.sy(frame.pos[3 * i + 1]);
   ctx.beginPath(); ctx.arc(x, y, 9, 0, 2 * Math.PI);
   ctx.strokeStyle = SELECTED; ctx.lineWidth = 2; ctx.stroke();
-  ctx.fillStyle = SELECTED; ctx.font = 'bold 12px sans-serif'; ctx.textBaseline = 'middle';
-  ctx.fillText(frame.ids[i], x + 12, y - 10);
+  marks.push([x - 10, y - 10, x + 10, y + 10]);
+  items.push({ text: frame.ids[i], x, y, font: 'bold 12px sans-serif', size: 12, colour: SELECTED });
 }
 
-function drawSensors(ctx, view, sensors) {
-  ctx.fillStyle = SENSOR; ctx.font = '11px sans-serif'; ctx.textBaseline = 'top';
+function drawSensors(ctx, view, sensors, marks) {
+  ctx.fillStyle = SENSOR;
   for (const s of sensors) {
     const x = view.sx(s.pos[0]), y = view.sy(s.pos[1]);
     ctx.beginPath(); ctx.moveTo(x, y - 7); ctx.lineTo(x + 6, y + 5); ctx.lineTo(x - 6, y + 5);
     ctx.closePath(); ctx.fill();
-    ctx.fillText(s.id, x + 8, y + 2);
+    marks.push([x - 6, y - 7, x + 6, y + 5]);
   }
 }
 
-function drawInterceptors(ctx, view, interceptors, frame) {
-  ctx.font = '11px sans-serif'; ctx.textBaseline = 'middle';
+function drawInterceptors(ctx, view, interceptors, frame, marks) {
   for (const ic of interceptors) {
     const x = view.sx(ic.pos[0]), y = view.sy(ic.pos[1]);
     const row = frame && ic.target ? frame.rowOf(ic.target) : -1;
@@ -361,7 +379,7 @@ function drawInterceptors(ctx, view, interceptors, frame) {
     ctx.moveTo(x, y - 7); ctx.lineTo(x + 7, y); ctx.lineTo(x, y + 7); ctx.lineTo(x - 7, y);
     ctx.closePath();
     ctx.fillStyle = INTERCEPTOR; ctx.fill();
-    ctx.fillText(ic.id + (ic.captured ? ' (captured)' : ''), x + 10, y);
+    marks.push([x - 7, y - 7, x + 7, y + 7]);
   }
 }
 

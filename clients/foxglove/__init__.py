@@ -1,0 +1,2 @@
+"""The live picture in Foxglove and Lichtblick, `track-foxglove`: a Foxglove WebSocket
+server (foxglove-sdk) serving the scene drawn by clients/display/scene.py."""

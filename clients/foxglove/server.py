@@ -1,0 +1,234 @@
+"""`track-foxglove`: the live picture in Foxglove and Lichtblick.
+
+A Foxglove WebSocket server (foxglove-sdk) on ws://127.0.0.1:8765 serving, as each frame
+of the service comes:
+- `/scene` (foxglove.SceneUpdate): every track as a cube coloured by status, its
+  velocity as an arrow, its id as a label and its 1-sigma sphere; the sensors and the
+  interceptors (the drawing of `track-record`'s `/scene`: clients/display/scene.py);
+- `/tracks/fixes` (foxglove.LocationFixes): a LocationFix per track for the Map panel,
+  when the deployment's geodetic origin is known (`--origin`), at most `--map-hz` times a
+  second (10: a map at human pace, a third of the cost of every frame at 10,000 tracks);
+- `/counters` (JSON): tracks per status, frames skipped; `/status` (JSON, once a second
+  per service instance): the service's counters, for the Plot panel.
+Open Foxglove or Lichtblick on ws://127.0.0.1:8765 with the layout of `--layout` (the
+3-D scene, the map, the counters' plot; docs/foxglove.md).
+
+A channel nobody subscribes is not encoded. A slow viewer never makes anything queue:
+the frames wait in the client library's queue of one (the newest wins), and the server
+keeps at most `--backlog` messages per viewer, dropping the oldest; beyond that only the
+TCP connection's buffers hold frames (the protocol has no acknowledgement), so a viewer
+that reads one frame a second sees one a few seconds old, never an ever older one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from importlib import resources
+from typing import Any
+
+import numpy as np
+
+from zenoh_track.clients.display import scene
+from zenoh_track.clients.foxglove.sockets import trim_send_buffers
+from zenoh_track.clients.lib.frames import NO_STATUS, Frame
+from zenoh_track.clients.lib.origin import deployment_origin, parse_origin
+from zenoh_track.clients.lib.session import Client
+from zenoh_track.wire import (
+    STATUSES,
+    Keys,
+    Stop,
+    add_zenoh_args,
+    fail,
+    need,
+    on_signals,
+    open_session,
+)
+
+PROG = "track-foxglove"
+PORT = 8765  # Foxglove's default WebSocket port
+# messages kept per viewer: one frame's scene, fixes and counters and a status; fewer would
+# let a frame's counters push out its scene
+BACKLOG = 4
+SEND_BUFFER = 256 * 1024  # bytes of a viewer's connection send buffer (clients/foxglove/sockets.py)
+STATUS_PERIOD = 1.0  # s between /status messages
+MAP_HZ = 10.0  # location fixes per second at most
+LAYOUT = "track-foxglove.layout.json"
+FIXES_TOPIC = "/tracks/fixes"
+COUNTERS_TOPIC = "/counters"
+STATUS_TOPIC = "/status"
+STATUS_KEYS = ("tracks", "meas_accepted", "meas_rejected", "frames_published",
+               "frames_missed", "queue", "rejects_per_s")
+_INT = {"type": "integer"}
+COUNTERS_SCHEMA = {"type": "object", "title": "track-foxglove counters", "properties": {
+    "t": {"type": "number"}, "tracks": _INT, **{s: _INT for s in STATUSES},
+    "unknown": _INT, "skipped": _INT, "encode_ms": {"type": "number"}}}
+STATUS_SCHEMA = {"type": "object", "title": "track-service status", "properties": {
+    "instance": {"type": "string"}, **{k: {"type": "number"} for k in STATUS_KEYS}}}
+
+
+def layout_text() -> str:
+    """The layout shipped for Foxglove and Lichtblick (3-D, map, counters' plot)."""
+    return (resources.files("zenoh_track.clients.foxglove") / LAYOUT).read_text()
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to serve on (default %(default)s: this machine only)")
+    p.add_argument("--port", type=int, default=PORT,
+                   help="WebSocket port (default %(default)s; 0: a free one, printed)")
+    p.add_argument("--origin", type=parse_origin, metavar="LAT,LON,ALT",
+                   help="geodetic origin of the ENU frame, where the service states none: a "
+                        "LocationFix per track (default: the service's; one that differs "
+                        "is refused)")
+    p.add_argument("--map-hz", type=float, default=MAP_HZ, metavar="HZ",
+                   help="location fixes per second at most (0: with every frame; default "
+                        "%(default)s)")
+    p.add_argument("--marker", type=float, default=100.0, metavar="M",
+                   help="size of a track's cube, m (default %(default)s)")
+    p.add_argument("--arrow", type=float, default=10.0, metavar="S",
+                   help="velocity arrows show the way flown in this time (default %(default)s)")
+    p.add_argument("--no-labels", dest="labels", action="store_false",
+                   help="no id labels (fewer bytes per frame)")
+    p.add_argument("--backlog", type=int, default=BACKLOG, metavar="N",
+                   help="messages kept for a slow viewer, oldest dropped (default %(default)s)")
+    p.add_argument("--send-buffer", type=int, default=SEND_BUFFER, metavar="BYTES",
+                   help="a viewer's connection send buffer (default %(default)s; 0: the "
+                        "system's, which grows to MBs of old frames for a slow viewer)")
+    p.add_argument("--layout", action="store_true",
+                   help="print the Foxglove/Lichtblick layout (JSON) and exit")
+    add_zenoh_args(p)
+    return p
+
+
+class Publisher:
+    """The channels of the picture on one Foxglove server."""
+
+    def __init__(self, origin: tuple[float, float, float] | None, marker: float, arrow_s: float,
+                 labels: bool, map_hz: float = MAP_HZ) -> None:
+        import foxglove
+
+        def protobuf(topic: str, name: str) -> foxglove.Channel:
+            return foxglove.Channel(topic, message_encoding="protobuf", schema=foxglove.Schema(
+                name=name, encoding="protobuf", data=scene.schema(name)))
+
+        self.origin, self.marker, self.arrow_s, self.labels = origin, marker, arrow_s, labels
+        self.scene = protobuf(scene.TOPIC, scene.SCENE_SCHEMA)
+        self.fixes = protobuf(FIXES_TOPIC, scene.LOCATION_SCHEMA) if origin else None
+        self.counters = foxglove.Channel(COUNTERS_TOPIC, schema=COUNTERS_SCHEMA)
+        self.status = foxglove.Channel(STATUS_TOPIC, schema=STATUS_SCHEMA)
+        self.frames = 0
+        self.encode_ms = 0.0
+        self.map_period = 1.0 / map_hz if map_hz > 0 else 0.0
+        self.map_next = 0.0  # monotonic s
+
+    def frame(self, frame: Frame, skipped: int, sensors: list[dict[str, Any]],
+              interceptors: list[dict[str, Any]]) -> None:
+        """Log one frame on every channel that a viewer subscribes."""
+        start = time.perf_counter()
+        log_time = time.time_ns()
+        if self.scene.has_sinks():
+            self.scene.log(scene.scene_update(
+                frame, marker=self.marker, arrow_s=self.arrow_s, labels=self.labels,
+                sensors=sensors, interceptors=interceptors), log_time=log_time)
+        if self.fixes is not None and self.origin is not None and self.fixes.has_sinks() \
+                and start >= self.map_next:
+            self.map_next = start + self.map_period
+            self.fixes.log(scene.location_fixes(frame, self.origin), log_time=log_time)
+        counts = np.bincount(np.minimum(frame.codes, NO_STATUS), minlength=NO_STATUS + 1)
+        counts = [int(c) for c in counts]
+        self.encode_ms = 1e3 * (time.perf_counter() - start)
+        self.counters.log({"t": frame.t, "tracks": len(frame),
+                           **dict(zip(STATUSES, counts, strict=False)),
+                           "unknown": counts[-1], "skipped": skipped,
+                           "encode_ms": round(self.encode_ms, 2)}, log_time=log_time)
+        self.frames += 1
+
+    def services(self, services: list[dict[str, Any]]) -> None:
+        for s in services:
+            self.status.log({"instance": str(s.get("instance")),
+                             **{k: s[k] for k in STATUS_KEYS
+                                if isinstance(s.get(k), int | float)}})
+
+
+class Viewers:
+    """The server's listener: each viewer's send buffer trimmed when it subscribes."""
+
+    def __init__(self, send_buffer: int) -> None:
+        self.send_buffer, self.port = send_buffer, 0
+        self.trimmed: set[tuple[int, tuple]] = set()
+        self.lock = threading.Lock()
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        if self.send_buffer > 0 and self.port:
+            with self.lock:
+                trim_send_buffers(self.port, self.send_buffer, self.trimmed)
+
+
+def serve(args: argparse.Namespace, stop: Stop) -> None:
+    import foxglove
+
+    from zenoh_track.clients.web.web_link import Link
+
+    with open_session(args, log=True) as session:
+        keys = Keys(args.ns)
+        origin = deployment_origin(session, args.ns, args.origin, PROG)
+        link = Link(session, keys, lambda payload: None)  # sensors, interceptors, status
+        client = Client(session, args.ns, own=False)
+        picture = client.picture(maxlen=1)
+        listener = Viewers(args.send_buffer)
+        try:
+            server = foxglove.start_server(name=f"{PROG} ({keys.ns})", host=args.host,
+                                           port=args.port, message_backlog_size=args.backlog,
+                                           server_listener=listener)
+            listener.port = server.port
+        except RuntimeError as exc:
+            picture.close()
+            link.close()
+            fail(f"cannot serve on {args.host}:{args.port}: {exc} (another program on that "
+                 "port? choose another with --port)", PROG)
+        pub = Publisher(origin, args.marker, args.arrow, args.labels, args.map_hz)
+        print(f"{PROG}: ws://{args.host}:{server.port} (ns {keys.ns}); layout: "
+              f"{PROG} --layout > {LAYOUT}", file=sys.stderr, flush=True)
+        next_status = time.monotonic()
+        try:
+            while not stop.is_set():
+                try:
+                    frame = picture.next(timeout=0.2)
+                except TimeoutError:
+                    frame = None
+                except StopIteration:
+                    break
+                if frame is not None:
+                    extra = link.health()
+                    pub.frame(frame, picture.dropped, extra["sensors"], link.extra())
+                if time.monotonic() >= next_status:
+                    pub.services(link.health()["services"])
+                    next_status = time.monotonic() + STATUS_PERIOD
+        finally:
+            server.stop()
+            picture.close()
+            link.close()
+    print(f"{PROG}: {pub.frames} frames served, {picture.dropped} skipped", file=sys.stderr,
+          flush=True)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parser().parse_args(argv)
+    stop = on_signals()
+    if args.layout:
+        sys.stdout.write(layout_text())
+        return
+    need("foxglove", "foxglove", PROG)
+    need("pymap3d", "foxglove", PROG)
+    if args.backlog < 1:
+        fail("--backlog must be at least 1", PROG)
+    serve(args, stop)
+
+
+if __name__ == "__main__":
+    main()
