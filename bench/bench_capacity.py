@@ -79,7 +79,7 @@ sys.path.insert(0, str(ROOT))  # run from a checkout
 from procstat import cpu_seconds, rss_mb, thread_cpu  # noqa: E402  # bench/procstat.py
 
 from zenoh_track.clients.evaluation.progress import bar  # noqa: E402
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker  # noqa: E402
 
 RATE = 30.0

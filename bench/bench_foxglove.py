@@ -35,13 +35,13 @@ sys.path.insert(0, str(ROOT / "bench"))
 from bench_web import RATE, FramePublisher  # noqa: E402
 from foxglove_client import FoxgloveClient  # noqa: E402
 
-from zenoh_track.clients.display import scene  # noqa: E402
 from zenoh_track.clients.foxglove.server import (  # noqa: E402
     COUNTERS_TOPIC,
     FIXES_TOPIC,
     STATUS_TOPIC,
 )
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib import scene  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import free_port  # noqa: E402
 
 

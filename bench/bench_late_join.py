@@ -24,7 +24,7 @@ from pathlib import Path
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import Keys, decode_frame, free_port, peer_config, unpack  # noqa: E402
 
 HOWS = ("display", "display+get", "get display", "frame", "frame+get", "get frame")

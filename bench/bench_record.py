@@ -33,8 +33,8 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from zenoh_track.clients.procs import stop  # noqa: E402
-from zenoh_track.clients.record.recording import Recording  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
+from zenoh_track.clients.record.files import Recording  # noqa: E402
 from zenoh_track.wire import Keys, free_port, peer_config, unpack, wait_for_tracker  # noqa: E402
 
 PY = sys.executable

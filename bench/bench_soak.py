@@ -45,7 +45,7 @@ import zenoh
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import Keys, free_port, pack, quick_retry, unpack  # noqa: E402
 
 DEPLOY = ROOT / "deploy"

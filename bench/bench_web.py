@@ -42,7 +42,7 @@ import urllib.request
 import numpy as np
 import zenoh
 
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import Keys, free_port, pack, peer_config, unpack
 
 CHROMIUM = "/usr/bin/chromium"

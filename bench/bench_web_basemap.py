@@ -35,7 +35,7 @@ from bench_web import (  # noqa: E402
     wait_http,
 )
 
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import free_port  # noqa: E402
 
 ORIGIN = "50.95,1.85,0"

@@ -31,7 +31,7 @@ from procstat import cpu_seconds  # noqa: E402
 from zenoh_track.clients.dis import pdu  # noqa: E402
 from zenoh_track.clients.dis.geodesy import EnuFrame, body_axes, euler_of  # noqa: E402
 from zenoh_track.clients.lib import ServiceProcess  # noqa: E402
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import Origin, unpack  # noqa: E402
 
 ORIGIN = Origin(43.1, 5.9, 0.0)

@@ -31,7 +31,7 @@ from zenoh_track.clients.dis.inbound import Clocks  # noqa: E402
 from zenoh_track.clients.dis.outbound import DeadReckoner  # noqa: E402
 from zenoh_track.clients.feeds.scenarios import FlightA  # noqa: E402
 from zenoh_track.clients.lib import Frame, ServiceProcess  # noqa: E402
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import Origin, unpack  # noqa: E402
 
 ORIGIN = Origin(43.1, 5.9, 0.0)  # a naval visual simulation's harbour

@@ -5,7 +5,7 @@ service's tracker without Zenoh; `track-eval heldout` measures the service itsel
     python bench/exact_feeds.py a         # scenario A: the default IMM's CA noise and sojourn
     python bench/exact_feeds.py a-trace   # scenario A per scan: mode probabilities, frame RMS
 
-`heldout`: 50 aircraft (`zenoh_track.clients.evaluation.evaluate_heldout.generate`, seed 0, 120
+`heldout`: 50 aircraft (`zenoh_track.clients.evaluation.heldout.generate`, seed 0, 120
 s), every other
 position sent with sigma 0 or 1 m, the frame 1 s later against the position held out,
 RMS as a multiple of linear extrapolation's; with the noise check as in the service,
@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from zenoh_track.clients.evaluation import evaluate_heldout as held  # noqa: E402
+from zenoh_track.clients.evaluation import heldout as held  # noqa: E402
 from zenoh_track.clients.feeds import scenarios  # noqa: E402
 from zenoh_track.estimation.catalog import FilterSpec  # noqa: E402
 from zenoh_track.estimation.imm import ModeSet  # noqa: E402

@@ -31,7 +31,7 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import Keys, free_port, peer_config, unpack, wait_for_tracker  # noqa: E402
 
 POLL = 0.05  # s between two status queries

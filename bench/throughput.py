@@ -43,7 +43,7 @@ import procstat  # noqa: E402  # bench/procstat.py
 from scan_flood import kernels  # noqa: E402  # bench/scan_flood.py
 from single_cost import compiled  # noqa: E402  # bench/single_cost.py
 
-from zenoh_track.clients.procs import stop  # noqa: E402
+from zenoh_track.clients.lib.process import stop  # noqa: E402
 from zenoh_track.wire import Keys, free_port, listen_config, peer_config, wait_for_tracker  # noqa: E402
 
 TRACKS_BODY = 1031  # bytes of a 3-D IMM track's `tracks/` body (encode.pack_tracks)

@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from zenoh_track import defaults  # noqa: E402
-from zenoh_track.clients.evaluation import evaluate_heldout as held  # noqa: E402
+from zenoh_track.clients.evaluation import heldout as held  # noqa: E402
 from zenoh_track.clients.feeds import stamped  # noqa: E402
 from zenoh_track.estimation import timing  # noqa: E402
 from zenoh_track.tracking import noise_check  # noqa: E402

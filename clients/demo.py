@@ -15,7 +15,7 @@ import sys
 import webbrowser
 
 from zenoh_track.clients.lib.origin import parse_origin
-from zenoh_track.clients.procs import stop_all
+from zenoh_track.clients.lib.process import stop_all
 from zenoh_track.wire import STOP_GRACE, add_version, free_port, missing_extra, on_signals
 
 # s: the most the service may take to come up: its first start on a machine compiles the

@@ -14,7 +14,7 @@ from typing import Any
 
 import zenoh
 
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import quick_retry, unpack
 
 ROOT = Path(__file__).resolve().parent.parent

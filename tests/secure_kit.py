@@ -15,7 +15,7 @@ import pytest
 import zenoh
 from routers import DEPLOY, ENV, RouterProc, client_conf
 
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import Keys, free_port, wait_for_tracker
 
 SECURE = DEPLOY / "secure"

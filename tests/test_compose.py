@@ -25,7 +25,7 @@ from conftest import Collector
 from zenoh_track import __main__ as service_cli
 from zenoh_track.clients import Client, ServiceProcess
 from zenoh_track.clients.feeds import feed as feed_cli
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker
 
 ROOT = Path(__file__).resolve().parent.parent

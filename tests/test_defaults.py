@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from zenoh_track.clients.evaluation import evaluate as track_eval
-from zenoh_track.clients.evaluation import evaluate_defaults as defaults_eval
+from zenoh_track.clients.evaluation import reference as defaults_eval
 from zenoh_track.clients.evaluation.collect import run_through_service
 
 pytestmark = pytest.mark.slow

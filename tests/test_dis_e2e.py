@@ -18,7 +18,7 @@ import pytest
 from zenoh_track.clients.dis import pdu, standard
 from zenoh_track.clients.dis.geodesy import EnuFrame
 from zenoh_track.clients.lib import ServiceProcess
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import Origin, free_port, unpack
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
@@ -167,7 +167,7 @@ def test_track_web_takes_the_services_origin() -> None:
 
     import aiohttp
 
-    from zenoh_track.clients.procs import stop as stop_proc
+    from zenoh_track.clients.lib.process import stop as stop_proc
 
     with ServiceProcess("--origin", ORIGIN.text()) as svc:
         client = svc.wait()

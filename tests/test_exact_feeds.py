@@ -1,7 +1,7 @@
 """Jittered 1 Hz positions stated exact, through the real service on loopback (lockstep):
 a smooth path with turns, climbs and speed changes plus 10-30 m of noise per axis,
 quantised to 1 m, with a 50 m dead-reckoning snap now and then
-(`zenoh_track.clients.evaluation.evaluate_heldout`, the held-out measure of `track-eval heldout`):
+(`zenoh_track.clients.evaluation.heldout`, the held-out measure of `track-eval heldout`):
 every other position sent with `sigma` 0 (and without sigma), the frame 1 s later scored
 against the position held out. The service must stay stable (no error growing like a
 random walk, as the piecewise-constant noise model's undamped oscillation did: 8 x linear
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zenoh_track.clients.evaluation import evaluate_heldout as held
+from zenoh_track.clients.evaluation import heldout as held
 
 pytestmark = pytest.mark.slow
 AIRCRAFT = 500

@@ -20,15 +20,15 @@ import zenoh
 from foxglove_client import FoxgloveClient, message_class
 
 from zenoh_track.clients import connect
-from zenoh_track.clients.display import scene
 from zenoh_track.clients.foxglove.server import (
     COUNTERS_TOPIC,
     FIXES_TOPIC,
     STATUS_TOPIC,
     layout_text,
 )
+from zenoh_track.clients.lib import scene
 from zenoh_track.clients.lib.frames import NO_STATUS, Frame
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import STATUSES, Keys, free_port, pack
 
 PY = sys.executable

@@ -20,7 +20,7 @@ from zenoh_track.clients.feeds.scenarios import ManeuverC
 from zenoh_track.clients.intercept.guidance import Interceptor, Law, earliest_reach, intercept_time
 from zenoh_track.clients.intercept.intercept import Interceptors
 from zenoh_track.clients.intercept.intercept_report import Truth
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 
 START, SPEED, CAPTURE, RATE = np.array([7000.0, 6000.0]), 20.0, 2.55, 30.0
 TARGET = ManeuverC()

@@ -12,7 +12,7 @@ import time
 import pytest
 from conftest import Collector, client_session
 
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import decode_frame, unpack
 
 

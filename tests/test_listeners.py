@@ -12,7 +12,7 @@ import pytest
 import zenoh
 from conftest import Collector
 
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import MSGPACK_ENCODING as ENCODING
 from zenoh_track.wire import unpack
 

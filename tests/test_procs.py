@@ -1,4 +1,4 @@
-"""`zenoh_track.clients.procs`: stopping child processes, with real processes."""
+"""`zenoh_track.clients.lib.process`: stopping child processes, with real processes."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import subprocess
 import sys
 import time
 
-from zenoh_track.clients.procs import stop_all
+from zenoh_track.clients.lib.process import stop_all
 
 STUBBORN = "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); " \
            "print('ready', flush=True); time.sleep(60)"

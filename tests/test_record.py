@@ -18,10 +18,10 @@ import zenoh
 from conftest import Collector, ServiceProc, client_session
 from foxglove_client import message_class
 
-from zenoh_track.clients.display.scene import SCENE_SCHEMA, TOPIC, headings, schema
 from zenoh_track.clients.feeds.replay import remapper
+from zenoh_track.clients.lib.scene import SCENE_SCHEMA, TOPIC, headings, schema
+from zenoh_track.clients.record.files import Recording, RecordingWriter, payload_time_ns
 from zenoh_track.clients.record.record import distinct
-from zenoh_track.clients.record.recording import Recording, RecordingWriter, payload_time_ns
 from zenoh_track.wire import (
     MSGPACK_ENCODING,
     PROTOCOL_VERSION,

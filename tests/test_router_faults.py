@@ -16,7 +16,7 @@ import zenoh
 from routers import DEPLOY, ENV, RouterProc, Stamped, client_conf, ids_since
 
 from zenoh_track.clients import ServiceProcess
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import Keys, free_port, unpack, wait_for_tracker
 
 TARGETS = 12

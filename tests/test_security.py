@@ -21,8 +21,8 @@ import zenoh
 from routers import ENV, Stamped
 from secure_kit import KEYS, program
 
-from zenoh_track.clients.procs import stop
-from zenoh_track.clients.record.recording import Recording
+from zenoh_track.clients.lib.process import stop
+from zenoh_track.clients.record.files import Recording
 from zenoh_track.wire import pack, unpack
 
 pytestmark = pytest.mark.slow

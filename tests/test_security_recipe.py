@@ -17,7 +17,7 @@ import pytest
 from routers import DEPLOY, ENV, ROOT
 from secure_kit import BIN, VARIANTS
 
-from zenoh_track.clients.procs import stop_all
+from zenoh_track.clients.lib.process import stop_all
 from zenoh_track.wire import free_port
 
 pytestmark = pytest.mark.slow

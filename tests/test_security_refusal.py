@@ -15,7 +15,7 @@ import zenoh
 from routers import client_conf
 from secure_kit import Deployment, mounted, one_line, program
 
-from zenoh_track.clients.record.recording import RecordingWriter
+from zenoh_track.clients.record.files import RecordingWriter
 from zenoh_track.wire import free_port
 from zenoh_track.wire.cli import bound_connect
 from zenoh_track.wire.refusal import why_refused

@@ -26,8 +26,8 @@ from test_web import browser as browser  # the fixture
 from zenoh_track.clients import ServiceProcess, connect
 from zenoh_track.clients.lib.frames import Frame
 from zenoh_track.clients.lib.merge import STALE
-from zenoh_track.clients.procs import stop
-from zenoh_track.clients.web.web_frames import read_message
+from zenoh_track.clients.lib.process import stop
+from zenoh_track.clients.web.frames import read_message
 from zenoh_track.wire import free_port
 
 pytestmark = pytest.mark.slow

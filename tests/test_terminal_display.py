@@ -15,8 +15,8 @@ import pytest
 from conftest import Collector
 
 from zenoh_track.clients.display.display import handle
-from zenoh_track.clients.display.display_model import Frame, Health, Table, fmt_t
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.display.model import Frame, Health, Table, fmt_t
+from zenoh_track.clients.lib.process import stop
 from zenoh_track.wire import f64_bin, pack
 
 

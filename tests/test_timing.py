@@ -14,7 +14,7 @@ import zenoh
 from conftest import Collector
 
 from zenoh_track import defaults
-from zenoh_track.clients.evaluation import evaluate_heldout as held
+from zenoh_track.clients.evaluation import heldout as held
 from zenoh_track.clients.feeds import stamped
 from zenoh_track.estimation import kalman, models, timing
 from zenoh_track.estimation.filters import SingleModelFilter

@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from zenoh_track.clients.procs import stop
+from zenoh_track.clients.lib.process import stop
+from zenoh_track.clients.web.frames import UNKNOWN_STATUS, FrameHub, read_message
 from zenoh_track.clients.web.web import WINDOW, parse_origin
-from zenoh_track.clients.web.web_frames import UNKNOWN_STATUS, FrameHub, read_message
 from zenoh_track.wire import STATUSES, Keys, free_port, pack, unpack
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"

@@ -35,7 +35,7 @@ from rich.live import Live
 from rich.table import Table as RichTable
 from rich.text import Text
 
-from zenoh_track.clients.display.display_model import (
+from zenoh_track.clients.display.model import (
     COLUMNS,
     SORTS,
     Frame,

@@ -6,7 +6,7 @@ Monte Carlo run is a separate target, so all runs go through at once), collects
 RMSE per window or phase, the posterior Cramér-Rao bound and the ratio to it, average
 NEES and NIS with their 95 % chi-square intervals, and for display frames the RMS and
 maximum error and the largest visual jump. The unlabelled-scan scenarios `crossing` and
-`multisensor` are evaluated with GOSPA by clients/evaluation/evaluate_plots.py.
+`multisensor` are evaluated with GOSPA by clients/evaluation/unlabelled.py.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 
 from zenoh_track.clients.evaluation import (
-    evaluate_defaults,
-    evaluate_heldout,
-    evaluate_manoeuvres,
-    evaluate_plots,
+    heldout,
+    manoeuvres,
     metrics,
+    reference,
+    unlabelled,
 )
 from zenoh_track.clients.evaluation.collect import Collected, run_through_service
 from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
@@ -304,15 +304,15 @@ def plot_display(collected: dict[str, Collected], outdir: str,
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="track-eval", description=__doc__)
-    p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *evaluate_plots.SCENARIOS,
+    p.add_argument("scenario", choices=[*sorted(scenarios.SCENARIOS), *unlabelled.SCENARIOS,
                                         "defaults", "heldout", "manoeuvres"],
                    help="crossing, multisensor: unlabelled scans and GOSPA "
-                        "(clients/evaluation/evaluate_plots.py); defaults: A, B and C with the "
+                        "(clients/evaluation/unlabelled.py); defaults: A, B and C with the "
                         "service's defaults beside the best filter of each "
-                        "(clients/evaluation/evaluate_defaults.py); heldout: every other "
+                        "(clients/evaluation/reference.py); heldout: every other "
                         "position of a "
                         "1 Hz feed sent, the frame scored at the others "
-                        "(clients/evaluation/evaluate_heldout.py); manoeuvres: track breaks, "
+                        "(clients/evaluation/heldout.py); manoeuvres: track breaks, "
                         "held and RMSE/NEES per class of manoeuvre (its own options: "
                         "track-eval manoeuvres -h)")
     p.add_argument("--runs", type=int, default=None,
@@ -337,8 +337,8 @@ def parser() -> argparse.ArgumentParser:
                         "around corrections")
     p.add_argument("--json", action="store_true", help="print the reports as JSON")
     p.add_argument("--plot", metavar="DIR", help="write PNG figures here")
-    evaluate_plots.add_args(p)
-    evaluate_heldout.add_args(p)
+    unlabelled.add_args(p)
+    heldout.add_args(p)
     add_quiet_arg(p)
     add_version(p)
     return p
@@ -346,19 +346,19 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["manoeuvres"]:  # its own options (clients/evaluation/evaluate_manoeuvres.py)
-        evaluate_manoeuvres.main(argv[1:])
+    if argv[:1] == ["manoeuvres"]:  # its own options (clients/evaluation/manoeuvres.py)
+        manoeuvres.main(argv[1:])
         return
     args = parser().parse_args(argv)
     on_signals(interrupt=True)
     if args.plot:
         need("matplotlib", "plot", "track-eval --plot")
-    if args.scenario in evaluate_plots.SCENARIOS:
-        return evaluate_plots.run(args)
+    if args.scenario in unlabelled.SCENARIOS:
+        return unlabelled.run(args)
     if args.scenario == "defaults":
-        return evaluate_defaults.run(args)
+        return reference.run(args)
     if args.scenario == "heldout":
-        evaluate_heldout.run(args)
+        heldout.run(args)
         return None
     args.runs = 100 if args.runs is None else args.runs
     filters = args.filter or (["ca"] if args.scenario == "display" else ["cv"])

@@ -27,7 +27,7 @@ import zenoh
 
 from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
 from zenoh_track.clients.feeds.feed import delivered
-from zenoh_track.clients.record.recording import Channel, Recording
+from zenoh_track.clients.record.files import Channel, Recording
 from zenoh_track.wire import (
     BLOCK_WAIT_US,
     Keys,

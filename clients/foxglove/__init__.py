@@ -1,2 +1,2 @@
 """The live picture in Foxglove and Lichtblick, `track-foxglove`: a Foxglove WebSocket
-server (foxglove-sdk) serving the scene drawn by clients/display/scene.py."""
+server (foxglove-sdk) serving the scene drawn by clients/lib/scene.py."""

@@ -4,7 +4,7 @@ A Foxglove WebSocket server (foxglove-sdk) on ws://127.0.0.1:8765 serving, as ea
 of the service comes:
 - `/scene` (foxglove.SceneUpdate): every track as a cube coloured by status, its
   velocity as an arrow, its id as a label and its 1-sigma sphere; the sensors and the
-  interceptors (the drawing of `track-record`'s `/scene`: clients/display/scene.py);
+  interceptors (the drawing of `track-record`'s `/scene`: clients/lib/scene.py);
 - `/tracks/fixes` (foxglove.LocationFixes): a LocationFix per track for the Map panel,
   when the deployment's geodetic origin is known (`--origin`), at most `--map-hz` times a
   second (10: a map at human pace, a third of the cost of every frame at 10,000 tracks);
@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from zenoh_track.clients.display import scene
 from zenoh_track.clients.foxglove.sockets import trim_send_buffers
+from zenoh_track.clients.lib import scene
 from zenoh_track.clients.lib.frames import NO_STATUS, Frame
 from zenoh_track.clients.lib.origin import deployment_origin, parse_origin
 from zenoh_track.clients.lib.session import Client
@@ -172,7 +172,7 @@ class Viewers:
 def serve(args: argparse.Namespace, stop: Stop) -> None:
     import foxglove
 
-    from zenoh_track.clients.web.web_link import Link
+    from zenoh_track.clients.web.link import Link
 
     with open_session(args, log=True) as session:
         keys = Keys(args.ns)

@@ -1,5 +1,6 @@
-"""`track-service` as a child process on a free loopback port: what the pytest plugin,
-the project's tests and track-eval start a service with."""
+"""Child processes of the programs, the tests and the benchmarks: `stop` and `stop_all`,
+and `track-service` as a child process on a free loopback port (what the pytest plugin,
+the project's tests and track-eval start a service with)."""
 
 from __future__ import annotations
 
@@ -13,12 +14,44 @@ from pathlib import Path
 from types import TracebackType
 
 from zenoh_track.clients.lib.session import Client, connect
-from zenoh_track.clients.procs import stop
 from zenoh_track.wire import DEFAULT_NS, Keys, free_port
 
 NOTICE_POLL = 1.0  # s between two looks at a starting service's log
 START_NOTES = ("track-service: compiling", "track-service: kernels")  # what a start says
 COMPILE_WAIT = 600.0  # s: the longest a first start's compile may take on a busy machine
+
+
+def stop(proc: subprocess.Popen | None, timeout: float = 15.0) -> str:
+    """Terminate `proc`, wait up to `timeout` s for it to exit, then kill it and wait.
+
+    Returns what it wrote on stderr if that was piped (else ""); whatever else was piped
+    is read and dropped, so a full pipe cannot keep it from exiting. A process that has
+    already exited, or None, is only reaped.
+    """
+    if proc is None:
+        return ""
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+    if isinstance(err, bytes):
+        err = err.decode(errors="replace")
+    return err or ""
+
+
+def stop_all(procs: list[subprocess.Popen | None], timeout: float = 15.0) -> None:
+    """`stop` several processes at once: all terminated together, then each waited for
+    within the one `timeout` (not one timeout after another), the late ones killed."""
+    live = [p for p in procs if p is not None]
+    for proc in live:
+        if proc.poll() is None:
+            proc.terminate()
+    deadline = time.monotonic() + timeout
+    for proc in live:
+        stop(proc, timeout=max(0.0, deadline - time.monotonic()))
 
 
 class ServiceProcess:

@@ -25,7 +25,7 @@ from typing import Any
 import zenoh
 
 from zenoh_track.clients.evaluation.progress import add_quiet_arg, bar
-from zenoh_track.clients.record.recording import RecordingWriter
+from zenoh_track.clients.record.files import RecordingWriter
 from zenoh_track.wire import Keys, Stop, add_zenoh_args, on_signals, open_session, stamp_ns
 
 POLL = 0.2  # s: how often the writer looks at the stop conditions when no sample comes

@@ -15,7 +15,7 @@ from collections import defaultdict
 import numpy as np
 
 from zenoh_track.clients.lib.frames import NO_STATUS, Frame
-from zenoh_track.clients.record.recording import Recording
+from zenoh_track.clients.record.files import Recording
 from zenoh_track.wire import need, unpack
 
 MAX_LABELS = 30  # tracks labelled by id when there are at most this many

@@ -8,7 +8,7 @@ interceptors, a scale bar, the simulation clock, the track count and the service
 its `tracks/<id>` state (get through this server): state, covariance, model
 probabilities, age.
 
-Frames reach each browser over a WebSocket as binary typed arrays (`web_frames`): one
+Frames reach each browser over a WebSocket as binary typed arrays (`frames`): one
 frame at a time, the next only once the browser has taken the previous one (it answers
 each with "ack"); frames that arrive meanwhile are skipped, never queued, so a slow
 browser sees the newest picture late rather than an old one.
@@ -44,8 +44,8 @@ except ImportError as exc:
 
 from zenoh_track.clients.lib import Frame as Columns
 from zenoh_track.clients.lib.origin import deployment_origin, parse_origin
-from zenoh_track.clients.web.web_frames import FrameHub
-from zenoh_track.clients.web.web_link import Link
+from zenoh_track.clients.web.frames import FrameHub
+from zenoh_track.clients.web.link import Link
 
 WINDOW = 2  # frames in flight to one browser (unanswered)
 HEALTH_PERIOD = 1.0  # s between health messages

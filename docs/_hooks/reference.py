@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[2]
 log = logging.getLogger("mkdocs.hooks.reference")
 
 # programs reached through a first positional word, each with a parser of its own
-SUBPROGRAMS = {"track-eval manoeuvres": "zenoh_track.clients.evaluation.evaluate_manoeuvres"}
+SUBPROGRAMS = {"track-eval manoeuvres": "zenoh_track.clients.evaluation.manoeuvres"}
 # how a page may start a program besides its script name
 ALIASES = {"python -m zenoh_track": "track-service"}
 

@@ -1,4 +1,4 @@
-// track-web: the page. Frames arrive as binary messages (clients/web_frames.py gives the
+// track-web: the page. Frames arrive as binary messages (clients/frames.py gives the
 // layout), are answered with "ack" at once, and only the newest one is drawn, on the next
 // animation frame.
 import { enuToGeodetic, formatLatLon } from './geo.js';

@@ -9,7 +9,7 @@ order, log-time order and receive order agree) and publish_time = the Zenoh time
 the sample when it has one, else the payload's `t` (simulation seconds, as ns), else the
 receive time. A metadata record `zenoh-track` names the namespace, the protocol version,
 the package version and the key expressions recorded; `zenoh-track-end` the counts.
-The display channel (`/scene`, foxglove.SceneUpdate in protobuf: clients/display/scene.py,
+The display channel (`/scene`, foxglove.SceneUpdate in protobuf: clients/lib/scene.py,
 the drawing that `track-foxglove` serves live) is derived from the `frame` samples, every
 instance's merged into one picture as the client library merges them (`Merge`).
 """
@@ -29,7 +29,7 @@ from mcap.reader import make_reader
 from mcap.well_known import SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
-from zenoh_track.clients.display import scene
+from zenoh_track.clients.lib import scene
 from zenoh_track.clients.lib.frames import NO_STATUS, Frame
 from zenoh_track.clients.lib.merge import Merge
 from zenoh_track.wire import MSGPACK_ENCODING, PROTOCOL_VERSION, STATUSES, Keys, unpack

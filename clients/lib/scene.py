@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_track.clients.display import protobuf_rows as pb
+from zenoh_track.clients.lib import protobuf_rows as pb
 from zenoh_track.clients.lib.frames import NO_STATUS, STATUS_NAMES, Frame
 
 F64 = npt.NDArray[np.float64]
@@ -51,7 +51,7 @@ E_ARROWS, E_CUBES, E_SPHERES, E_TEXTS = 7, 8, 9, 13
 
 def schema(name: str) -> bytes:
     """The FileDescriptorSet of a Foxglove message (`foxglove.SceneUpdate`, ...)."""
-    return (resources.files("zenoh_track.clients.display") / "schemas" / f"{name}.bin") \
+    return (resources.files("zenoh_track.clients.lib") / "schemas" / f"{name}.bin") \
         .read_bytes()
 
 

@@ -104,7 +104,7 @@ def recorded(path: str) -> tuple[np.ndarray, np.ndarray, None]:
     """Times and positions of a recording's `meas/` messages with Cartesian `pos` at
     whole seconds (targets without a position at every second of the common span are
     left out)."""
-    from zenoh_track.clients.record.recording import Recording  # noqa: PLC0415 (only for this feed)
+    from zenoh_track.clients.record.files import Recording  # noqa: PLC0415 (only for this feed)
     by_target: dict[str, dict[float, list[float]]] = {}
     with open(path, "rb") as f:
         rec = Recording(f)
