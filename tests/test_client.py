@@ -5,6 +5,7 @@ reports of what it refused, the picture's queue, the queries; and its types (myp
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -162,5 +163,6 @@ def test_the_library_passes_mypy_strict(tmp_path):
                          cwd=tmp_path, capture_output=True, text=True, timeout=300,
                          env={**os.environ, "MYPYPATH": str(tmp_path)})
     assert out.returncode == 0, out.stdout + out.stderr
-    checked = len(list((ROOT / "clients" / "lib").glob("*.py"))) + 3  # + the plugin's 3
-    assert f"Success: no issues found in {checked} source files" in out.stdout
+    found = re.search(r"Success: no issues found in (\d+) source files", out.stdout)
+    lib = len(list((ROOT / "clients" / "lib").glob("*.py")))
+    assert found and int(found.group(1)) >= lib + 3, out.stdout  # the library and the plugin

@@ -12,6 +12,7 @@ import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 from zenoh_track.clients.lib.session import Client, connect
 from zenoh_track.wire import DEFAULT_NS, Keys, free_port
@@ -21,7 +22,7 @@ START_NOTES = ("track-service: compiling", "track-service: kernels")  # what a s
 COMPILE_WAIT = 600.0  # s: the longest a first start's compile may take on a busy machine
 
 
-def stop(proc: subprocess.Popen | None, timeout: float = 15.0) -> str:
+def stop(proc: subprocess.Popen[Any] | None, timeout: float = 15.0) -> str:
     """Terminate `proc`, wait up to `timeout` s for it to exit, then kill it and wait.
 
     Returns what it wrote on stderr if that was piped (else ""); whatever else was piped
@@ -42,7 +43,7 @@ def stop(proc: subprocess.Popen | None, timeout: float = 15.0) -> str:
     return err or ""
 
 
-def stop_all(procs: list[subprocess.Popen | None], timeout: float = 15.0) -> None:
+def stop_all(procs: list[subprocess.Popen[Any] | None], timeout: float = 15.0) -> None:
     """`stop` several processes at once: all terminated together, then each waited for
     within the one `timeout` (not one timeout after another), the late ones killed."""
     live = [p for p in procs if p is not None]

@@ -182,7 +182,7 @@ def scene_update(frame: Frame, *, marker: float = 100.0, arrow_s: float = 10.0,
 def location_fixes(frame: Frame, origin: tuple[float, float, float] | list[float],
                    codes: npt.NDArray[np.uint8] | None = None) -> bytes:
     """The LocationFixes of one frame about the geodetic `origin` (lat, lon deg, alt m)."""
-    import pymap3d
+    import pymap3d  # type: ignore[import-untyped]
 
     codes = np.minimum(frame.codes if codes is None else codes, NO_STATUS)
     lat, lon, alt = pymap3d.enu2geodetic(frame.pos[:, 0], frame.pos[:, 1], frame.pos[:, 2],
