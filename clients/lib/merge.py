@@ -40,8 +40,10 @@ from zenoh_track.clients.lib.frames import Frame
 HOLD = 0.25
 # s: an instance behind the others this long (alive, its frames stopped: a stopped
 # process, a cut link) leaves the picture until its frames come back; Zenoh removes its
-# token later, at the end of the session lease (10 s by default).
-STALE = 2.0
+# token later, at the end of the session lease (10 s by default). Longer than a busy
+# machine's pauses of one realtime instance among several (2 s was seen to drop one
+# for a moment on two loaded cores): a dead instance leaves by its token at once anyway.
+STALE = 5.0
 KEEP = 256  # frames held per instance at most (the oldest then counts as drawn)
 NEW_TIMELINE = 1.0  # s: an instance's frames going back this far start a new timeline
 SPARE = 4  # blocks of pictures kept for reuse (a viewer holds one or two pictures)
