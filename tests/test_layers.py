@@ -170,7 +170,7 @@ def test_clients_are_families() -> None:
     evaluation, intercept, the library): at its top only the demo, the process helpers and
     the pytest plugin, never another flat module; and every family is installed."""
     top = {p.stem for p in (ROOT / "clients").glob("*.py")}
-    assert top == {"__init__", "demo", "procs", "pytest_plugin", "pytest_enable"}, top
+    assert top == {"__init__", "demo", "pytest_plugin", "pytest_enable"}, top
     families = {p.parent.name for p in (ROOT / "clients").glob("*/__init__.py")}
     text = (ROOT / "pyproject.toml").read_text()
     assert families >= {"feeds", "display", "web", "record", "evaluation", "intercept", "lib"}
