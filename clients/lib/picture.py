@@ -20,6 +20,11 @@ if TYPE_CHECKING:
     from zenoh_track.clients.lib.session import Client
 
 
+# s: the longest a late joiner waits for every instance's latest frame (the get returns
+# as soon as all have answered; a busy instance answers behind the inputs before the
+# query, and 2 s was seen to leave one out on two loaded cores)
+JOIN_WAIT = 5.0
+
 class Picture:
     """Subscribes `<ns>/frame` and the instances' liveliness tokens, and asks every
     instance for its latest frame at once: one picture per display instant, whatever
@@ -56,7 +61,8 @@ class Picture:
         self._subs = [session.liveliness().declare_subscriber(
             self.keys.alive("*"), self._on_token, history=True)]
         for reply in session.get(self.keys.frame, target=zenoh.QueryTarget.ALL,
-                                 consolidation=zenoh.ConsolidationMode.NONE, timeout=2.0):
+                                 consolidation=zenoh.ConsolidationMode.NONE,
+                                 timeout=JOIN_WAIT):
             if reply.ok is not None:
                 self._on_frame(reply.ok, draw=False)
         with self._cond:
