@@ -15,7 +15,15 @@ from importlib import resources
 import numpy as np
 import pymap3d
 import pytest
-from test_web import CHROMIUM_ARGS, WebProc, browser, frame_payload, listening_peer, poll  # noqa: F401
+from test_web import (  # noqa: F401
+    CHROMIUM_ARGS,
+    WebProc,
+    browser,
+    frame_payload,
+    listening_peer,
+    pixels_of,
+    poll,
+)
 
 from zenoh_track.clients import connect
 from zenoh_track.wire import Keys, free_port, pack
@@ -60,15 +68,6 @@ def canvas_pixels(page, x: int, y: int, r: int) -> list[tuple[int, int, int]]:
         const out = [];
         for (let i = 0; i < d.length; i += 4) out.push([d[i], d[i + 1], d[i + 2]]);
         return out; }""", [x, y, r])]
-
-
-def count_rgb(page, rgb) -> int:
-    return page.evaluate("""([r, g, b]) => {
-        const c = document.getElementById('map');
-        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-        let n = 0;
-        for (let i = 0; i < d.length; i += 4) if (d[i] === r && d[i+1] === g && d[i+2] === b) n++;
-        return n; }""", list(rgb))
 
 
 class Publisher:
@@ -118,12 +117,12 @@ def test_the_coast_is_drawn_where_it_belongs(browser):  # noqa: F811
         page.goto(f"{web.url}/#{cx},{cy},{mpp}")
         assert poll(lambda: page.evaluate("document.getElementById('track-count')"
                                           ".textContent") == "2")
-        assert poll(lambda: count_rgb(page, COAST_RGB) > 200)
+        assert poll(lambda: pixels_of(page, COAST_RGB) > 200)
         px, py = round((e - cx) / mpp + 640), round(400 - (n - cy) / mpp)
         assert COAST_RGB in canvas_pixels(page, px, py, 1), (px, py)
         # a kilometre off (25 px) along the parallel: no coast there (the line runs N-S)
         assert COAST_RGB not in canvas_pixels(page, px + 25, py, 1)
-        assert poll(lambda: count_rgb(page, COVERAGE_RGB) > 100)  # radar1 reaches 15 km
+        assert poll(lambda: pixels_of(page, COVERAGE_RGB) > 100)  # radar1 reaches 15 km
         assert any("/static/basemap/countries-10m.json" in u for u in requests)
         assert all(u.startswith(web.url) for u in requests), requests  # nothing else fetched
         assert not tiles.paths
@@ -142,7 +141,7 @@ def test_the_coast_is_drawn_where_it_belongs(browser):  # noqa: F811
         assert poll(lambda: page.evaluate("document.getElementById('track-count')"
                                           ".textContent") == "2")
         time.sleep(0.5)
-        assert count_rgb(page, COAST_RGB) == 0
+        assert pixels_of(page, COAST_RGB) == 0
         page.close()
     finally:
         web.stop()

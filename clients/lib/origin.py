@@ -9,6 +9,7 @@ import argparse
 from typing import TYPE_CHECKING, Any
 
 from zenoh_track.wire import Origin, Rejected, fail, parse_origin_message
+from zenoh_track.wire import parse_origin as parse_origin_text
 
 if TYPE_CHECKING:
     from zenoh_track.clients.lib.session import Client
@@ -64,14 +65,13 @@ def _text(origin: Origin | None) -> str:
 
 
 def parse_origin(text: str) -> list[float]:
-    """`--origin LAT,LON,ALT` (degrees, degrees, metres) of the ENU frame's origin."""
+    """`--origin LAT,LON,ALT` (degrees, degrees, metres) as an option's type: the wire's
+    one check of an origin (`wire.parse_origin`)."""
     try:
-        lat, lon, alt = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected LAT,LON,ALT, got {text!r}") from None
-    if not (-90 <= lat <= 90 and -180 <= lon <= 360):
-        raise argparse.ArgumentTypeError(f"latitude/longitude out of range: {text!r}")
-    return [lat, lon, alt]
+        origin = parse_origin_text(text)
+    except Rejected as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return [origin.lat, origin.lon, origin.alt]
 
 
 def deployment_origin(session: Any, ns: str, given: list[float] | None, prog: str
