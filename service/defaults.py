@@ -147,5 +147,5 @@ STATE_PERIOD = 1.0  # s: a checkpoint of the track table this often (and at SIGT
 
 # ---------------------------------------------------------------- the machine's cores
 KERNEL_THREADS = 0  # threads of the compiled IMM update over row blocks (0: every core)
-PARALLEL_ROWS = 2048  # rows of a pass below which one thread does it all (its hand-over
-# costs tens of microseconds; 2,048 rows of the six-mode IMM about 8 ms)
+PARALLEL_ROWS = 512  # rows of a pass below which one thread does it all (its hand-over
+# costs tens of microseconds; 512 rows of the six-mode IMM about 2 ms)

@@ -12,6 +12,7 @@ import pytest
 from reference.record import track
 from test_checkpoint import busy_tracker, polar
 
+from zenoh_track import defaults
 from zenoh_track.adapter.encode import pack_frame
 from zenoh_track.estimation.catalog import FilterSpec
 from zenoh_track.tracking import checkpoint, frame
@@ -76,8 +77,12 @@ def test_frames_equal_the_plain_prediction_as_tracks_come_change_and_go(name, ch
         assert_frame(tr, t)
 
 
-def test_frames_follow_many_updates_beyond_one_chunk(chunk):
-    """The default IMM, more tracks than one chunk, some updated between frames."""
+@pytest.mark.parametrize("threads", [1, 3])
+def test_frames_follow_many_updates_beyond_one_chunk(chunk, threads, monkeypatch):
+    """The default IMM, more tracks than one chunk, some updated between frames; the
+    draw's rows split over threads or not."""
+    monkeypatch.setattr(defaults, "KERNEL_THREADS", threads)
+    monkeypatch.setattr(defaults, "PARALLEL_ROWS", 5)
     tr = Tracker.from_config()
     n = 2 * frame.CHUNK + 5 if chunk < 100 else 300
     rng = np.random.default_rng(3)

@@ -233,6 +233,7 @@ def test_an_update_in_parts_gives_the_same_tracks(monkeypatch):
     whole, parts = Tracker.from_config(), Tracker.from_config()
     pauses = []
     monkeypatch.setattr(tracker_module, "PART", 7)
+    monkeypatch.setattr(defaults, "KERNEL_THREADS", 1)  # a part of 7 rows per thread
     for msg in msgs:
         cols = parse_scan_columns("s", pack(msg), NOISE)
         a = whole.step(Labelled(["s"] * len(cols.ids), cols.ids, MeasurementBatch.of_scan(cols)))

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..estimation import jit
+from ..estimation import blocks, jit
 from .status import COASTING
 from .store import Columns, TrackArrays
 
@@ -131,10 +131,14 @@ class FrameColumns:
         pos, vel = make((m, width)), make((m, width))
         sigma, age, codes = np.empty(m), np.empty(m), np.empty(m, np.uint8)
         every = np.ascontiguousarray(rows, dtype=np.int64)  # gaps or not: the live rows
-        for a in range(0, m, CHUNK):
-            b = min(m, a + CHUNK)
-            self._chunk(every[a:b], t, q, pos[a:b], vel[a:b], sigma[a:b], age[a:b],
-                        codes[a:b])
+
+        def part(lo: int, hi: int) -> None:  # each row drawn alone: any split, same bits
+            for a in range(lo, hi, CHUNK):
+                b = min(hi, a + CHUNK)
+                self._chunk(every[a:b], t, q, pos[a:b], vel[a:b], sigma[a:b], age[a:b],
+                            codes[a:b])
+
+        blocks.over_rows(m, 1, part)  # the compiled draw releases the GIL
         return pos, vel, sigma, age, codes
 
     def _chunk(self, rows: np.ndarray, t: float, q: float, pos: np.ndarray,

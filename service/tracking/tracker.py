@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import defaults
+from ..estimation import blocks
 from ..estimation.catalog import Filter, FilterSpec
 from ..estimation.measurements import MeasurementBatch
 from ..wire import TIME_TOL
@@ -59,8 +60,9 @@ from .stitcher import Stitcher
 from .store import States, TrackArrays, TrackStore
 
 NON_FINITE = "update gave a non-finite state"
-# rows of an update between two pauses (`Tracker.step`'s `pause`): a realtime frame due
-# meanwhile waits for one part (bench/pass_cost.py measures a part's CPU)
+# rows of an update per thread between two pauses (`Tracker.step`'s `pause`): a realtime
+# frame due meanwhile waits for one part, which the kernel's threads share
+# (bench/pass_cost.py measures a part's CPU)
 PART = 1024
 SCAN_ASSOCIATORS = {"gnn": GNNAssociator, "jpda": JPDAAssociator}  # --associator
 
@@ -246,7 +248,7 @@ class Tracker:
         arrays = self.store.layout(hyp.dim)
         order = np.argsort(rows, kind="stable")  # the rows in store order: a row's
         upd, rows = upd[order], rows[order]  # result does not depend on the others
-        cut = len(rows) if pause is None else PART
+        cut = len(rows) if pause is None else PART * blocks.cores()
         for lo in range(0, len(rows), cut):
             if lo:
                 pause(out)  # type: ignore[misc]
