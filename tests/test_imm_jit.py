@@ -115,6 +115,42 @@ def compare(dim: int, count: int, own_r: bool, modes: str, gap: float,
     assert (p == p.transpose(0, 2, 1)).all()  # exactly symmetric
 
 
+@pytest.mark.parametrize("modes", ["default", "turns", "turn-rate"])
+@pytest.mark.parametrize("count", [1, imm_jit.SMALL + 1, imm_jit.BLOCK + 1])
+@pytest.mark.parametrize("dim", [3, 2])
+def test_compiled_prediction_is_the_textbook_prediction(dim, count, modes):
+    """What the association gates with (`IMM.predicted`: the predicted mode probabilities
+    and each mode's prediction from its mixed initial condition), compiled and in NumPy,
+    over short and long gaps (the CV modes' noise bound biting), the store untouched."""
+    rng = np.random.default_rng(8)
+    imm, tracker = design_of(modes)
+    for t in range(5):
+        track(tracker, measurements(40, float(t), dim, rng))
+    arrays = tracker.store.layout(dim)
+    rows = arrays.live()[0][::-1][:count]
+    before = arrays.mode_x.copy(), arrays.mode_p.copy(), arrays.mode_prob.copy()
+    for gap in (0.7, 12.0):
+        dt = 5.0 + gap - arrays.t[rows]
+        c, modes_fast = imm_jit.predicted(imm, arrays, rows, dt)
+        c_ref, modes_ref = imm_jit.IMM.predicted(imm, arrays, rows, dt)
+        assert close(c, c_ref, 1e-12)
+        for (x, p), (x_ref, p_ref) in zip(modes_fast, modes_ref, strict=True):
+            assert close(x, x_ref, 1e-10) and close(p, p_ref, 1e-9)
+    for now, was in zip((arrays.mode_x, arrays.mode_p, arrays.mode_prob), before, strict=True):
+        assert np.array_equal(now, was)
+
+
+def design_of(modes: str) -> tuple[imm_jit.CompiledIMM, Tracker]:
+    """The IMM of `modes` and a tracker that runs it."""
+    built = FilterSpec("imm", imm_turn=2.0 * (modes == "turns")).build()
+    if modes == "turn-rate":
+        built = dataclasses.replace(built, updater=ModeSet(manoeuvre=(
+            *defaults.IMM_MANOEUVRE[:2], ("turn", 5.0), *defaults.IMM_MANOEUVRE[2:])).imm(
+                imm_jit.CompiledIMM))
+    tracker = Tracker.from_config(filter=built)
+    return tracker.updater, tracker
+
+
 WARMED_ONLY = """
 import numpy as np
 from zenoh_track.estimation import imm_jit, imm_kernel, jit
@@ -124,7 +160,8 @@ from zenoh_track.tracking.tracker import Tracker
 from zenoh_track.wire import Measurement
 
 jit.load([imm_jit, frame])
-kernels = (imm_kernel.update_rows, imm_kernel.update_few, frame_kernel.draw)
+kernels = (imm_kernel.update_rows, imm_kernel.update_few, imm_kernel.predict_rows,
+           imm_kernel.predict_few, frame_kernel.draw)
 warmed = [list(k.signatures) for k in kernels]
 tracker, rng = Tracker.from_config(), np.random.default_rng(1)
 for t in range(6):
@@ -148,7 +185,7 @@ def test_the_service_calls_only_the_warmed_kernels():
     machine's first start, while no frame goes out."""
     out = subprocess.run([sys.executable, "-c", WARMED_ONLY], capture_output=True, text=True,
                          check=True, timeout=300)
-    assert out.stdout.split("\n")[-2] == "[True, True, True]", out.stdout + out.stderr
+    assert out.stdout.split("\n")[-2] == str([True] * 5), out.stdout + out.stderr
 
 
 @pytest.mark.parametrize("threads", [2, 3])

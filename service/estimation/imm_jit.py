@@ -48,6 +48,13 @@ class CompiledIMM(IMM):
             return step(self, arrays, rows, dt, convert.batch)
         return super().update(arrays, rows, dt, convert)
 
+    def predicted(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray
+                  ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+        """`IMM.predicted` (what the association gates with), compiled once ready."""
+        if jit.ready() and applies(self):
+            return predicted(self, arrays, rows, dt)
+        return super().predicted(arrays, rows, dt)
+
 
 def kernel(k: int) -> Callable:
     """The compiled update for a pass of k rows: the padding of the last block is
@@ -92,6 +99,22 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
 
     blocks.over_rows(k, BLOCK, part, threads)
     return xn, pn, nis, ok
+
+
+def predicted(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray | float
+              ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+    """`IMM.predicted` of `rows` over their own dt by the compiled kernels (the store is
+    not written): c (N, M) and each mode's (x (N, n), P (N, n, n))."""
+    from . import imm_kernel
+
+    k, m, n = len(rows), len(imm.modes), arrays.n
+    c, xs, ps = np.empty((k, m)), np.empty((k, m, n)), np.empty((k, m, n, n))
+    if k:
+        predict = imm_kernel.predict_rows if k >= BLOCK else imm_kernel.predict_few
+        predict(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
+                np.ascontiguousarray(rows, dtype=np.int64), _writable(dt, k), *design(imm),
+                c, xs, ps)
+    return c, [(xs[:, j], ps[:, j]) for j in range(m)]
 
 
 def _time_column(batch: MeasurementBatch, k: int) -> np.ndarray:
@@ -143,3 +166,15 @@ def warm() -> None:
                          np.ones(1, np.bool_), np.full((d, 1), 1e3), np.full((d, 1), 0.01),
                          np.zeros((3, 1)), np.zeros(1), defaults.TIME_HUBER, np.empty((1, n)),
                          np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))
+            predicted(imm, _Rows(mode_x, mode_p, np.full((1, m), 1.0 / m), n),
+                      np.zeros(size, np.int64), np.ones(size))
+
+
+@dataclass
+class _Rows:
+    """The track store's IMM columns, as `warm` hands them to `predicted`."""
+
+    mode_x: np.ndarray
+    mode_p: np.ndarray
+    mode_prob: np.ndarray
+    n: int

@@ -140,6 +140,69 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
 
 
 @njit(**JIT)
+def predict_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, c_out, x_out,
+                 p_out):  # pragma: no cover - compiled
+    """`IMM.predicted` of every row, `BLOCK` rows at a time: the predicted mode
+    probabilities c_out (N, M) and each mode's prediction from its mixed initial condition
+    x_out (N, M, n), p_out (N, M, n, n); a mode without acceleration holds it at zero (the
+    padding of `models.motion`). The track store is not written."""
+    _predicted(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, BLOCK, c_out,
+               x_out, p_out)
+
+
+@njit(**JIT)
+def predict_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, c_out, x_out,
+                p_out):  # pragma: no cover - compiled
+    """`predict_rows` `SMALL` rows at a time."""
+    _predicted(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, SMALL, c_out,
+               x_out, p_out)
+
+
+@njit(**JIT, inline="always")
+def _predicted(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, b, c_out, x_out,
+               p_out):  # pragma: no cover - compiled
+    """The body of both (`_rows`' gather, mixing and prediction)."""
+    m, n = mode_x.shape[1], mode_x.shape[2]
+    d = n // 3
+    mx, mp, mu = np.empty((m, n, b)), np.empty((m, n, n, b)), np.empty((m, b))
+    h, w, c = np.empty(b), np.empty((m, m, b)), np.empty((m, b))
+    xp, pp = np.empty((m, n, b)), np.empty((m, n, n, b))
+    wk, wv = np.empty((3, n, n, b)), np.empty((6, 3, b))
+    dv, tv, tc = np.empty((n, b)), np.empty((4, n, b)), np.empty((TURN_COEFFS, b))
+    for lo in range(0, len(rows), b):
+        for q in range(b):
+            i = min(lo + q, len(rows) - 1)
+            row = rows[i]
+            h[q] = dt[i]
+            for j in range(m):
+                mu[j, q] = mode_prob[row, j]
+                for a in range(n):
+                    mx[j, a, q] = mode_x[row, j, a]
+                    for e in range(n):
+                        mp[j, a, e, q] = mode_p[row, j, a, e]
+        _weights(mu, h, tau, dest, w, c)
+        for j in range(m):
+            s = n if _accelerating(kinds[j]) else 2 * d
+            _mix(mx, mp, w, dest, kinds, j, s, d, xp[j], pp[j], dv)
+            if kinds[j] == 2:
+                _predict_ct(xp[j], pp[j], d, h, ws[j], qs[j], wk[0])
+            elif kinds[j] == 3:
+                _predict_turn(xp[j], pp[j], d, h, ws[j], qs[j], wk[0], tv, tc)
+            else:
+                _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j],
+                         ws[j] if kinds[j] == 0 else 0.0, wk[0], wv)
+        for q in range(min(b, len(rows) - lo)):  # scatter
+            i = lo + q
+            for j in range(m):
+                s = n if _accelerating(kinds[j]) else 2 * d
+                c_out[i, j] = c[j, q]
+                for a in range(n):
+                    x_out[i, j, a] = xp[j, a, q] if a < s else 0.0
+                    for e in range(n):
+                        p_out[i, j, a, e] = pp[j, a, e, q] if a < s and e < s else 0.0
+
+
+@njit(**JIT)
 def _weights(mu, h, tau, dest, w, c):  # pragma: no cover - compiled
     """Mixing weights w[i, j] = pi_ij mu_i / c_j and the predicted mode probabilities
     c_j = sum_i pi_ij mu_i, pi over each row's |dt| as `IMM.transition`."""
