@@ -17,7 +17,7 @@ from reference.record import track
 from zenoh_track import defaults
 from zenoh_track.estimation import blocks, imm_jit
 from zenoh_track.estimation.catalog import FilterSpec
-from zenoh_track.estimation.imm import ModeSet
+from zenoh_track.estimation.imm import IMM, ModeSet
 from zenoh_track.estimation.measurements import MeasurementBatch
 from zenoh_track.estimation.ucm import CMKFConversion
 from zenoh_track.tracking.tracker import Tracker
@@ -58,8 +58,9 @@ def test_compiled_imm_is_the_textbook_imm(dim, count, own_r, modes):
 @pytest.mark.parametrize("own_r", [False, True])
 @pytest.mark.parametrize("dim", [3, 2])
 def test_compiled_imm_is_the_textbook_imm_with_time_noise(dim, own_r):
-    """Measurements with a stated sigma_t (some rows without: NaN, or 0): the term
-    sigma_t^2 (v v' + P_vv) of `timing.time_noise` at the same prediction in both."""
+    """Measurements with a stated sigma_t (some rows without: NaN, or 0): the time
+    noise's mixture (`timing.mixture_update`, T = sigma_t^2 (v v' + P_vv) at the same
+    prediction) in both."""
     compare(dim, imm_jit.BLOCK + 1, own_r, "default", 0.0, time_noise=True)
 
 
@@ -100,7 +101,7 @@ def compare(dim: int, count: int, own_r: bool, modes: str, gap: float,
     ref_arrays = copy.deepcopy(arrays)
     conversion = CMKFConversion(batch)
     fast = imm.update(arrays, rows, dt, conversion)
-    ref = imm.update(ref_arrays, rows, dt, lambda xp, pp: conversion(xp, pp))
+    ref = IMM.update(imm, ref_arrays, rows, dt, conversion)  # its NumPy code
     assert (fast[3] == ref[3]).all() and fast[3].sum() == len(rows) - (count > 1)
     ok = fast[3]
     for a, b, rel in zip(fast[:3], ref[:3], (1e-10, 1e-9, 1e-9), strict=True):

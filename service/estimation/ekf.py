@@ -41,9 +41,10 @@ class EKFConversion:
     def __call__(self, xp: np.ndarray, pp: np.ndarray) -> tuple:
         d, b = self.batch.dim, self.batch
         z, r, h, hx = ekf_arrays(b, xp[:, :d])
-        if stated(b.sigma_t):  # the time's noise: the velocity seen through the Jacobian
+        if stated(b.sigma_t):  # the time's noise (the mixture's variance): the velocity
+            # seen through the Jacobian
             v = slice(d, 2 * d)
             ht = h.transpose(0, 2, 1)
             r = time_noise(r, (h @ xp[:, v, None])[:, :, 0], h @ pp[:, v, v] @ ht,
-                           b.sigma_t, z - hx, h @ pp[:, :d, :d] @ ht)
+                           b.sigma_t)
         return z, r, h, hx

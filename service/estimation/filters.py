@@ -64,7 +64,8 @@ class SingleModelFilter:
 
     def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         standard = (self.kind, self.order) in (("cv", 2), ("ca", 3))  # F, Q of models.predict
-        if standard and isinstance(convert, CMKFConversion):
+        cmkf = isinstance(convert, CMKFConversion)
+        if standard and cmkf and not timing.stated(convert.batch.sigma_t):
             return cmkf_step(arrays.x[rows], arrays.p[rows], dt, self.order, arrays.dim, self.q,
                              convert.batch)
         if standard:
@@ -73,6 +74,12 @@ class SingleModelFilter:
         else:
             f, qm = models.motion(self.kind, dt, self.order, arrays.dim, self.q)
             xp, pp = predict(arrays.x[rows], arrays.p[rows], f, qm)
+        if cmkf:  # the time's noise a mixture (`timing.mixture_update`)
+            z, r, term, some = convert.parts(xp, pp)
+            if term is not None:
+                x, p, ok, _ = timing.mixture_update(kalman.update_full, xp, pp, z, r, term,
+                                                    some)
+                return x, p, kalman.update(xp, pp, z, r + term)[2], ok
         return kalman.update(xp, pp, *convert(xp, pp))
 
     def update_pda(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, weighted: Any
@@ -124,10 +131,6 @@ def _step_chunk(x: np.ndarray, p: np.ndarray, dt: np.ndarray, order: int, dim: i
     models.predict_blocks(xs, blocks, dt, order, dim, q, ps)
     zs, rs = scratch.buffer("step.z", (dim,), k), scratch.buffer("step.r", (dim, dim), k)
     cmkf_soa(batch, xs[:dim], ps[:dim, :dim], zs, rs)
-    if timing.stated(batch.sigma_t):  # the time's noise along the predicted velocity
-        v = slice(dim, 2 * dim)
-        timing.time_noise_soa(rs, xs[v], ps[v, v], batch.sigma_t, zs - xs[:dim],
-                              ps[:dim, :dim])
     pout = scratch.buffer("step.pn", (n, n), k)
     kalman.update_soa(xs, ps, zs, rs, pout, nis, det)
     ok[:] = kalman.finite(xs, pout, nis, dim)

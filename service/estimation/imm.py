@@ -9,9 +9,10 @@ from typing import Any
 import numpy as np
 
 from .. import defaults
-from . import kalman, models, pda, turn
+from . import kalman, models, pda, timing, turn
 from .batch import einsum
 from .filters import Convert, Result, Rows, moments, predict
+from .ucm import CMKFConversion
 
 Mode = tuple[str, str, float, float]  # name, kind ("cv", "ca", "ct", "turn"), q, omega (rad/s)
 ACCELERATING = ("ca", "turn")  # the kinds whose acceleration is estimated
@@ -197,19 +198,31 @@ class IMM:
 
     def update(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray, convert: Convert) -> Result:
         c, preds = self.predicted(arrays, rows, dt)
+
+        def parts(xp: np.ndarray, pp: np.ndarray) -> tuple:
+            """z, R and the time's noise T with its rows (`CMKFConversion.parts`)."""
+            if isinstance(convert, CMKFConversion):
+                return convert.parts(xp, pp)
+            return (*convert(xp, pp)[:2], None, None)
+
         if not self.mode_conversion:
-            z, r = convert(*moments(np.stack([x for x, _ in preds], 1),
-                                    np.stack([p for _, p in preds], 1), c))[:2]
+            z, r, term, some = parts(*moments(np.stack([x for x, _ in preds], 1),
+                                              np.stack([p for _, p in preds], 1), c))
         outs, rs = [], []
         for xp, pp in preds:
             if self.mode_conversion:
-                z, r = convert(xp, pp)[:2]  # R averaged over this mode's prediction
-            outs.append((xp, pp, kalman.update_full(xp, pp, z, r)))
-            rs.append(r)
-        xu = np.stack([o[2][0] for o in outs], 1)
-        pu = np.stack([o[2][1] for o in outs], 1)
-        loglik = np.stack([o[2][4] for o in outs], 1)
-        ok = np.all([o[2][3] for o in outs], 0)
+                z, r, term, some = parts(xp, pp)  # R averaged over this mode's prediction
+            if term is None:
+                xm, pm, _, okm, llm = kalman.update_full(xp, pp, z, r)
+            else:  # the time's noise a mixture: each mode's likelihood the mixture's
+                xm, pm, okm, llm = timing.mixture_update(kalman.update_full, xp, pp, z, r,
+                                                         term, some)
+            outs.append((xp, pp, xm, pm, okm, llm))
+            rs.append(r if term is None else r + term)
+        xu = np.stack([o[2] for o in outs], 1)
+        pu = np.stack([o[3] for o in outs], 1)
+        loglik = np.stack([o[5] for o in outs], 1)
+        ok = np.all([o[4] for o in outs], 0)
         x, p, ok = _posterior(arrays, rows, c, loglik, xu, pu, ok)
         # NIS of the mixture's prediction, with R averaged over it: sum_j c_j R_j
         xbar, pbar = moments(np.stack([o[0] for o in outs], 1),

@@ -33,6 +33,8 @@ if TYPE_CHECKING:
 
 Result = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 BLOCK, SMALL = defaults.IMM_BLOCK, defaults.IMM_SMALL  # rows per block, as the kernels'
+# the time noise's mixture (`timing.mixture_update`): (probability, variance scale) rows
+MIXTURE = np.array(defaults.TIME_MIXTURE, dtype=float)
 __all__ = ["BLOCK", "SMALL", "CompiledIMM", "applies", "design", "kernel", "step", "warm"]
 
 
@@ -94,7 +96,7 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
         update(arrays.mode_x, arrays.mode_p, arrays.mode_prob, rows[lo:hi], dt[lo:hi],
                tau, dest, kinds, qs, ws, not imm.mode_conversion, polar[lo:hi],
                np.ascontiguousarray(values[:, lo:hi]), np.ascontiguousarray(sigmas[:, lo:hi]),
-               np.ascontiguousarray(origin[:, lo:hi]), sigma_t[lo:hi], defaults.TIME_HUBER,
+               np.ascontiguousarray(origin[:, lo:hi]), sigma_t[lo:hi], MIXTURE,
                xn[lo:hi], pn[lo:hi], nis[lo:hi], ok[lo:hi])
 
     blocks.over_rows(k, BLOCK, part, threads)
@@ -164,7 +166,7 @@ def warm() -> None:
             kernel(size)(mode_x, mode_p, np.full((1, m), 1.0 / m), np.zeros(1, np.int64),
                          np.ones(1), *design(imm), not imm.mode_conversion,
                          np.ones(1, np.bool_), np.full((d, 1), 1e3), np.full((d, 1), 0.01),
-                         np.zeros((3, 1)), np.zeros(1), defaults.TIME_HUBER, np.empty((1, n)),
+                         np.zeros((3, 1)), np.zeros(1), MIXTURE, np.empty((1, n)),
                          np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))
             predicted(imm, _Rows(mode_x, mode_p, np.full((1, m), 1.0 / m), n),
                       np.zeros(size, np.int64), np.ones(size))

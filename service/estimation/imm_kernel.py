@@ -42,26 +42,27 @@ BLOCK, SMALL = defaults.IMM_BLOCK, defaults.IMM_SMALL  # `update_rows`, `update_
 
 @njit(**JIT)
 def update_rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
-                values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover
+                values, sigmas, origin, sigma_t, mixture, xn, pn, nis, ok):  # pragma: no cover
     """The update of every row, `BLOCK` rows at a time (the last block padded with copies of
     its last row, which are not written back). `shared`: one R for every mode, averaged
     over the mixture of the modes' predictions; else each mode's own. `sigma_t` (N,): each
-    measurement's time noise, s (0 or NaN: none; `timing.time_noise`)."""
+    measurement's time noise, s (0 or NaN: none), `mixture` (C, 2) its components'
+    probabilities and variance scales (`timing.mixture_update`)."""
     _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, BLOCK, polar,
-          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok)
+          values, sigmas, origin, sigma_t, mixture, xn, pn, nis, ok)
 
 
 @njit(**JIT)
 def update_few(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, polar,
-               values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover
+               values, sigmas, origin, sigma_t, mixture, xn, pn, nis, ok):  # pragma: no cover
     """`update_rows` `SMALL` rows at a time: less padding for a pass of few rows."""
     _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, SMALL, polar,
-          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok)
+          values, sigmas, origin, sigma_t, mixture, xn, pn, nis, ok)
 
 
 @njit(**JIT, inline="always")
 def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared, b, polar,
-          values, sigmas, origin, sigma_t, huber, xn, pn, nis, ok):  # pragma: no cover - compiled
+          values, sigmas, origin, sigma_t, mixture, xn, pn, nis, ok):  # pragma: no cover - compiled
     """The body of both, inlined so that the block length b is a constant of each."""
     m, n = mode_x.shape[1], mode_x.shape[2]
     d = n // 3
@@ -74,6 +75,9 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
     rr, lik, fin = np.empty((m, d, d, b)), np.empty((m, b)), np.empty((m, b), np.bool_)
     xo, po, nb = np.empty((n, b)), np.empty((n, n, b)), np.empty(b)
     mean, spread = np.empty((n, b)), np.empty((n, n, b))  # of the mixture's prediction
+    # the time's noise T per mode, a component's R, its posterior and log-weight
+    tt, rc, lw = np.empty((m, d, d, b)), np.empty((d, d, b)), np.empty(b)
+    xc, pc, lc, fc = np.empty((n, b)), np.empty((n, n, b)), np.empty(b), np.empty(b, np.bool_)
     # work arrays of the stages: (n, n) and (3, 3) matrices, vectors of 3, per row
     wk, w33, wv = np.empty((3, n, n, b)), np.empty((3, 3, 3, b)), np.empty((6, 3, b))
     dv, tv, tc = np.empty((n, b)), np.empty((4, n, b)), np.empty((TURN_COEFFS, b))
@@ -108,18 +112,45 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
                 _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j],
                          ws[j] if kinds[j] == 0 else 0.0, wk[0], wv)
         # the mixture's prediction: its position, and its velocity for the time noise
-        _moments(xp, pp, c, 2 * d if st2.max() > 0.0 else d, mean, spread, dv)
+        timed = st2.max() > 0.0
+        _moments(xp, pp, c, 2 * d if timed else d, mean, spread, dv)
         if shared:
             noise(pol, sig, org, const, mean, spread, d, rr[0], mats, nvec)
-            _time_noise(mean, spread, z, d, st2, huber, rr[0])
+            if timed:
+                _time_term(mean, spread, d, st2, tt[0])
         for j in range(m):
             if not shared:
                 noise(pol, sig, org, const, xp[j], pp[j], d, rr[j], mats, nvec)
-                _time_noise(xp[j], pp[j], z, d, st2, huber, rr[j])
+                if timed:
+                    _time_term(xp[j], pp[j], d, st2, tt[j])
             elif j:
                 rr[j] = rr[0]
+                tt[j] = tt[0]
             s = n if _accelerating(kinds[j]) else 2 * d
-            _update(xp[j], pp[j], s, d, z, rr[j], xu[j], pu[j], lik[j], fin[j], wk, w33, wv)
+            if not timed:
+                _update(xp[j], pp[j], s, d, z, rr[j], xu[j], pu[j], lik[j], fin[j], wk, w33,
+                        wv)
+                continue
+            # the time's noise a mixture: each component's update, merged by moments
+            _component(rr[j], tt[j], mixture[0, 1], rc)
+            _update(xp[j], pp[j], s, d, z, rc, xu[j], pu[j], lik[j], fin[j], wk, w33, wv)
+            for q in range(b):
+                lw[q] = lik[j, q] + math.log(mixture[0, 0])
+            for k in range(1, mixture.shape[0]):
+                _component(rr[j], tt[j], mixture[k, 1], rc)
+                _update(xp[j], pp[j], s, d, z, rc, xc, pc, lc, fc, wk, w33, wv)
+                for q in range(b):
+                    lc[q] += math.log(mixture[k, 0])
+                _merge(xu[j], pu[j], lw, fin[j], xc, pc, lc, fc, st2, n, dv)
+            for q in range(b):
+                if st2[q] > 0.0:
+                    lik[j, q] = lw[q]
+        if timed:  # the NIS's R: the mixture's variance, R + T
+            for j in range(m):
+                for a in range(d):
+                    for e in range(d):
+                        for q in range(b):
+                            rr[j, a, e, q] += tt[j, a, e, q]
         _probabilities(c, lik, fin, mu, nb)
         _moments(xu, pu, mu, n, xo, po, dv)
         _mixture_nis(mean, spread, rr, c, z, d, nis, lo, len(rows), w33, wv)
@@ -539,32 +570,49 @@ def _inverse(s0, d, si, det, low, piv):  # pragma: no cover - compiled
 
 
 @njit(**JIT)
-def _time_noise(x, p, z, d, st2, huber, out):  # pragma: no cover - compiled
-    """R (d, d, B) plus w sigma_t^2 (v v' + P_vv) of the prediction x (n, B), P (n, n, B)
-    where st2 = sigma_t^2 > 0, w Huber's weight of the innovation z - x[:d] along the
-    velocity (`timing.time_noise`, its reference); other rows as they are."""
+def _time_term(x, p, d, st2, out):  # pragma: no cover - compiled
+    """T = sigma_t^2 (v v' + P_vv) (d, d, B) of the prediction x (n, B), P (n, n, B) where
+    st2 = sigma_t^2 > 0, zero elsewhere (`timing.time_term`, its reference)."""
     b = out.shape[2]
     for q in range(b):
         s2 = st2[q]
-        if s2 > 0.0:
-            speed2 = 0.0
-            for a in range(d):
-                speed2 += x[d + a, q] * x[d + a, q]
-            w = 1.0
-            if speed2 > 0.0:
-                inv = 1.0 / math.sqrt(speed2)
-                s, e = 0.0, 0.0
-                for a in range(d):
-                    e += (z[a, q] - x[a, q]) * x[d + a, q] * inv
-                    for c in range(d):
-                        t = s2 * (x[d + a, q] * x[d + c, q] + p[d + a, d + c, q])
-                        s += x[d + a, q] * inv * (p[a, c, q] + out[a, c, q] + t) \
-                            * x[d + c, q] * inv
-                if s > 0.0:
-                    w = max(abs(e) / (huber * math.sqrt(s)), 1.0)
-            for a in range(d):
-                for c in range(d):
-                    out[a, c, q] += w * s2 * (x[d + a, q] * x[d + c, q] + p[d + a, d + c, q])
+        for a in range(d):
+            for c in range(d):
+                out[a, c, q] = s2 * (x[d + a, q] * x[d + c, q] + p[d + a, d + c, q]) \
+                    if s2 > 0.0 else 0.0
+
+
+@njit(**JIT)
+def _component(r, t, scale, out):  # pragma: no cover - compiled
+    """A component's R (d, d, B): r + scale t."""
+    d, b = r.shape[0], r.shape[2]
+    for a in range(d):
+        for c in range(d):
+            for q in range(b):
+                out[a, c, q] = r[a, c, q] + scale * t[a, c, q]
+
+
+@njit(**JIT)
+def _merge(x, p, lw, fin, xc, pc, lc, fc, st2, n, dv):  # pragma: no cover - compiled
+    """The Gaussian (x, P) of log-weight lw and (xc, Pc) of log-weight lc as one, by their
+    moments, in place of the first (lw: the sum's log-weight), where st2 > 0
+    (`timing.mixture_update`, its reference)."""
+    b = x.shape[1]
+    for q in range(b):
+        if st2[q] > 0.0:
+            top = max(lw[q], lc[q])
+            ea, ec = math.exp(lw[q] - top), math.exp(lc[q] - top)
+            tot = ea + ec
+            wa, wc = ea / tot, ec / tot
+            lw[q] = top + math.log(tot)
+            fin[q] = fin[q] and fc[q] and math.isfinite(lw[q])
+            for a in range(n):
+                dv[a, q] = x[a, q] - xc[a, q]
+                x[a, q] = wa * x[a, q] + wc * xc[a, q]
+            for a in range(n):  # the spread of the two about their mean: wa wc d d'
+                for e in range(n):
+                    p[a, e, q] = wa * p[a, e, q] + wc * pc[a, e, q] \
+                        + wa * wc * dv[a, q] * dv[e, q]
 
 
 @njit(**JIT)

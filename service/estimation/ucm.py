@@ -18,7 +18,7 @@ from .batch import einsum
 from .linalg import cos_sin, eigh
 from .measurements import MeasurementBatch
 from .polar import ucm_covariance, unbiased
-from .timing import stated, time_noise
+from .timing import time_term, timed
 
 # relative size below which an eigenvalue of a prediction's covariance is rounding (zero)
 ROUNDING = 1e-12
@@ -33,13 +33,21 @@ class CMKFConversion:
     batch: MeasurementBatch
 
     def __call__(self, xp: np.ndarray, pp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z, r, term, _ = self.parts(xp, pp)
+        return z, r if term is None else r + term
+
+    def parts(self, xp: np.ndarray, pp: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """z, the position's R, and the time's noise T (`timing.time_term`, along the
+        predicted velocity) with the mask of its rows (None, None: no row has any): the
+        parts of the time noise's mixture (`timing.mixture_update`)."""
         d, b = self.batch.dim, self.batch
         z, r = cmkf_arrays(b, xp[:, :d], pp[:, :d, :d])
-        if stated(b.sigma_t):  # the time's noise along the predicted velocity
-            v = slice(d, 2 * d)
-            r = time_noise(r, xp[:, v], pp[:, v, v], b.sigma_t, z - xp[:, :d],
-                           pp[:, :d, :d])
-        return z, r
+        some = timed(b.sigma_t)
+        if some is None:
+            return z, r, None, None
+        v = slice(d, 2 * d)
+        return z, r, time_term(xp[:, v], pp[:, v, v], b.sigma_t), some
 
 
 def cmkf_arrays(batch: MeasurementBatch, pred: np.ndarray | None,
