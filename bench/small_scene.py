@@ -130,7 +130,9 @@ def stone_soup(scans: list[dict[str, Any]], repeat: int) -> list[float] | None:
         from stonesoup.measures import Mahalanobis
         from stonesoup.models.measurement.linear import LinearGaussian
         from stonesoup.models.transition.linear import (
-            CombinedLinearGaussianTransitionModel, ConstantVelocity)
+            CombinedLinearGaussianTransitionModel,
+            ConstantVelocity,
+        )
         from stonesoup.predictor.kalman import KalmanPredictor
         from stonesoup.tracker.simple import MultiTargetTracker
         from stonesoup.types.array import CovarianceMatrix, StateVector
