@@ -195,7 +195,8 @@ def against(rev: str, payloads: list[tuple[str, bytes]], repeat: int) -> list[fl
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--against", metavar="REV", help="also the tracker of this git revision")
+    ap.add_argument("--against", metavar="REV", nargs="*", default=[],
+                    help="also the tracker of these git revisions")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--child", metavar="FILE", help=argparse.SUPPRESS)
@@ -212,8 +213,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"small scene: {AIRCRAFT} aircraft, 2 radars, {len(scans)} scans, {dets:.1f} "
           f"detections a scan; CPU ms per scan, median of {args.repeat} runs")
     rows = [("ours", ours(payloads, args.repeat))]
-    if args.against:
-        rows.append((f"ours at {args.against}", against(args.against, payloads, args.repeat)))
+    for rev in args.against:
+        rows.append((f"ours at {rev}", against(rev, payloads, args.repeat)))
     peer = stone_soup(scans, args.repeat)
     if peer is not None:
         rows.append(("Stone Soup GNN", peer))

@@ -121,7 +121,8 @@ def compare(dim: int, count: int, own_r: bool, modes: str, gap: float,
 @pytest.mark.parametrize("dim", [3, 2])
 def test_compiled_prediction_is_the_textbook_prediction(dim, count, modes):
     """What the association gates with (`IMM.predicted`: the predicted mode probabilities
-    and each mode's prediction from its mixed initial condition), compiled and in NumPy,
+    and each mode's prediction from its mixed initial condition; `IMM.gate_moments`: the
+    mixture's and its widest mode's moments), compiled and in NumPy,
     over short and long gaps (the CV modes' noise bound biting), the store untouched."""
     rng = np.random.default_rng(8)
     imm, tracker = design_of(modes)
@@ -137,6 +138,10 @@ def test_compiled_prediction_is_the_textbook_prediction(dim, count, modes):
         assert close(c, c_ref, 1e-12)
         for (x, p), (x_ref, p_ref) in zip(modes_fast, modes_ref, strict=True):
             assert close(x, x_ref, 1e-10) and close(p, p_ref, 1e-9)
+        fast, ref = imm_jit.gate_moments(imm, arrays, rows, dt), \
+            imm_jit.IMM.gate_moments(imm, arrays, rows, dt)
+        for a, b in zip(fast, ref, strict=True):  # mean, cross, narrow, c of the widest
+            assert a.shape == b.shape and close(a, b, 1e-9)
     for now, was in zip((arrays.mode_x, arrays.mode_p, arrays.mode_prob), before, strict=True):
         assert np.array_equal(now, was)
 
@@ -162,7 +167,7 @@ from zenoh_track.wire import Measurement
 
 jit.load([imm_jit, frame])
 kernels = (imm_kernel.update_rows, imm_kernel.update_few, imm_kernel.predict_rows,
-           imm_kernel.predict_few, frame_kernel.draw)
+           imm_kernel.predict_few, imm_kernel.gate_moments, frame_kernel.draw)
 warmed = [list(k.signatures) for k in kernels]
 tracker, rng = Tracker.from_config(), np.random.default_rng(1)
 for t in range(6):
@@ -186,7 +191,7 @@ def test_the_service_calls_only_the_warmed_kernels():
     machine's first start, while no frame goes out."""
     out = subprocess.run([sys.executable, "-c", WARMED_ONLY], capture_output=True, text=True,
                          check=True, timeout=300)
-    assert out.stdout.split("\n")[-2] == str([True] * 5), out.stdout + out.stderr
+    assert out.stdout.split("\n")[-2] == str([True] * 6), out.stdout + out.stderr
 
 
 @pytest.mark.parametrize("threads", [2, 3])

@@ -270,16 +270,8 @@ class IMM:
         yet the prior `gate_wide`, so that clutter far out in a wide gate (a track
         coasting through missed scans) is not taken for the aircraft."""
         d = arrays.dim
-        c, preds = self.predicted(arrays, rows, t - arrays.t[rows])
-        xs, ps = [x for x, _ in preds], [p for _, p in preds]
-        xs_, ps_ = np.stack(xs, 1), np.stack(ps, 1)  # (N, M, n), (N, M, n, n)
-        mean, cov = moments(xs_, ps_, c)
-        wide = np.trace(ps_[:, :, :d, :d], axis1=2, axis2=3).argmax(1)
-        k = np.arange(len(rows))
-        dev = xs_[k, wide] - mean
-        cross = ps_[k, wide, :d] + dev[:, :d, None] * dev[:, None, :]
-        w = np.maximum(c[k, wide], self.gate_wide)
-        narrow = cov[:, :d, :d]
+        mean, cross, narrow, c_wide = self.gate_moments(arrays, rows, t - arrays.t[rows])
+        w = np.maximum(c_wide, self.gate_wide)
 
         def likelihood(loglik: np.ndarray, ti: np.ndarray, nu: np.ndarray, r: np.ndarray
                        ) -> np.ndarray:
@@ -290,7 +282,24 @@ class IMM:
             with np.errstate(divide="ignore"):  # w = 1: the widest mode alone
                 return np.logaddexp(np.log1p(-w[ti]) + ll, np.log(w[ti]) + loglik)
 
-        return mean[:, :d], cross, likelihood
+        return mean, cross, likelihood
+
+    def gate_moments(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """`gate_prediction`'s moments of the predicted mixture over dt: its position mean
+        (N, d), the widest mode's position rows of the second moment about it (N, d, n),
+        the mixture's position covariance (N, d, d) and the widest mode's predicted
+        probability (N,)."""
+        d = arrays.dim
+        c, preds = self.predicted(arrays, rows, dt)
+        xs, ps = [x for x, _ in preds], [p for _, p in preds]
+        xs_, ps_ = np.stack(xs, 1), np.stack(ps, 1)  # (N, M, n), (N, M, n, n)
+        mean, cov = moments(xs_, ps_, c)
+        wide = np.trace(ps_[:, :, :d, :d], axis1=2, axis2=3).argmax(1)
+        k = np.arange(len(rows))
+        dev = xs_[k, wide] - mean
+        cross = ps_[k, wide, :d] + dev[:, :d, None] * dev[:, None, :]
+        return mean[:, :d], cross, cov[:, :d, :d], c[k, wide]
 
     def inflate(self, arrays: Rows, rows: np.ndarray, dp: np.ndarray) -> None:
         """The tracker added dp to the combined covariances of rows (the spread of a PDA

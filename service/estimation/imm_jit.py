@@ -52,10 +52,17 @@ class CompiledIMM(IMM):
 
     def predicted(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray
                   ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
-        """`IMM.predicted` (what the association gates with), compiled once ready."""
+        """`IMM.predicted` (the modes' predictions), compiled once ready."""
         if jit.ready() and applies(self):
             return predicted(self, arrays, rows, dt)
         return super().predicted(arrays, rows, dt)
+
+    def gate_moments(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """`IMM.gate_moments` (what the association gates with), compiled once ready."""
+        if jit.ready() and applies(self):
+            return gate_moments(self, arrays, rows, dt)
+        return super().gate_moments(arrays, rows, dt)
 
 
 def kernel(k: int) -> Callable:
@@ -107,6 +114,13 @@ def predicted(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray | float
               ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
     """`IMM.predicted` of `rows` over their own dt by the compiled kernels (the store is
     not written): c (N, M) and each mode's (x (N, n), P (N, n, n))."""
+    c, xs, ps = _predicted(imm, arrays, rows, dt)
+    return c, [(xs[:, j], ps[:, j]) for j in range(len(imm.modes))]
+
+
+def _predicted(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray | float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """c (N, M), the modes' predictions x (N, M, n) and P (N, M, n, n)."""
     from . import imm_kernel
 
     k, m, n = len(rows), len(imm.modes), arrays.n
@@ -116,7 +130,21 @@ def predicted(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray | float
         predict(arrays.mode_x, arrays.mode_p, arrays.mode_prob,
                 np.ascontiguousarray(rows, dtype=np.int64), _writable(dt, k), *design(imm),
                 c, xs, ps)
-    return c, [(xs[:, j], ps[:, j]) for j in range(m)]
+    return c, xs, ps
+
+
+def gate_moments(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray | float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`IMM.gate_moments` by the compiled kernels."""
+    from . import imm_kernel
+
+    c, xs, ps = _predicted(imm, arrays, rows, dt)
+    k, d, n = len(rows), arrays.n // 3, arrays.n
+    mean, cross, narrow, c_wide = (np.empty((k, d)), np.empty((k, d, n)), np.empty((k, d, d)),
+                                   np.empty(k))
+    if k:
+        imm_kernel.gate_moments(c, xs, ps, d, mean, cross, narrow, c_wide)
+    return mean, cross, narrow, c_wide
 
 
 def _time_column(batch: MeasurementBatch, k: int) -> np.ndarray:
@@ -168,8 +196,8 @@ def warm() -> None:
                          np.ones(1, np.bool_), np.full((d, 1), 1e3), np.full((d, 1), 0.01),
                          np.zeros((3, 1)), np.zeros(1), MIXTURE, np.empty((1, n)),
                          np.empty((1, n, n)), np.empty(1), np.empty(1, np.bool_))
-            predicted(imm, _Rows(mode_x, mode_p, np.full((1, m), 1.0 / m), n),
-                      np.zeros(size, np.int64), np.ones(size))
+            gate_moments(imm, _Rows(mode_x, mode_p, np.full((1, m), 1.0 / m), n),
+                         np.zeros(size, np.int64), np.ones(size))
 
 
 @dataclass

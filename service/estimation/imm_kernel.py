@@ -234,6 +234,41 @@ def _predicted(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, b,
 
 
 @njit(**JIT)
+def gate_moments(c, xs, ps, d, mean, cross, narrow, c_wide):  # pragma: no cover - compiled
+    """`IMM.gate_moments` from the predictions `predict_rows` made (c (N, M), xs (N, M, n),
+    ps (N, M, n, n)): the mixture's position mean (N, d) and covariance (N, d, d), the
+    widest mode's (largest position variance) position rows of the second moment about
+    that mean (N, d, n) and its probability (N,)."""
+    k, m, n = xs.shape
+    mu = np.empty(n)
+    for i in range(k):
+        wide, most = 0, -np.inf
+        for a in range(n):
+            mu[a] = 0.0
+        for j in range(m):
+            tr = 0.0
+            for a in range(d):
+                tr += ps[i, j, a, a]
+            if tr > most:
+                wide, most = j, tr
+            for a in range(n):
+                mu[a] += c[i, j] * xs[i, j, a]
+        for a in range(d):
+            mean[i, a] = mu[a]
+            for e in range(a, d):
+                acc = 0.0
+                for j in range(m):
+                    acc += c[i, j] * (ps[i, j, a, e] + (xs[i, j, a] - mu[a])
+                                      * (xs[i, j, e] - mu[e]))
+                narrow[i, a, e] = acc
+                narrow[i, e, a] = acc
+            for e in range(n):
+                cross[i, a, e] = ps[i, wide, a, e] + (xs[i, wide, a] - mu[a]) \
+                    * (xs[i, wide, e] - mu[e])
+        c_wide[i] = c[i, wide]
+
+
+@njit(**JIT)
 def _weights(mu, h, tau, dest, w, c):  # pragma: no cover - compiled
     """Mixing weights w[i, j] = pi_ij mu_i / c_j and the predicted mode probabilities
     c_j = sum_i pi_ij mu_i, pi over each row's |dt| as `IMM.transition`."""
