@@ -9,8 +9,12 @@ statuses; bench_web's publisher) from a Zenoh peer on loopback, starts `track-fo
 --origin ...` (a separate process) and connects the protocol client of the tests
 (tests/foxglove_client.py, subprotocol foxglove.sdk.v1), subscribed to every channel as
 the shipped layout is (scene, location fixes, counters, status). It prints, over
---seconds after a warm-up: scene messages received per second, MB/s, the server's time
-to encode a frame (its /counters), the frames it skipped and its CPU. Then a second
+--seconds after a warm-up: scene messages received per second (over the whole intervals
+from the first scene's arrival to the last's), MB/s, the server's time to encode a frame
+(its /counters), the frames missing from those received (gaps in their times) of those
+offered over the window, how many of them the server skipped (its client library's queue
+of one: two frames came while it was busy), the frames the publisher put more than a
+period late (back to back after a stall of its thread), and the server's CPU. Then a second
 client reads one message a second for --slow seconds: how far behind the newest frame
 each scene it reads is, and the server's resident memory meanwhile.
 
@@ -27,6 +31,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))  # the protocol client of the tests
@@ -46,9 +52,12 @@ from zenoh_track.wire import free_port  # noqa: E402
 
 
 class Publisher(FramePublisher):
-    """bench_web's frames, the newest one's time kept (`t`) to measure lags against."""
+    """bench_web's frames, the newest one's time kept (`t`) to measure lags against, and
+    the frames put more than a period behind their time (`late`: after a stall, the
+    frames due meanwhile are put back to back)."""
 
     t = 0.0
+    late: list[float]  # set as the thread starts
 
     def run(self) -> None:
         import zenoh
@@ -57,9 +66,11 @@ class Publisher(FramePublisher):
 
         pub = self.session.declare_publisher(Keys().frame,
                                              congestion_control=zenoh.CongestionControl.DROP)
-        start, k = time.monotonic(), 0
+        start, k, self.late = time.monotonic(), 0, []
         while not self.stopping.is_set():
             t = 1000.0 + k / RATE
+            if time.monotonic() - (start + k / RATE) > 1 / RATE:
+                self.late.append(t)
             pub.put(pack({"t": t, "ids": self.ids,
                           "pos": (self.pos + self.vel * (t - 1000.0)).astype("<f8").tobytes(),
                           "vel": self.vel.astype("<f8").tobytes(),
@@ -99,7 +110,8 @@ async def client(port: int, rcvbuf: int | None = None) -> FoxgloveClient:
             await asyncio.sleep(0.2)
 
 
-async def fast(port: int, pid: int, n: int, seconds: float, warmup: float) -> dict:
+async def fast(port: int, pid: int, n: int, seconds: float, warmup: float,
+               publisher: Publisher) -> dict:
     c = await client(port)
     try:
         await c.subscribe(*TOPICS)
@@ -113,23 +125,32 @@ async def fast(port: int, pid: int, n: int, seconds: float, warmup: float) -> di
         end = time.monotonic() + warmup
         while time.monotonic() < end:
             await c.receive(60)
-        scenes, size, encode, skipped = 0, 0, [], []
+        arrivals, size, encode, skipped, times = [], 0, [], [], []
+        late0 = len(publisher.late)
         cpu0, t0 = cpu_s(pid), time.monotonic()
         while time.monotonic() - t0 < seconds:
             topic, _, payload = await c.receive(60)
             if topic == scene.TOPIC:
-                scenes += 1
+                arrivals.append(time.monotonic())
                 size += len(payload)
             elif topic == COUNTERS_TOPIC:
                 counters = c.decode(topic, payload)
                 encode.append(counters["encode_ms"])
                 skipped.append(counters["skipped"])
-        wall = time.monotonic() - t0
-        return {"scenes_per_s": scenes / wall, "mb_per_s": size / wall / 1e6,
+                times.append(counters["t"])
+        cpu1, wall = cpu_s(pid), time.monotonic() - t0
+        # the rate over whole intervals between scenes: the first scene's arrival to the
+        # last's, (scenes - 1) intervals
+        scenes = len(arrivals)
+        span = arrivals[-1] - arrivals[0]
+        steps = np.round(np.diff(times) * RATE).astype(int)
+        return {"scenes_per_s": (scenes - 1) / span, "mb_per_s": size / wall / 1e6,
                 "mb_per_scene": size / max(scenes, 1) / 1e6,
                 "encode_ms": sorted(encode)[len(encode) // 2] if encode else float("nan"),
                 "skipped": skipped[-1] - skipped[0] if skipped else 0,
-                "cpu": (cpu_s(pid) - cpu0) / wall}
+                "missing": int(np.sum(steps - 1)), "offered": int(np.sum(steps)),
+                "late": len([t for t in publisher.late[late0:] if times[0] < t <= times[-1]]),
+                "cpu": (cpu1 - cpu0) / wall}
     finally:
         await c.close()
 
@@ -161,7 +182,7 @@ def run(n: int, args: argparse.Namespace) -> dict:
                             "-e", endpoint, "--port", str(port), "--origin", "48.85,2.35,35"],
                            stderr=subprocess.DEVNULL)
     try:
-        out = asyncio.run(fast(port, fox.pid, n, args.seconds, args.warmup))
+        out = asyncio.run(fast(port, fox.pid, n, args.seconds, args.warmup, publisher))
         if args.slow:
             out |= asyncio.run(slow(port, fox.pid, publisher, args.slow))
     finally:
@@ -181,11 +202,12 @@ def main() -> None:
     args = p.parse_args()
     print(f"frames offered: {RATE:g} per second; the client subscribes {', '.join(TOPICS)}")
     print(f"{'tracks':>7} {'scenes/s':>9} {'MB/scene':>9} {'MB/s':>7} {'encode ms':>10} "
-          f"{'skipped':>8} {'server CPU':>11} {'load':>5}")
+          f"{'missing':>8} {'skipped':>8} {'late':>5} {'server CPU':>11} {'load':>5}")
     for n in args.sizes:
         r = run(n, args)
         print(f"{r['n']:>7} {r['scenes_per_s']:>9.1f} {r['mb_per_scene']:>9.2f} "
-              f"{r['mb_per_s']:>7.0f} {r['encode_ms']:>10.1f} {r['skipped']:>8} "
+              f"{r['mb_per_s']:>7.0f} {r['encode_ms']:>10.1f} "
+              f"{r['missing']:>4}/{r['offered']:<3} {r['skipped']:>8} {r['late']:>5} "
               f"{r['cpu']:>10.0%} {r['load']:>5.1f}", flush=True)
         if args.slow:
             print(f"        slow client (1 read/s): lag behind the newest frame, s: "
