@@ -16,7 +16,9 @@ offered over the window, how many of them the server skipped (its client library
 of one: two frames came while it was busy), the frames the publisher put more than a
 period late (back to back after a stall of its thread), and the server's CPU. Then a second
 client reads one message a second for --slow seconds: how far behind the newest frame
-each scene it reads is, and the server's resident memory meanwhile.
+each scene it reads is, how long ago the server took that frame from its queue (the
+message's log time; it is given to a viewer within a frame period of that), and the
+server's resident memory meanwhile.
 
 The machine's load average is printed with the figures: other processes on the cores
 lower them.
@@ -159,17 +161,18 @@ async def slow(port: int, pid: int, publisher: Publisher, seconds: int) -> dict:
     c = await client(port, rcvbuf=1 << 18)
     try:
         await c.subscribe(scene.TOPIC)
-        lags, memory = [], []
+        lags, held, memory = [], [], []
         for _ in range(seconds):
             while True:
-                topic, _, payload = await c.receive(60)
+                topic, log_time, payload = await c.receive(60)
                 if topic == scene.TOPIC:
                     break
             stamp = c.decode(topic, payload).entities[0].timestamp
             lags.append(publisher.t - (stamp.seconds + stamp.nanos / 1e9))
+            held.append(time.time() - log_time / 1e9)
             memory.append(rss_mb(pid))
             await asyncio.sleep(1.0)
-        return {"lags": lags, "memory": memory}
+        return {"lags": lags, "held": held, "memory": memory}
     finally:
         await c.close()
 
@@ -212,6 +215,8 @@ def main() -> None:
         if args.slow:
             print(f"        slow client (1 read/s): lag behind the newest frame, s: "
                   f"{' '.join(f'{x:.1f}' for x in r['lags'])}")
+            print(f"        of which since the server took it, s: "
+                  f"{' '.join(f'{x:.1f}' for x in r['held'])}")
             print(f"        server RSS, MB: {' '.join(f'{m:.0f}' for m in r['memory'])}",
                   flush=True)
 
