@@ -318,23 +318,36 @@ def rss_mb(pid: int) -> float:
 def test_a_viewer_that_pauses_is_then_given_the_newest_frame_not_a_queue():
     """A viewer that stops reading for a while, then reads again: what it reads first is
     what its own connection held (its client's message read ahead, then the frame in
-    flight, both from before the pause), and the next is a frame published after the
-    pause ended: nothing queued for it meanwhile. The server's memory does not grow."""
+    flight, both from before the pause), and the next is the frame newest when the pause
+    ended: nothing queued for it meanwhile. Another viewer, reading all along, is given
+    frames throughout the pauses. The server's memory does not grow."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     frames = FramePublisher(endpoint, 3000)  # a scene of 1.4 MB: more than the buffers
     port = free_port()
     fox = subprocess.Popen(
         [PY, "-m", "zenoh_track.clients.foxglove.server", "-e", endpoint, "--port", str(port)],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    pauses, memory = [], []
+    pauses, memory, steady = [], [], []
     try:
+        async def read_all_along(c: FoxgloveClient) -> None:
+            while True:
+                _, _, payload = await c.receive()
+                stamp = SceneUpdate.FromString(payload).entities[0].timestamp
+                steady.append(stamp.seconds + stamp.nanos / 1e9)
+
         async def run() -> None:
+            other = await connected(port, scene.TOPIC)
             c = await connected(port, scene.TOPIC, rcvbuf=1 << 16)
+            reader = None
             try:
+                await other.subscribe(scene.TOPIC)
                 await c.subscribe(scene.TOPIC)
+                reader = asyncio.create_task(read_all_along(other))
                 for _ in range(4):
+                    started = frames.t
                     await asyncio.sleep(2.0)  # reads nothing meanwhile
                     ended = frames.t  # the newest frame published when the pause ends
+                    assert steady and steady[-1] > started, (started, steady[-3:])
                     stamps = []
                     for _ in range(3):
                         _, _, payload = await c.receive()
@@ -343,7 +356,10 @@ def test_a_viewer_that_pauses_is_then_given_the_newest_frame_not_a_queue():
                     pauses.append((ended, stamps))
                     memory.append(rss_mb(fox.pid))
             finally:
+                if reader is not None:
+                    reader.cancel()
                 await c.close()
+                await other.close()
 
         asyncio.run(run())
     finally:
@@ -392,3 +408,25 @@ def test_a_viewers_connection_is_found_and_its_unsent_bytes_counted():
             s.close()
     assert not conn.alive() and conn.unsent() is None
     listener.close()
+
+
+def test_a_viewers_connection_is_the_one_that_has_just_sent_something():
+    from zenoh_track.clients.foxglove.sockets import Connection, accepted
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    port = listener.getsockname()[1]
+    clients = [socket.create_connection(("127.0.0.1", port)) for _ in range(3)]
+    served = [listener.accept()[0] for _ in clients]
+    try:
+        for speaker in (1, 0, 2):
+            clients[speaker].sendall(b"subscribe")
+            deadline = time.monotonic() + 5
+            while served[speaker].recv(64, socket.MSG_PEEK) != b"subscribe":
+                assert time.monotonic() < deadline
+            first = min(accepted(port), key=Connection.recency)
+            assert first.fd == served[speaker].fileno()
+            served[speaker].recv(64)
+            time.sleep(0.01)  # a millisecond tick at least between the speakers
+    finally:
+        for s in (*clients, *served, listener):
+            s.close()

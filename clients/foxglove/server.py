@@ -59,6 +59,11 @@ STATUS_PERIOD = 1.0  # s between /status messages
 # s between looks at the connections of viewers still waiting for the latest frame: a
 # viewer that reads as fast as frames come is given each within this of its draining
 POLL = 0.005
+PAIR_PERIOD = 1.0  # s between looks for a viewer's connection not found yet
+# s a viewer's receive window may stay less than half its widest, nothing unsent, before
+# the server takes that window as its widest: a kernel short of memory may narrow a
+# receive buffer for good, and the viewer would be given nothing more
+NARROWED = 10.0
 MAP_HZ = 10.0  # location fixes per second at most
 LAYOUT = "track-foxglove.layout.json"
 FIXES_TOPIC = "/tracks/fixes"
@@ -120,7 +125,10 @@ class Viewer:
         self.sink = sink
         self.topics: set[str] = set()
         self.connection: Connection | None = None
+        self.gone = False  # its connection closed; its unsubscription follows
+        self.looked = 0.0  # monotonic s of the last look for its connection
         self.widest = 0  # the widest receive window it has advertised, bytes
+        self.closed_since = 0.0  # monotonic s since which its window is not half open
 
     def drained(self) -> bool | None:
         """Whether the viewer has taken what it was given: its kernel has every byte (none
@@ -137,7 +145,16 @@ class Viewer:
         if window is None:  # a kernel without tcpi_snd_wnd: the send queue alone
             return True
         self.widest = max(self.widest, window)
-        return 2 * window >= self.widest
+        if 2 * window >= self.widest:
+            self.closed_since = 0.0
+            return True
+        now = time.monotonic()
+        if not self.closed_since:
+            self.closed_since = now
+        elif now - self.closed_since > NARROWED:  # a kernel that narrowed its buffer
+            self.widest, self.closed_since = window, 0.0
+            return True
+        return False
 
 
 class Viewers:
@@ -167,19 +184,21 @@ class Viewers:
 
     def _pair(self, viewer: Viewer) -> None:
         """The viewer's connection: of those no other viewer holds, the one that received
-        data last (the subscription being handled)."""
+        data last (the subscription being handled; this runs as the SDK handles it)."""
+        viewer.looked = time.monotonic()
         if not self.port:
             return
         held = {v.connection.inode for v in self.by_sink.values() if v.connection}
         free = [c for c in accepted(self.port) if c.inode not in held]
         if free:
-            viewer.connection = min(free, key=Connection.idle_ms)
+            viewer.connection = min(free, key=Connection.recency)
             if self.send_buffer > 0:
                 viewer.connection.set_send_buffer(self.send_buffer)
 
-    def sinks(self) -> set[int]:
+    def waiting(self) -> set[int]:
+        """The viewers that may still take a frame (their connection open)."""
         with self.lock:
-            return set(self.by_sink)
+            return {v.sink for v in self.by_sink.values() if not v.gone}
 
     def ready(self, skip: set[int]) -> list[Viewer]:
         """The viewers not in `skip` that have taken what they were given: each is given
@@ -188,16 +207,17 @@ class Viewers:
         with self.lock:
             out = []
             for viewer in self.by_sink.values():
-                if viewer.sink in skip:
+                if viewer.sink in skip or viewer.gone:
                     continue
                 if viewer.connection is None:
-                    self._pair(viewer)
+                    if time.monotonic() - viewer.looked > PAIR_PERIOD:
+                        self._pair(viewer)
                     if viewer.connection is None:
                         out.append(viewer)
                         continue
                 drained = viewer.drained()
-                if drained is None:  # the connection is gone; the unsubscription follows
-                    viewer.connection = None
+                if drained is None:
+                    viewer.gone = True
                 elif drained:
                     out.append(viewer)
             return out
@@ -250,7 +270,7 @@ class Publisher:
             for channel, payload in self._messages(viewer.topics):
                 channel.log(payload, log_time=self.log_time, sink_id=viewer.sink)
             self.given.add(viewer.sink)
-        return bool(viewers.sinks() - self.given)
+        return bool(viewers.waiting() - self.given)
 
     def _messages(self, topics: set[str]) -> list[tuple[Any, bytes]]:
         """The latest frame's messages on `topics`, encoded on first need."""

@@ -21,6 +21,7 @@ FD_DIR = "/proc/self/fd"
 SIOCOUTQ = 0x5411  # Linux: bytes in a TCP socket's send queue (TIOCOUTQ)
 # offsets in Linux's struct tcp_info (include/uapi/linux/tcp.h)
 TCP_INFO_LAST_DATA_RECV = 52  # tcpi_last_data_recv, u32 ms
+TCP_INFO_DATA_SEGS_IN = 152  # tcpi_data_segs_in, u32
 TCP_INFO_SND_WND = 228  # tcpi_snd_wnd, u32 bytes (Linux 5.4 and later)
 TCP_INFO_BYTES = 232
 
@@ -55,12 +56,15 @@ class Connection:
             return None
         return struct.unpack_from("I", info, TCP_INFO_SND_WND)[0]
 
-    def idle_ms(self) -> int:
-        """Milliseconds since the viewer last sent data (a large number when unknown)."""
+    def recency(self) -> tuple[int, int]:
+        """How lately the viewer sent something, smallest first: milliseconds since it
+        last sent data, then (within the same millisecond) the fewer of its data
+        segments received last (a viewer that has sent more than its opening request)."""
         info = self._info()
         if info is None:
-            return 1 << 31
-        return struct.unpack_from("I", info, TCP_INFO_LAST_DATA_RECV)[0]
+            return (1 << 32, 0)
+        return (struct.unpack_from("I", info, TCP_INFO_LAST_DATA_RECV)[0],
+                -struct.unpack_from("I", info, TCP_INFO_DATA_SEGS_IN)[0])
 
     def _info(self) -> bytes | None:
         try:
