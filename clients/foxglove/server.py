@@ -74,7 +74,7 @@ STATUS_KEYS = ("tracks", "meas_accepted", "meas_rejected", "frames_published",
 _INT = {"type": "integer"}
 COUNTERS_SCHEMA = {"type": "object", "title": "track-foxglove counters", "properties": {
     "t": {"type": "number"}, "tracks": _INT, **{s: _INT for s in STATUSES},
-    "unknown": _INT, "skipped": _INT, "encode_ms": {"type": "number"}}}
+    "unknown": _INT, "frames": _INT, "skipped": _INT, "encode_ms": {"type": "number"}}}
 STATUS_SCHEMA = {"type": "object", "title": "track-service status", "properties": {
     "instance": {"type": "string"}, **{k: {"type": "number"} for k in STATUS_KEYS}}}
 
@@ -299,7 +299,8 @@ class Publisher:
                 self.encoded[COUNTERS_TOPIC] = json.dumps(
                     {"t": frame.t, "tracks": len(frame),
                      **dict(zip(STATUSES, counts, strict=False)), "unknown": counts[-1],
-                     "skipped": skipped, "encode_ms": round(self.encode_ms, 2)}).encode()
+                     "frames": self.frames, "skipped": skipped,
+                     "encode_ms": round(self.encode_ms, 2)}).encode()
             out.append((self.counters, self.encoded[COUNTERS_TOPIC]))
         return out
 
