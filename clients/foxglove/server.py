@@ -15,8 +15,8 @@ Open Foxglove or Lichtblick on ws://127.0.0.1:8765 with the layout of `--layout`
 
 A channel nobody subscribes is not encoded. A slow viewer never makes anything queue:
 the frames wait in the client library's queue of one (the newest wins), and each viewer
-is given a frame only once it has taken the previous one (nothing left unsent in the
-kernel's send queue, its receive window open again), the newest frame at that moment;
+is given a frame only once it has taken the previous one (no more than half a send
+buffer left unsent, its receive window open again), the newest frame at that moment;
 the others are not encoded for it. A viewer that reads one frame a second is given the
 frame that was newest when it last read, never an ever older one.
 """
@@ -121,8 +121,8 @@ class Viewer:
     SDK allocates both once per connection, counting from 1, and this process has no
     other sink), the topics it subscribes and its connection once found."""
 
-    def __init__(self, sink: int) -> None:
-        self.sink = sink
+    def __init__(self, sink: int, slack: int = 0) -> None:
+        self.sink, self.slack = sink, slack
         self.topics: set[str] = set()
         self.connection: Connection | None = None
         self.gone = False  # its connection closed; its unsubscription follows
@@ -131,15 +131,18 @@ class Viewer:
         self.closed_since = 0.0  # monotonic s since which its window is not half open
 
     def drained(self) -> bool | None:
-        """Whether the viewer has taken what it was given: its kernel has every byte (none
-        unsent) and its receive window is at least half open, which its reading frees
-        (a viewer's kernel announces a window that has at least doubled, so a viewer that
-        has read everything is seen so); None when its connection is gone."""
+        """Whether the viewer has taken what it was given, but for `slack` bytes: its
+        kernel has all but those (unsent) and its receive window is at least half open,
+        which its reading frees (a viewer's kernel announces a window that has at least
+        doubled, so a viewer that has read everything is seen so); None when its
+        connection is gone. The slack lets a viewer that keeps up be given the next frame
+        while it takes the end of the previous one, as a queue of one would, without
+        ever putting a whole frame before the newest."""
         assert self.connection is not None
         unsent = self.connection.unsent()
         if unsent is None:
             return None
-        if unsent:
+        if unsent > self.slack:
             return False
         window = self.connection.window()
         if window is None:  # a kernel without tcpi_snd_wnd: the send queue alone
@@ -169,7 +172,8 @@ class Viewers:
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
         with self.lock:
-            viewer = self.by_sink.setdefault(client.id, Viewer(client.id))
+            viewer = self.by_sink.setdefault(client.id, Viewer(client.id,
+                                                                self.send_buffer // 2))
             viewer.topics.add(channel.topic)
             if viewer.connection is None:
                 self._pair(viewer)
@@ -202,7 +206,8 @@ class Viewers:
 
     def ready(self, skip: set[int]) -> list[Viewer]:
         """The viewers not in `skip` that have taken what they were given: each is given
-        the newest frame once it has taken the previous one. A viewer whose connection
+        the newest frame once it has taken the previous one, but for half a send
+        buffer. A viewer whose connection
         was not found is always ready (the SDK's backlog bounds what waits for it)."""
         with self.lock:
             out = []
