@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
+import os
 import socket
 import struct
 from typing import Any
@@ -122,3 +123,81 @@ class FoxgloveClient:
             await self.ws.close()
         if self.http is not None:
             await self.http.close()
+
+
+class PlainViewer:
+    """A blocking client that takes one message at a time off its socket and nothing
+    ahead of it (a browser or aiohttp reads on while its caller is busy): what is waiting
+    for it is what its kernel's receive buffer and the server hold. Subscribes `topics`
+    on connecting; `receive()` the next message's (topic, log time ns, payload)."""
+
+    def __init__(self, port: int, topics: tuple[str, ...], rcvbuf: int,
+                 timeout: float = 20.0) -> None:
+        self.sock = socket.socket()
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        self.sock.settimeout(timeout)
+        self.sock.connect(("127.0.0.1", port))
+        key = base64.b64encode(os.urandom(16)).decode()
+        self.sock.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+                           f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+                           f"Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {SUBPROTOCOL}"
+                           "\r\n\r\n").encode())
+        head = b""
+        while not head.endswith(b"\r\n\r\n"):
+            head += self._exactly(1)
+        if b" 101 " not in head.split(b"\r\n", 1)[0]:
+            raise ConnectionError(head.decode(errors="replace"))
+        channels: dict[str, int] = {}
+        while not set(topics) <= set(channels):
+            opcode, data = self._message()
+            if opcode == 1:
+                body = json.loads(data)
+                if body.get("op") == "advertise":
+                    channels |= {ch["topic"]: ch["id"] for ch in body["channels"]}
+        self.topic_of = {i + 1: topic for i, topic in enumerate(topics)}
+        self._send(json.dumps({"op": "subscribe", "subscriptions": [
+            {"id": i, "channelId": channels[t]} for i, t in self.topic_of.items()]}).encode())
+
+    def _exactly(self, n: int) -> bytes:
+        buf = bytearray(n)
+        view, got = memoryview(buf), 0
+        while got < n:
+            k = self.sock.recv_into(view[got:], n - got)
+            if not k:
+                raise ConnectionError("the server closed the connection")
+            got += k
+        return bytes(buf)
+
+    def _message(self) -> tuple[int, bytes]:
+        """The next whole message (fragments joined): its opcode and payload."""
+        opcode, parts = 0, []
+        while True:
+            b0, b1 = self._exactly(2)
+            size = b1 & 0x7F
+            if size == 126:
+                size = struct.unpack(">H", self._exactly(2))[0]
+            elif size == 127:
+                size = struct.unpack(">Q", self._exactly(8))[0]
+            opcode = opcode or b0 & 0x0F
+            parts.append(self._exactly(size))
+            if b0 & 0x80:
+                return opcode, b"".join(parts)
+
+    def _send(self, data: bytes) -> None:
+        mask = os.urandom(4)
+        masked = bytes(b ^ mask[i % 4] for i, b in enumerate(data))
+        head = bytes([0x81, 0x80 | 126]) + struct.pack(">H", len(data)) if len(data) > 125 \
+            else bytes([0x81, 0x80 | len(data)])
+        self.sock.sendall(head + mask + masked)
+
+    def receive(self) -> tuple[str, int, bytes]:
+        while True:
+            opcode, data = self._message()
+            if opcode == 2 and data[0] == MESSAGE_DATA:
+                sub_id, log_time = struct.unpack_from("<IQ", data, 1)
+                return self.topic_of[sub_id], log_time, data[13:]
+            if opcode == 8:
+                raise ConnectionError("the server closed the connection")
+
+    def close(self) -> None:
+        self.sock.close()

@@ -242,6 +242,11 @@ def test_a_protocol_client_receives_the_services_picture(service_factory):
                             and got[scene.TOPIC][-1].entities[0].cubes):
                         topic, _, payload = await c.receive()
                         got.setdefault(topic, []).append(c.decode(topic, payload))
+                    stamp = got[scene.TOPIC][-1].entities[0].timestamp
+                    t = round(stamp.seconds + stamp.nanos / 1e9, 6)
+                    while round(got.get(COUNTERS_TOPIC, [{"t": -1}])[-1]["t"], 6) != t:
+                        topic, _, payload = await c.receive()  # the last scene's counters
+                        got.setdefault(topic, []).append(c.decode(topic, payload))
                     return got[scene.TOPIC], got[FIXES_TOPIC], got[COUNTERS_TOPIC], \
                         got[STATUS_TOPIC]
                 finally:
@@ -260,7 +265,7 @@ def test_a_protocol_client_receives_the_services_picture(service_factory):
     assert sorted(x.text for x in sensors.texts) == ["radar1", "radar2", "radar3"]
     assert any(len(m.fixes) for m in fixes)
     assert all(abs(x.latitude - ORIGIN[0]) < 3 for m in fixes for x in m.fixes)
-    assert counters[-1]["tracks"] >= len(tracks) > 0
+    assert counters[-1]["tracks"] == len(tracks) > 0  # the same frame's
     assert sum(counters[-1][s] for s in (*STATUSES, "unknown")) == counters[-1]["tracks"]
     assert status[-1]["tracks"] >= 0 and "meas_accepted" in status[-1]
 
@@ -310,57 +315,118 @@ def rss_mb(pid: int) -> float:
 
 
 @pytest.mark.slow
-def test_a_slow_viewer_gets_recent_frames_and_nothing_queues():
-    """A viewer reading one message a second: the scenes it reads keep pace with the
-    picture once the connection's buffers are full (a queue of every frame would bring
-    it frames 1/30 s apart, ever further behind), and the server's memory does not
-    grow."""
+def test_a_viewer_that_pauses_is_then_given_the_newest_frame_not_a_queue():
+    """A viewer that stops reading for a while, then reads again: what it reads first is
+    what its own connection held (its client's message read ahead, then the frame in
+    flight, both from before the pause), and the next is the frame newest when the pause
+    ended: nothing queued for it meanwhile. Another viewer, reading all along, is given
+    frames throughout the pauses. The server's memory does not grow."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    frames = FramePublisher(endpoint, 3000)
+    frames = FramePublisher(endpoint, 3000)  # a scene of 1.4 MB: more than the buffers
     port = free_port()
     fox = subprocess.Popen(
         [PY, "-m", "zenoh_track.clients.foxglove.server", "-e", endpoint, "--port", str(port)],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    got, memory = [], []
+    pauses, memory, steady = [], [], []
     try:
+        async def read_all_along(c: FoxgloveClient) -> None:
+            while True:
+                _, _, payload = await c.receive()
+                stamp = SceneUpdate.FromString(payload).entities[0].timestamp
+                steady.append(stamp.seconds + stamp.nanos / 1e9)
+
         async def run() -> None:
-            c = await connected(port, scene.TOPIC, rcvbuf=1 << 20)
+            other = await connected(port, scene.TOPIC)
+            c = await connected(port, scene.TOPIC, rcvbuf=1 << 16)
+            reader = None
             try:
+                await other.subscribe(scene.TOPIC)
                 await c.subscribe(scene.TOPIC)
-                for _ in range(12):
-                    _, _, payload = await c.receive()
-                    stamp = SceneUpdate.FromString(payload).entities[0].timestamp
-                    got.append((frames.t, stamp.seconds + stamp.nanos / 1e9))
+                reader = asyncio.create_task(read_all_along(other))
+                for _ in range(4):
+                    started = frames.t
+                    await asyncio.sleep(2.0)  # reads nothing meanwhile
+                    ended = frames.t  # the newest frame published when the pause ends
+                    assert steady and steady[-1] > started, (started, steady[-3:])
+                    stamps = []
+                    for _ in range(3):
+                        _, _, payload = await c.receive()
+                        stamp = SceneUpdate.FromString(payload).entities[0].timestamp
+                        stamps.append(stamp.seconds + stamp.nanos / 1e9)
+                    pauses.append((ended, stamps))
                     memory.append(rss_mb(fox.pid))
-                    await asyncio.sleep(1.0)  # reads nothing meanwhile
             finally:
+                if reader is not None:
+                    reader.cancel()
                 await c.close()
+                await other.close()
 
         asyncio.run(run())
     finally:
         stop(fox)
         frames.close()
-    lags = [newest - t for newest, t in got]
-    print(f"lag behind the newest frame, s: {[round(x, 2) for x in lags]}; "
+    print(f"newest frame at each pause's end and the three read after it: {pauses}; "
           f"server RSS, MB: {[round(m) for m in memory]}")
-    assert got[-1][1] - got[-4][1] > 2.0, lags  # 3 s of reads: frames 1 s apart, not 1/30
-    assert max(lags[-4:]) < 10.0, lags
-    assert memory[-1] - memory[3] < 30, memory
+    for ended, stamps in pauses[1:]:  # the first pause starts with the buffers empty
+        assert stamps[0] <= stamps[1] < ended - 1e-6 <= stamps[2], (ended, stamps)
+    assert memory[-1] - memory[0] < 30, memory
 
 
-def test_a_viewers_send_buffer_is_trimmed_once():
-    from zenoh_track.clients.foxglove.sockets import trim_send_buffers
+def test_a_viewers_connection_is_found_and_its_unsent_bytes_counted():
+    from zenoh_track.clients.foxglove.sockets import accepted
 
     listener = socket.create_server(("127.0.0.1", 0))
     port = listener.getsockname()[1]
     client = socket.create_connection(("127.0.0.1", port))
-    accepted, _ = listener.accept()
+    client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 64 * 1024)
+    served, _ = listener.accept()
     try:
-        done: set = set()
-        assert trim_send_buffers(port, 64 * 1024, done) == 1  # not the listening socket
-        assert accepted.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF) == 2 * 64 * 1024
+        [conn] = accepted(port)  # not the listening socket
+        assert conn.fd == served.fileno() and conn.alive()
+        conn.set_send_buffer(64 * 1024)
+        assert served.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF) == 2 * 64 * 1024
         assert client.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF) != 2 * 64 * 1024
-        assert trim_send_buffers(port, 64 * 1024, done) == 0
+        assert conn.unsent() == 0
+        served.setblocking(False)
+        sent = 0
+        try:
+            while True:  # until the client's receive buffer and this send buffer are full
+                sent += served.send(b"x" * 65536)
+        except BlockingIOError:
+            pass
+        assert 0 < conn.unsent() <= sent
+        got = 0
+        client.settimeout(5)
+        while got < sent:
+            got += len(client.recv(1 << 20))
+        deadline = time.monotonic() + 5
+        while conn.unsent() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert conn.unsent() == 0
     finally:
-        for s in (client, accepted, listener):
+        for s in (client, served):
+            s.close()
+    assert not conn.alive() and conn.unsent() is None
+    listener.close()
+
+
+def test_a_viewers_connection_is_the_one_that_has_just_sent_something():
+    from zenoh_track.clients.foxglove.sockets import Connection, accepted
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    port = listener.getsockname()[1]
+    clients = [socket.create_connection(("127.0.0.1", port)) for _ in range(3)]
+    served = [listener.accept()[0] for _ in clients]
+    try:
+        for speaker in (1, 0, 2):
+            clients[speaker].sendall(b"subscribe")
+            deadline = time.monotonic() + 5
+            while served[speaker].recv(64, socket.MSG_PEEK) != b"subscribe":
+                assert time.monotonic() < deadline
+            first = min(accepted(port), key=Connection.recency)
+            assert first.fd == served[speaker].fileno()
+            served[speaker].recv(64)
+            time.sleep(0.01)  # a millisecond tick at least between the speakers
+    finally:
+        for s in (*clients, *served, listener):
             s.close()

@@ -30,19 +30,29 @@ const SELECTED = '#ffffff';
 export class Raster {
   constructor() {
     this.w = 0; this.h = 0; this.image = null; this.px = null; this.t0 = 0; this.t1 = 1;
-    this.base = null; this.baseKey = '';
+    this.geo = null; this.geoKey = ''; this.base = null; this.baseKey = '';
   }
-  /** Start a picture on the base layer (background, grid, trail history) kept for `key`;
-   *  `drawBase` makes it again when the key changed. Returns whether it did. */
-  begin(ctx, w, h, key, drawBase) {
+  /** Start a picture on the base layer: the geography (background, grid or graticule,
+   *  basemap, sensor rings), kept for `geoKey` and made by `drawGeo` when it changed,
+   *  under what `drawOver` adds (the trail history), kept for `key`. Each layer is made
+   *  again only when its own key changed: a new trail sample copies the geography
+   *  instead of drawing it. Returns whether the base layer was made again. */
+  begin(ctx, w, h, geoKey, drawGeo, key, drawOver) {
     if (w !== this.w || h !== this.h) {
       this.w = w; this.h = h;
       this.image = ctx.createImageData(w, h);
       this.px = new Uint32Array(this.image.data.buffer);
-      this.base = new Uint32Array(w * h); this.baseKey = '';
+      this.geo = new Uint32Array(w * h); this.base = new Uint32Array(w * h);
+      this.geoKey = ''; this.baseKey = '';
+    }
+    let fresh = false; // px holds the geography just drawn
+    if (geoKey !== this.geoKey) {
+      drawGeo();
+      this.geo.set(this.px); this.geoKey = geoKey; this.baseKey = ''; fresh = true;
     }
     if (key !== this.baseKey) {
-      drawBase();
+      if (!fresh) this.px.set(this.geo);
+      drawOver();
       this.base.set(this.px); this.baseKey = key;
       return true;
     }
@@ -190,14 +200,16 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
   const span = view.mpp * Math.max(view.width, view.height);
   const map = base ? base.lines(span) : null;
   const grat = geo ? graticuleOf(geo, view) : null;
-  // the background, grid or graticule, basemap, sensor rings and trail history change
-  // only every trail sample or view change: kept as a base layer, copied under each frame
-  // (10,000 trails of 16 points each are 150,000 line segments, the largest part of a draw)
+  // the geography (background, grid or graticule, basemap, sensor rings) changes only
+  // with the view, and the trail history every trail sample: each a layer kept, copied
+  // under each frame (the 1:10m coastlines of a 300 km view are tens of thousands of
+  // points; 10,000 trails of 16 points each are 150,000 line segments)
   const history = options.trails && frame;
-  const key = `${view.width},${view.height},${k},${view.cx},${view.cy},${view.mpp},` +
-    `${history ? trails.version : -1},${geo ? geo.join(',') : ''},` +
-    `${base ? `${base.version},${map ? map.name : ''}` : ''},${sensorKey(overlay.sensors)}`;
-  raster.begin(ctx, Math.round(view.width * k), Math.round(view.height * k), key, () => {
+  const geoKey = `${view.width},${view.height},${k},${view.cx},${view.cy},${view.mpp},` +
+    `${geo ? geo.join(',') : ''},${base ? `${base.version},${map ? map.name : ''}` : ''},` +
+    `${sensorKey(overlay.sensors)},${options.transparent ? 1 : 0}`;
+  const key = `${geoKey},${history ? trails.version : -1}`;
+  raster.begin(ctx, Math.round(view.width * k), Math.round(view.height * k), geoKey, () => {
     raster.px.fill(options.transparent ? 0 : pixel(BACKGROUND));
     if (grat) drawGraticule(raster, m, grat); else drawGrid(raster, view, step);
     if (map) {
@@ -206,6 +218,7 @@ export function drawFrame(ctx, raster, view, frame, trails, overlay, options) {
       drawLines(raster, m, map.coast, pixel(COAST), bounds);
     }
     drawRings(raster, m, overlay.sensors);
+  }, key, () => {
     if (history) drawTrails(raster, m, frame, trails, visible);
   });
   if (frame) {
