@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import ctypes
 import logging
 import sys
 import uuid
 from typing import Any
 
-from . import __version__, defaults
+from . import __version__, defaults, malloc  # noqa: F401 (malloc: glibc's arenas set
+
+# up on import, before NumPy's import starts a thread)
 from .adapter import TrackService
 from .adapter.origin import OriginQueryable
 from .estimation import imm_jit, jit
@@ -29,20 +30,6 @@ from .wire import (
     parse_origin,
     read_file,
 )
-
-
-def steady_malloc() -> None:
-    """glibc: a fixed mmap threshold (large NumPy temporaries go back to the OS when
-    freed instead of raising the threshold and fragmenting the heap) and at most two
-    malloc arenas (Zenoh's threads would each take one): the service's memory then stays
-    flat over hours (docs/performance.md). No-op elsewhere."""
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        m_mmap_threshold, m_arena_max = -3, -8  # glibc malloc.h
-        libc.mallopt(m_mmap_threshold, 1 << 20)
-        libc.mallopt(m_arena_max, 2)
-    except (OSError, AttributeError):
-        pass
 
 
 def seconds(text: str) -> float:
@@ -266,7 +253,6 @@ def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
     stop = on_signals()  # first: before Zenoh or anything else starts a thread
     origin = origin_option(args.origin)
-    steady_malloc()  # before Zenoh starts its threads
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     tracker = Tracker.from_config(tracker_config(args))

@@ -22,7 +22,7 @@ PASS_ROWS = 16_384
 TRACKS_QUEUE = 20_000  # tracks/ messages a realtime service holds for slow subscribers, at most
 # the cyclic collector's thresholds while a service runs (Python's: 700, 10, 10): a pass
 # of 1,024 single messages made ~3 young collections and, in a flood of 100,000, two full
-# ones of ~20 ms (0.7 us a message, docs/performance.md, issue 26); objects are still
+# ones of ~20 ms (0.7 us a message, docs/performance.md); objects are still
 # freed by reference counting, only cycles wait longer
 GC_THRESHOLDS = (10_000, 10, 10)
 

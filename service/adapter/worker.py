@@ -50,7 +50,8 @@ FREEZE_EVERY = 5.0
 def _malloc_trim() -> Any:
     """glibc's `malloc_trim` (None elsewhere): the tracks/ sender and Zenoh's threads
     allocate and free in arenas of their own, which glibc does not give back to the system
-    by itself; trimmed with the freeze, the RSS stays flat (docs/performance.md)."""
+    by itself; trimmed with the freeze, the RSS stays flat (docs/performance.md). The
+    service program sets the arenas up first (`zenoh_track.malloc`)."""
     try:
         trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
     except (OSError, AttributeError):
