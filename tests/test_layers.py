@@ -120,9 +120,11 @@ def test_the_rules_catch_a_wrong_import(tmp_path: Path) -> None:
 
 def test_the_adapter_is_its_own_package() -> None:
     """The adapter's modules live in service/adapter/ (governed above), not beside it:
-    service/ holds only the package's root, the defaults and the programs."""
+    service/ holds only the package's root, the defaults and the programs (with the
+    service program's allocator set-up, imported before anything starts a thread)."""
     loose = {p.name for p in (ROOT / "service").glob("*.py")}
-    assert loose == {"__init__.py", "__main__.py", "defaults.py", "router.py"}, loose
+    assert loose == {"__init__.py", "__main__.py", "defaults.py", "router.py", "malloc.py"}, \
+        loose
 
 
 def test_every_layer_has_files() -> None:

@@ -83,34 +83,19 @@ def _rows(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, shared,
     dv, tv, tc = np.empty((n, b)), np.empty((4, n, b)), np.empty((TURN_COEFFS, b))
     const, mats, nvec = np.empty((CONSTS, b)), np.empty((3, 3, 3, b)), np.empty((13, 6, b))
     for lo in range(0, len(rows), b):
-        for q in range(b):  # gather the block, batch axis last
+        _gather(mode_x, mode_p, mode_prob, rows, dt, lo, mx, mp, mu, h)
+        for q in range(b):  # the block's measurements, batch axis last
             i = min(lo + q, len(rows) - 1)
-            row = rows[i]
-            h[q], pol[q] = dt[i], polar[i]
+            pol[q] = polar[i]
             st = sigma_t[i]
             st2[q] = st * st if st > 0.0 else 0.0  # NaN: none
             for a in range(d):
                 val[a, q], sig[a, q] = values[a, i], sigmas[a, i]
             for a in range(3):
                 org[a, q] = origin[a, i]
-            for j in range(m):
-                mu[j, q] = mode_prob[row, j]
-                for a in range(n):
-                    mx[j, a, q] = mode_x[row, j, a]
-                    for e in range(n):
-                        mp[j, a, e, q] = mode_p[row, j, a, e]
         point(pol, val, sig, org, d, z, const)
-        _weights(mu, h, tau, dest, w, c)
-        for j in range(m):
-            s = n if _accelerating(kinds[j]) else 2 * d  # a CV mode: position and velocity
-            _mix(mx, mp, w, dest, kinds, j, s, d, xp[j], pp[j], dv)
-            if kinds[j] == 2:  # a coordinated turn at the known rate ws[j]
-                _predict_ct(xp[j], pp[j], d, h, ws[j], qs[j], wk[0])
-            elif kinds[j] == 3:  # the turn at its state's own rate, at most ws[j]
-                _predict_turn(xp[j], pp[j], d, h, ws[j], qs[j], wk[0], tv, tc)
-            else:
-                _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j],
-                         ws[j] if kinds[j] == 0 else 0.0, wk[0], wv)
+        _mixed_predictions(mx, mp, mu, h, tau, dest, kinds, qs, ws, w, c, xp, pp, wk, wv, dv,
+                           tv, tc)
         # the mixture's prediction: its position, and its velocity for the time noise
         timed = st2.max() > 0.0
         _moments(xp, pp, c, 2 * d if timed else d, mean, spread, dv)
@@ -201,27 +186,9 @@ def _predicted(mode_x, mode_p, mode_prob, rows, dt, tau, dest, kinds, qs, ws, b,
     wk, wv = np.empty((3, n, n, b)), np.empty((6, 3, b))
     dv, tv, tc = np.empty((n, b)), np.empty((4, n, b)), np.empty((TURN_COEFFS, b))
     for lo in range(0, len(rows), b):
-        for q in range(b):
-            i = min(lo + q, len(rows) - 1)
-            row = rows[i]
-            h[q] = dt[i]
-            for j in range(m):
-                mu[j, q] = mode_prob[row, j]
-                for a in range(n):
-                    mx[j, a, q] = mode_x[row, j, a]
-                    for e in range(n):
-                        mp[j, a, e, q] = mode_p[row, j, a, e]
-        _weights(mu, h, tau, dest, w, c)
-        for j in range(m):
-            s = n if _accelerating(kinds[j]) else 2 * d
-            _mix(mx, mp, w, dest, kinds, j, s, d, xp[j], pp[j], dv)
-            if kinds[j] == 2:
-                _predict_ct(xp[j], pp[j], d, h, ws[j], qs[j], wk[0])
-            elif kinds[j] == 3:
-                _predict_turn(xp[j], pp[j], d, h, ws[j], qs[j], wk[0], tv, tc)
-            else:
-                _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j],
-                         ws[j] if kinds[j] == 0 else 0.0, wk[0], wv)
+        _gather(mode_x, mode_p, mode_prob, rows, dt, lo, mx, mp, mu, h)
+        _mixed_predictions(mx, mp, mu, h, tau, dest, kinds, qs, ws, w, c, xp, pp, wk, wv, dv,
+                           tv, tc)
         for q in range(min(b, len(rows) - lo)):  # scatter
             i = lo + q
             for j in range(m):
@@ -266,6 +233,44 @@ def gate_moments(c, xs, ps, d, mean, cross, narrow, c_wide):  # pragma: no cover
                 cross[i, a, e] = ps[i, wide, a, e] + (xs[i, wide, a] - mu[a]) \
                     * (xs[i, wide, e] - mu[e])
         c_wide[i] = c[i, wide]
+
+
+@njit(**JIT, inline="always")
+def _gather(mode_x, mode_p, mode_prob, rows, dt, lo, mx, mp, mu, h):  # pragma: no cover
+    """The block of rows lo.. (the last one repeated as padding) from the store into the
+    batch-last work arrays: each mode's x and P, the mode probabilities and the dt."""
+    m, n, b = mx.shape
+    for q in range(b):
+        i = min(lo + q, len(rows) - 1)
+        row = rows[i]
+        h[q] = dt[i]
+        for j in range(m):
+            mu[j, q] = mode_prob[row, j]
+            for a in range(n):
+                mx[j, a, q] = mode_x[row, j, a]
+                for e in range(n):
+                    mp[j, a, e, q] = mode_p[row, j, a, e]
+
+
+@njit(**JIT, inline="always")
+def _mixed_predictions(mx, mp, mu, h, tau, dest, kinds, qs, ws, w, c, xp, pp, wk, wv, dv, tv,
+                       tc):  # pragma: no cover - compiled
+    """The predicted mode probabilities c and each mode's prediction xp, pp over h from
+    its mixed initial condition (its first s components: a CV mode's position and
+    velocity)."""
+    m, n = mx.shape[0], mx.shape[1]
+    d = n // 3
+    _weights(mu, h, tau, dest, w, c)
+    for j in range(m):
+        s = n if _accelerating(kinds[j]) else 2 * d  # a CV mode: position and velocity
+        _mix(mx, mp, w, dest, kinds, j, s, d, xp[j], pp[j], dv)
+        if kinds[j] == 2:  # a coordinated turn at the known rate ws[j]
+            _predict_ct(xp[j], pp[j], d, h, ws[j], qs[j], wk[0])
+        elif kinds[j] == 3:  # the turn at its state's own rate, at most ws[j]
+            _predict_turn(xp[j], pp[j], d, h, ws[j], qs[j], wk[0], tv, tc)
+        else:
+            _predict(xp[j], pp[j], s, 3 if kinds[j] == 1 else 2, d, h, qs[j],
+                     ws[j] if kinds[j] == 0 else 0.0, wk[0], wv)
 
 
 @njit(**JIT)
