@@ -15,13 +15,14 @@ Ours is the worker's work for one `plots/<sensor>` message: the payload checked
 (`parse_plots`), the tracker's step with the default configuration (association,
 updates, initiation, deletion, every updated track's state) and the `states` bodies
 encoded; CPU time of the process (its kernels' threads included) over the 400 scans
-after a first pass that loads the compiled kernels, median of `--repeat` runs. The other
-revision runs the same code in a child process with that revision's `service/` as the
-`zenoh_track` package (`git archive`). Stone Soup (`pip install -e '.[bench]'`): its
-`MultiTargetTracker` with `GNNWith2DAssignment`, a nearly-constant-velocity Kalman
-filter (q = 5 m/s^2) on the detections converted to Cartesian with their own
-covariance (each detection its own `LinearGaussian`), `MultiMeasurementInitiator` (3
-points) and `UpdateTimeStepsDeleter(4)`, timed the same way.
+after a first pass that loads the compiled kernels, median of `--repeat` runs, the
+trackers taking turns. The other revision runs the same code in a child process with
+that revision's `service/` as the `zenoh_track` package (`git archive`). Stone Soup
+(`pip install -e '.[bench]'`): its `MultiTargetTracker` with `GNNWith2DAssignment`, a
+nearly-constant-velocity Kalman filter (q = 5 m/s^2) on the detections converted to
+Cartesian with their own covariance (each detection its own `LinearGaussian`),
+`MultiMeasurementInitiator` (3 points) and `UpdateTimeStepsDeleter(4)`, timed the same
+way.
 """
 
 from __future__ import annotations
@@ -212,18 +213,24 @@ def main(argv: list[str] | None = None) -> None:
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"small scene: {AIRCRAFT} aircraft, 2 radars, {len(scans)} scans, {dets:.1f} "
           f"detections a scan; CPU ms per scan, median of {args.repeat} runs")
-    rows = [("ours", ours(payloads, args.repeat))]
-    for rev in args.against:
-        rows.append((f"ours at {rev}", against(rev, payloads, args.repeat)))
+    # the trackers in turn, one run each at a time, so that the machine's moments fall
+    # on all of them alike
+    mine: list[float] = []
+    theirs: dict[str, list[float]] = {rev: [] for rev in args.against}
+    for _ in range(args.repeat):
+        mine += ours(payloads, 1)
+        for rev in args.against:
+            theirs[rev] += against(rev, payloads, 1)
+    rows = [("ours", mine)] + [(f"ours at {rev}", t) for rev, t in theirs.items()]
     peer = stone_soup(scans, args.repeat)
     if peer is not None:
         rows.append(("Stone Soup GNN", peer))
-    mine = float(np.median(rows[0][1]))
+    first = float(np.median(rows[0][1]))
     print(f"{'tracker':<24} {'ms a scan':>10} {'runs':>24} {'x ours':>8}")
     for name, times in rows:
         med = float(np.median(times))
         print(f"{name:<24} {med:>10.3f} {' '.join(f'{x:.3f}' for x in times):>24} "
-              f"{med / mine:>8.2f}")
+              f"{med / first:>8.2f}")
 
 
 if __name__ == "__main__":
