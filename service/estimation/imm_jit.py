@@ -50,13 +50,6 @@ class CompiledIMM(IMM):
             return step(self, arrays, rows, dt, convert.batch)
         return super().update(arrays, rows, dt, convert)
 
-    def predicted(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray
-                  ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
-        """`IMM.predicted` (the modes' predictions), compiled once ready."""
-        if jit.ready() and applies(self):
-            return predicted(self, arrays, rows, dt)
-        return super().predicted(arrays, rows, dt)
-
     def gate_moments(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """`IMM.gate_moments` (what the association gates with), compiled once ready."""
@@ -111,16 +104,9 @@ def step(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray,
 
 
 def predicted(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray | float
-              ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`IMM.predicted` of `rows` over their own dt by the compiled kernels (the store is
-    not written): c (N, M) and each mode's (x (N, n), P (N, n, n))."""
-    c, xs, ps = _predicted(imm, arrays, rows, dt)
-    return c, [(xs[:, j], ps[:, j]) for j in range(len(imm.modes))]
-
-
-def _predicted(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray | float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """c (N, M), the modes' predictions x (N, M, n) and P (N, M, n, n)."""
+    not written): c (N, M) and the modes' predictions x (N, M, n), P (N, M, n, n)."""
     from . import imm_kernel
 
     k, m, n = len(rows), len(imm.modes), arrays.n
@@ -138,7 +124,7 @@ def gate_moments(imm: IMM, arrays: Rows, rows: np.ndarray, dt: np.ndarray | floa
     """`IMM.gate_moments` by the compiled kernels."""
     from . import imm_kernel
 
-    c, xs, ps = _predicted(imm, arrays, rows, dt)
+    c, xs, ps = predicted(imm, arrays, rows, dt)
     k, d, n = len(rows), arrays.n // 3, arrays.n
     mean, cross, narrow, c_wide = (np.empty((k, d)), np.empty((k, d, n)), np.empty((k, d, d)),
                                    np.empty(k))
