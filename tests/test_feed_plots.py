@@ -96,6 +96,15 @@ def test_swarm_without_plots_is_labelled():
     assert sent == seq == 300 and not any("/plots/" in k for k, _ in puts)
 
 
+def test_swarm_without_truth_sends_the_same_bytes():
+    """Without `--truth` the swarm's measurements are made from columns (no truth maps
+    made and thrown away): byte for byte what the run with truth sends, less the truth."""
+    with_truth = published("swarm", "--duration", "2", "--truth", "--t0", "12.5")[2]
+    plain = published("swarm", "--duration", "2", "--t0", "12.5")[2]
+    assert plain == [(k, p) for k, p in with_truth if "/truth/" not in k]
+    assert len(plain) == 301
+
+
 @pytest.mark.slow
 def test_feed_scans_reach_the_service(service_factory):
     """Over Zenoh: the scans the service's peers receive are plotgen's, every one is

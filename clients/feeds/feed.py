@@ -108,6 +108,19 @@ def labelled(args: argparse.Namespace, keys: Keys) -> Iterator[Batch]:
     meas_keys = KeyCache(lambda target: keys.meas(args.sensor, target))
     truth_keys = KeyCache(keys.truth)
     seq = 0
+    if args.scenario == "swarm" and not args.truth:  # from columns: no truth made unasked
+        for sent, s in scenarios.swarm_sectors(feed_plots.targets(args), args.seed,
+                                                args.duration, sectors=args.sectors):
+            names, sr, sa = s.names, s.sr, s.sa
+            out = [(meas_keys[names[i]],
+                    pack({"t": t + args.t0, "seq": seq + j, "r": r, "az": az, "el": el,
+                          "sr": sr, "saz": sa, "sel": sa}))
+                   for j, (i, t, r, az, el) in enumerate(zip(
+                       s.idx.tolist(), s.t.tolist(), s.r.tolist(), s.az.tolist(),
+                       s.el.tolist(), strict=True))]
+            seq += len(out)
+            yield sent + args.t0, out, len(out)
+        return
     for t0, meas, truth in scans(args):
         out = [(truth_keys[target], pack(stamped(state, t0, args.t0)))
                for target, state in truth] if args.truth else []
