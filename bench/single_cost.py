@@ -47,7 +47,11 @@ def compiled() -> None:
         from zenoh_track.tracking import frame
     except ImportError:  # a tree before jit.py: the kernels are compiled at import
         return
-    jit.prepare([imm_jit, frame], wait=True)
+    try:
+        from zenoh_track.tracking.compiled import KERNELS
+    except ImportError:  # a tree before the list
+        KERNELS = (imm_jit, frame)
+    jit.prepare(KERNELS, wait=True)
 
 
 def listened_service(session: Any, keys: Any, consumer: subprocess.Popen) -> Any:

@@ -98,13 +98,18 @@ def ours(payloads: list[tuple[str, bytes]], repeat: int) -> list[float]:
     """CPU ms per scan of the worker's work, `repeat` times (a fresh tracker each)."""
     from zenoh_track import defaults
     from zenoh_track.adapter.encode import pack_states
-    from zenoh_track.estimation import imm_jit, jit
-    from zenoh_track.tracking import frame
+    from zenoh_track.estimation import jit
     from zenoh_track.tracking.batches import Unlabelled
     from zenoh_track.tracking.tracker import Tracker
     from zenoh_track.wire import parse_plots
 
-    jit.load([imm_jit, frame])
+    try:
+        from zenoh_track.tracking.compiled import KERNELS
+    except ImportError:  # another revision's tracker (--against)
+        from zenoh_track.estimation import imm_jit
+        from zenoh_track.tracking import frame
+        KERNELS = (imm_jit, frame)
+    jit.load(KERNELS)
 
     def run() -> float:
         tracker = Tracker.from_config()
@@ -200,6 +205,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="also the tracker of these git revisions")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-stone-soup", action="store_true",
+                    help="leave Stone Soup out (its runs take most of the time)")
     ap.add_argument("--child", metavar="FILE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -222,7 +229,7 @@ def main(argv: list[str] | None = None) -> None:
         for rev in args.against:
             theirs[rev] += against(rev, payloads, 1)
     rows = [("ours", mine)] + [(f"ours at {rev}", t) for rev, t in theirs.items()]
-    peer = stone_soup(scans, args.repeat)
+    peer = None if args.no_stone_soup else stone_soup(scans, args.repeat)
     if peer is not None:
         rows.append(("Stone Soup GNN", peer))
     first = float(np.median(rows[0][1]))

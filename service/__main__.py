@@ -13,9 +13,9 @@ from . import __version__, defaults, malloc  # noqa: F401 (malloc: glibc's arena
 # up on import, before NumPy's import starts a thread)
 from .adapter import TrackService
 from .adapter.origin import OriginQueryable
-from .estimation import imm_jit, jit
+from .estimation import jit
 from .estimation.catalog import FILTERS, FilterSpec
-from .tracking import frame
+from .tracking.compiled import KERNELS
 from .tracking.display import DisplayConfig
 from .tracking.plot_association import SensorModels
 from .tracking.tracker import SCAN_ASSOCIATORS, Tracker, TrackerConfig
@@ -286,7 +286,7 @@ def start(args: argparse.Namespace, session: Any, tracker: Tracker,
     # the compiled kernels: a realtime service is alive at once on their NumPy forms and
     # takes the compiled ones when ready (a machine's first start compiles them in a child
     # process); lockstep outputs are a function of the inputs alone, so it waits for them
-    jit.prepare([imm_jit, frame], wait=args.clock == "lockstep", say=lambda line: print(
+    jit.prepare(KERNELS, wait=args.clock == "lockstep", say=lambda line: print(
         f"track-service: {line}", file=sys.stderr, flush=True))
     # answered before the liveliness token is declared: a client that sees the service
     # alive can ask its origin

@@ -80,10 +80,10 @@ def compiled_kernels() -> None:
     """Compile the kernels once, before any service process starts (on a fresh clone it
     takes tens of seconds; the processes then load them from the cache), and let them
     serve in this process as in a service."""
-    from zenoh_track.estimation import imm_jit, jit
-    from zenoh_track.tracking import frame
+    from zenoh_track.estimation import jit
+    from zenoh_track.tracking.compiled import KERNELS
 
-    jit.load([imm_jit, frame])
+    jit.load(KERNELS)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

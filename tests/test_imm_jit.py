@@ -159,15 +159,17 @@ def design_of(modes: str) -> tuple[imm_jit.CompiledIMM, Tracker]:
 
 WARMED_ONLY = """
 import numpy as np
-from zenoh_track.estimation import imm_jit, imm_kernel, jit
-from zenoh_track.tracking import frame, frame_kernel
+from zenoh_track.estimation import imm_kernel, jit, ucm_kernel
+from zenoh_track.tracking import frame_kernel
+from zenoh_track.tracking.compiled import KERNELS
 from zenoh_track.tracking.batches import Labelled, Unlabelled
 from zenoh_track.tracking.tracker import Tracker
 from zenoh_track.wire import Measurement
 
-jit.load([imm_jit, frame])
+jit.load(KERNELS)
 kernels = (imm_kernel.update_rows, imm_kernel.update_few, imm_kernel.predict_rows,
-           imm_kernel.predict_few, imm_kernel.gate_moments, frame_kernel.draw)
+           imm_kernel.predict_few, imm_kernel.gate_moments, frame_kernel.draw,
+           ucm_kernel.at_points)
 warmed = [list(k.signatures) for k in kernels]
 tracker, rng = Tracker.from_config(), np.random.default_rng(1)
 for t in range(6):
@@ -191,7 +193,7 @@ def test_the_service_calls_only_the_warmed_kernels():
     machine's first start, while no frame goes out."""
     out = subprocess.run([sys.executable, "-c", WARMED_ONLY], capture_output=True, text=True,
                          check=True, timeout=300)
-    assert out.stdout.split("\n")[-2] == str([True] * 6), out.stdout + out.stderr
+    assert out.stdout.split("\n")[-2] == str([True] * 7), out.stdout + out.stderr
 
 
 @pytest.mark.parametrize("threads", [2, 3])

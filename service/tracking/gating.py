@@ -23,7 +23,7 @@ from ..estimation import models, scratch
 from ..estimation.batch import einsum_as_is
 from ..estimation.linalg import ldl_inverse
 from ..estimation.measurements import MeasurementBatch
-from ..estimation.ucm import at_point
+from ..estimation.ucm_jit import at_point
 from .store import TrackArrays
 
 LOG_2PI = np.log(2 * np.pi)
