@@ -159,7 +159,7 @@ def design_of(modes: str) -> tuple[imm_jit.CompiledIMM, Tracker]:
 
 WARMED_ONLY = """
 import numpy as np
-from zenoh_track.estimation import imm_kernel, jit, ucm_kernel
+from zenoh_track.estimation import imm_kernel, jit, gate_kernel
 from zenoh_track.tracking import frame_kernel
 from zenoh_track.tracking.compiled import KERNELS
 from zenoh_track.tracking.batches import Labelled, Unlabelled
@@ -169,7 +169,7 @@ from zenoh_track.wire import Measurement
 jit.load(KERNELS)
 kernels = (imm_kernel.update_rows, imm_kernel.update_few, imm_kernel.predict_rows,
            imm_kernel.predict_few, imm_kernel.gate_moments, frame_kernel.draw,
-           ucm_kernel.at_points)
+           gate_kernel.at_points, gate_kernel.gate_pairs, gate_kernel.mixture)
 warmed = [list(k.signatures) for k in kernels]
 tracker, rng = Tracker.from_config(), np.random.default_rng(1)
 for t in range(6):
@@ -193,7 +193,7 @@ def test_the_service_calls_only_the_warmed_kernels():
     machine's first start, while no frame goes out."""
     out = subprocess.run([sys.executable, "-c", WARMED_ONLY], capture_output=True, text=True,
                          check=True, timeout=300)
-    assert out.stdout.split("\n")[-2] == str([True] * 7), out.stdout + out.stderr
+    assert out.stdout.split("\n")[-2] == str([True] * 9), out.stdout + out.stderr
 
 
 @pytest.mark.parametrize("threads", [2, 3])

@@ -269,20 +269,26 @@ class IMM:
         w = max(c_wide, `gate_wide`): the association gives a manoeuvre it cannot see
         yet the prior `gate_wide`, so that clutter far out in a wide gate (a track
         coasting through missed scans) is not taken for the aircraft."""
-        d = arrays.dim
         mean, cross, narrow, c_wide = self.gate_moments(arrays, rows, t - arrays.t[rows])
         w = np.maximum(c_wide, self.gate_wide)
 
         def likelihood(loglik: np.ndarray, ti: np.ndarray, nu: np.ndarray, r: np.ndarray
                        ) -> np.ndarray:
-            s = narrow[ti] + r
-            sign, logdet = np.linalg.slogdet(s)
-            d2 = einsum("ka,ka->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
-            ll = np.where(sign > 0, -0.5 * (d2 + logdet + d * np.log(2 * np.pi)), -np.inf)
-            with np.errstate(divide="ignore"):  # w = 1: the widest mode alone
-                return np.logaddexp(np.log1p(-w[ti]) + ll, np.log(w[ti]) + loglik)
+            return self.pair_likelihood(loglik, ti, nu, r, narrow, w)
 
         return mean, cross, likelihood
+
+    def pair_likelihood(self, loglik: np.ndarray, ti: np.ndarray, nu: np.ndarray,
+                        r: np.ndarray, narrow: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """`gate_prediction`'s pair log-likelihood: log((1 - w) N(nu; narrow[ti] + r)
+        + w exp(loglik)), w and narrow per track, loglik the widest mode's."""
+        d = nu.shape[1]
+        s = narrow[ti] + r
+        sign, logdet = np.linalg.slogdet(s)
+        d2 = einsum("ka,ka->k", nu, np.linalg.solve(s, nu[:, :, None])[:, :, 0])
+        ll = np.where(sign > 0, -0.5 * (d2 + logdet + d * np.log(2 * np.pi)), -np.inf)
+        with np.errstate(divide="ignore"):  # w = 1: the widest mode alone
+            return np.logaddexp(np.log1p(-w[ti]) + ll, np.log(w[ti]) + loglik)
 
     def gate_moments(self, arrays: Rows, rows: np.ndarray, dt: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

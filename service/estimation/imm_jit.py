@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import defaults
-from . import blocks, jit
+from . import blocks, gate_jit, jit
 from .imm import IMM
 from .measurements import MeasurementBatch
 from .ucm import CMKFConversion
@@ -56,6 +56,13 @@ class CompiledIMM(IMM):
         if jit.ready() and applies(self):
             return gate_moments(self, arrays, rows, dt)
         return super().gate_moments(arrays, rows, dt)
+
+    def pair_likelihood(self, loglik: np.ndarray, ti: np.ndarray, nu: np.ndarray,
+                        r: np.ndarray, narrow: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """`IMM.pair_likelihood`, compiled once ready (`gate_jit.mixture`)."""
+        if jit.ready() and len(ti):
+            return gate_jit.mixture(loglik, ti, nu, r, narrow, w)
+        return super().pair_likelihood(loglik, ti, nu, r, narrow, w)
 
 
 def kernel(k: int) -> Callable:

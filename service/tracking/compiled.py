@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from ..estimation import imm_jit, ucm_jit
+from ..estimation import gate_jit, imm_jit
 from . import frame
 
-KERNELS = (imm_jit, ucm_jit, frame)
+KERNELS = (imm_jit, gate_jit, frame)

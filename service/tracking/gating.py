@@ -19,11 +19,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..estimation import models, scratch
+from ..estimation import gate_jit, jit, models, scratch
 from ..estimation.batch import einsum_as_is
+from ..estimation.gate_jit import at_point
 from ..estimation.linalg import ldl_inverse
 from ..estimation.measurements import MeasurementBatch
-from ..estimation.ucm_jit import at_point
 from .store import TrackArrays
 
 LOG_2PI = np.log(2 * np.pi)
@@ -139,6 +139,25 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     tr_p = np.add.reduce(cross_s.reshape(d * n, k)[:d * (n + 1):n + 1], axis=0)
     radius = np.sqrt(gamma * (tr_p + tr_r))
     ti, dj = near(mean, z, radius)
+    if jit.ready():
+        nu, d2, det = gate_jit.gate_pairs(ti, dj, z, mean_s, cross_s, r)
+    else:
+        nu, d2, det = pair_distances(ti, dj, z, mean_s, cross_s, r)
+    keep = (d2 <= gamma) & (det > 0)
+    ti, dj, d2, nu, det = ti[keep], dj[keep], d2[keep], nu[keep], det[keep]
+    loglik = -0.5 * (d2 + np.log(det) + d * LOG_2PI)
+    if mixture is not None:  # the likelihood of the filter's two-component mixture
+        loglik = mixture(loglik, ti, nu, r[dj])
+    return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu)
+
+
+def pair_distances(ti: np.ndarray, dj: np.ndarray, z: np.ndarray, mean_s: np.ndarray,
+                   cross_s: np.ndarray, r: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs' innovations nu (K, d), squared Mahalanobis distances under
+    S = P_pos + R and det S (mean_s (d, T), cross_s (d, n, T), batch axis last): the
+    NumPy form of `gate_kernel.gate_pairs`."""
+    d = z.shape[1]
     nu = np.empty((len(ti), d))  # (K, d), read through its transpose
     nut = nu.T
     np.subtract(z.T.take(dj, 1), mean_s.take(ti, 1), out=nut)
@@ -146,13 +165,7 @@ def gate(arrays: TrackArrays, rows: np.ndarray, z: np.ndarray, r: np.ndarray, t:
     # S^-1 and det S of every pair at once, batch axis last (`linalg.ldl_inverse`)
     sinv, det = np.empty((d, d, len(ti))), np.empty(len(ti))
     ldl_inverse(s, sinv, det)
-    d2 = einsum_as_is("in,ijn,jn->n", nut, sinv, nut)
-    keep = (d2 <= gamma) & (det > 0)
-    ti, dj, d2, nu, det = ti[keep], dj[keep], d2[keep], nu[keep], det[keep]
-    loglik = -0.5 * (d2 + np.log(det) + d * LOG_2PI)
-    if mixture is not None:  # the likelihood of the filter's two-component mixture
-        loglik = mixture(loglik, ti, nu, r[dj])
-    return Gating(arrays, rows, mean, cross, z, r, ti, dj, d2, loglik, nu)
+    return nu, einsum_as_is("in,ijn,jn->n", nut, sinv, nut), det
 
 
 def near(mean: np.ndarray, z: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
