@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 STARTED = pytest.StashKey[list["ServiceProcess"]]()
 Scope = Literal["session", "package", "module", "class", "function"]
 WAIT = 60.0  # s: the most a service may take to come up (the first start compiles kernels)
+PORT_TRIES = 3  # starts of a service whose free port another process took first
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -48,15 +49,22 @@ def start(node: pytest.Item | pytest.Collector | None, *args: str, ns: str | Non
     """A ServiceProcess of these options, alive (or the test fails with its log)."""
     from zenoh_track.clients.lib import ServiceProcess
 
-    svc = ServiceProcess(*args, ns=ns or unique_ns(), clock=clock)
-    if node is not None:
-        node.stash.setdefault(STARTED, []).append(svc)
-    try:
-        svc.wait(wait, notice=None if config is None else partial(say, config))
-    except RuntimeError as exc:
-        svc.stop()
-        pytest.fail(str(exc), pytrace=False)
-    return svc
+    ns = ns or unique_ns()
+    for attempt in range(PORT_TRIES):
+        svc = ServiceProcess(*args, ns=ns, clock=clock)
+        if node is not None:
+            node.stash.setdefault(STARTED, []).append(svc)
+        try:
+            svc.wait(wait, notice=None if config is None else partial(say, config))
+        except RuntimeError as exc:
+            svc.stop()
+            # the free port it was given was taken before it could listen: another one
+            if "address already in use" in str(exc) and "-l" not in args \
+                    and attempt + 1 < PORT_TRIES:
+                continue
+            pytest.fail(str(exc), pytrace=False)
+        return svc
+    raise AssertionError("unreachable")
 
 
 def say(config: pytest.Config, line: str) -> None:

@@ -127,3 +127,26 @@ def test_a_first_start_says_it_compiles_the_kernels(pytester, monkeypatch, tmp_p
         "*[[]zenoh_track[]] track-service: compiling the filter kernels, the first start on "
         "this machine only (about * s on two cores; then cached)...",
         f"*[[]zenoh_track[]] track-service: kernels {len(KERNELS)}/{len(KERNELS)} ready*"])
+
+
+@pytest.mark.slow
+def test_a_port_taken_before_the_service_listens_is_tried_again(monkeypatch):
+    """The free port a service is given may be taken by another process before the
+    service listens on it: the fixture starts it again on another one."""
+    import socket
+
+    from zenoh_track.clients import pytest_plugin
+    from zenoh_track.clients.lib import process
+    from zenoh_track.wire import free_port
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        ports = iter([port])
+        monkeypatch.setattr(process, "free_port", lambda: next(ports, None) or free_port())
+        svc = pytest_plugin.start(None, clock="lockstep")
+        try:
+            assert svc.client is not None and svc.endpoint != f"tcp/127.0.0.1:{port}"
+        finally:
+            svc.stop()
