@@ -20,7 +20,7 @@ from .. import defaults
 from ..tracking.batches import Labelled, StepOutcome
 from ..wire import PlotScan
 from .plan import Plan
-from .schedule import MAX_GAP_FRAMES, POLL, TOL, Clock, Frames, Pass, Publishing, Report
+from .schedule import MAX_GAP_FRAMES, TOL, Clock, Frames, Pass, Publishing, Report
 from .senders import FrameSender, InlineFrameSender, InlineTrackSender, TrackSender
 
 if TYPE_CHECKING:
@@ -54,8 +54,8 @@ class Lockstep:
     def picture(self, wall: float, newest: float | None) -> float | None:
         return newest
 
-    def timeout(self, wall: float) -> float:
-        return POLL
+    def timeout(self, wall: float, poll: float) -> float:
+        return poll
 
     def rows(self, plan: Plan, rows: Labelled, walls: list[float], held: float | None
              ) -> None:
@@ -181,10 +181,10 @@ class Realtime:
         """The simulation time the wall clock has reached (None: no input yet)."""
         return None if self.offset is None else wall + self.offset
 
-    def timeout(self, wall: float) -> float:
-        """Until the next instant's deadline, at most `POLL`."""
+    def timeout(self, wall: float, poll: float) -> float:
+        """Until the next instant's deadline, at most `poll`."""
         deadline = self.next_deadline(wall)
-        return POLL if deadline is None else min(max(deadline - wall, 0.0), POLL)
+        return poll if deadline is None else min(max(deadline - wall, 0.0), poll)
 
     def restart(self, t: float) -> None:
         """The offsets learned on the old timeline are forgotten (the next input's sets

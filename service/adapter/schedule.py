@@ -24,6 +24,8 @@ if TYPE_CHECKING:
 TOL = TIME_TOL  # s: "strictly before t" tolerance of the contract
 MAX_GAP_FRAMES = 30 * 600  # a lockstep jump longer than this is skipped, not replayed
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
+IDLE_POLL = 0.01  # s: ... and this often once nothing has come for IDLE_AFTER
+IDLE_AFTER = 10.0  # s: longer than a radar's scan period (a paused or absent feed)
 # a pass over labelled rows (rows, pause between parts of a long update, or None): its
 # outcome, the deletions reported; then the outcome reported (`Report`)
 Pass = Callable[[Labelled, Callable[[StepOutcome], None] | None], StepOutcome]
@@ -56,8 +58,8 @@ class Clock(Protocol):
         """The picture's time for an input arriving at `wall` (`newest`: the newest input
         time taken; None: no time yet)."""
 
-    def timeout(self, wall: float) -> float:
-        """How long the worker may wait for input."""
+    def timeout(self, wall: float, poll: float) -> float:
+        """How long the worker may wait for input (at most `poll`)."""
 
     def restart(self, t: float) -> None:
         """A new timeline at time t (`timeline.Timeline`)."""

@@ -34,7 +34,7 @@ from .ingest import ClockMessage, Ingest, Input, LabelledScan, Plots, Query, Sin
 from .plan import SEES_ROWS, Answer, Apply, ApplyScan, Do, Frame, Plan, Refusals, Reject, Wait
 from .publish import Publisher
 from .queries import Queries
-from .schedule import Frames
+from .schedule import IDLE_AFTER, IDLE_POLL, POLL, Frames
 from .state import StateFile
 from .steps import TrackerCalls
 
@@ -92,6 +92,7 @@ class TrackService:
             StateFile(state, self.checkpoint, state_period)  # checkpoints
         self.stop = threading.Event()
         self.next_freeze = 0.0  # monotonic time of the worker's next gc.freeze()
+        self.last_input = time.monotonic()  # when the worker last took an input
         self.ingest = Ingest(session, keys, meas_keys, plot_keys, scan_keys)
         self.queries = Queries(keys, self.calls, self.out, self.clock, self.admit,
                                self.ingest, instance, display.rate, origin)
@@ -143,7 +144,12 @@ class TrackService:
 
     def _run(self) -> None:
         while not self.stop.is_set():
-            batch = self.ingest.next_batch(self.clock.timeout(time.time()))
+            # the channels looked in every POLL s, less often when no input came for long
+            # (an idle service costs next to nothing)
+            poll = POLL if time.monotonic() - self.last_input < IDLE_AFTER else IDLE_POLL
+            batch = self.ingest.next_batch(self.clock.timeout(time.time(), poll))
+            if batch:
+                self.last_input = time.monotonic()
             try:
                 self._process(batch)
                 if self.state is not None:
