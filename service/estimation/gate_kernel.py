@@ -45,8 +45,7 @@ def at_points(polar, values, sigmas, origin, z, r):  # pragma: no cover - compil
             k = big_b / (2 * lb**2)
             r[i, 0, 0] = k * (1 - lb4 * c2a) - p0 * p0
             r[i, 1, 1] = k * (1 + lb4 * c2a) - p1 * p1
-            r[i, 0, 1] = k * lb4 * s2a - p0 * p1
-            r[i, 1, 0] = k * lb4 * s2a - p1 * p0
+            r[i, 0, 1] = r[i, 1, 0] = k * lb4 * s2a - p0 * p1
             continue
         el, sel = values[i, 2], sigmas[i, 2]
         le = math.exp(-0.5 * sel**2)
