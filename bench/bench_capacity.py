@@ -300,7 +300,9 @@ class StatusPoller(threading.Thread):
 
 
 def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
-            warmup: float, log: Any) -> dict[str, Any]:
+            warmup: float, log: Any, floor: bool = False) -> dict[str, Any]:
+    """One run of the service (`floor`: of bench/echo.py in its place, replies of a
+    `tracks/` body's size) against the feed, watched from this process."""
     ns = f"cap{uuid.uuid4().hex[:8]}"
     keys = Keys(ns)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -309,6 +311,11 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     svc_cmd = [sys.executable, "-m", "zenoh_track", "--clock", "realtime", "-l", endpoint,
                "--ns", ns, *service_flags(args, display)]
+    if floor:
+        from throughput import TRACKS_BODY  # bench/throughput.py
+
+        svc_cmd = [sys.executable, str(ROOT / "bench" / "echo.py"), "-l", endpoint,
+                   "--ns", ns, "--reply-bytes", str(TRACKS_BODY)]
     feed_cmd = [sys.executable, "-m", "zenoh_track.clients.feeds.feed", "swarm", "--targets",
                 str(n),
                 "--realtime", "--duration", str(duration), "-e", endpoint, "--ns", ns,
@@ -318,7 +325,7 @@ def run_one(n: int, display: bool, args: argparse.Namespace, duration: float,
     listen_out = Path(tempfile.mkdtemp(prefix="full-listener-")) / "tracks.npz"
     svc_log = tempfile.TemporaryFile(mode="w+")
     feed_log = tempfile.TemporaryFile(mode="w+")
-    res: dict[str, Any] = {"n": n, "mode": "display" if display else "frame",
+    res: dict[str, Any] = {"n": n, "mode": "echo" if floor else "display" if display else "frame",
                            "duration": duration, "sample": n_sample, "pattern": pattern,
                            "cmd_service": " ".join(svc_cmd[1:]), "cmd_feed": " ".join(feed_cmd[1:])}
     try:
@@ -658,6 +665,21 @@ def full_line(r: dict[str, Any]) -> str:
             f"{fmt(r.get('listener_cpu_pct'), '.0f')}%")
 
 
+def floor_report(results: list[dict[str, Any]]) -> str:
+    """Each run's tracks/ latency against the echo floor's right after it."""
+    lines = ["latency against the echo floor (bench/echo.py on the same load, right after):"]
+    for ours, echo in zip(results[::2], results[1::2], strict=False):
+        a, b = ours.get("lat_p99_ms"), echo.get("lat_p99_ms")
+        ratio = a / b if a and b else float("nan")
+        lines.append(f"  N={ours['n']} {ours['mode']}: p99 {fmt(a, '.0f')} ms, echo "
+                     f"{fmt(b, '.0f')} ms, {fmt(ratio, '.2f')} x; p50 "
+                     f"{fmt(ours.get('lat_p50_ms'), '.0f')} ms, echo "
+                     f"{fmt(echo.get('lat_p50_ms'), '.0f')} ms; CPU "
+                     f"{fmt(ours.get('cpu_pct'), '.0f')} %, echo "
+                     f"{fmt(echo.get('cpu_pct'), '.0f')} %")
+    return "\n".join(lines)
+
+
 def memory_report(r: dict[str, Any], warmup: float, every: float = 10.0) -> str:
     series = r["rss_series"]
     pts, nxt = [], 0.0
@@ -766,6 +788,10 @@ def main(argv: list[str] | None = None) -> None:
                         "(bench/full_listener.py, as a recorder or a gateway): every message "
                         "counted, the missing ones and the latency reported; its samples in "
                         "a FIFO channel (default) or a Python callback on Zenoh's thread")
+    p.add_argument("--floor", action="store_true",
+                   help="after each run, the same load answered by the echo floor "
+                        "(bench/echo.py: decode, put a tracks/ body's size; no tracking, no "
+                        "frames) and the latencies' ratio, same listener")
     p.add_argument("--scan-flood", type=int, nargs="*", default=None, metavar="N",
                    help="instead of the sweep: 20 batched scans of N rows (default 10,000) "
                         "put as fast as the service takes them: rows applied per second and "
@@ -862,9 +888,14 @@ def main(argv: list[str] | None = None) -> None:
                 r = run_one(n, mode == "display", args, args.duration, args.warmup, log)
                 results.append(r)
                 log(f"# N={n} {mode}: {r.get('verdict', r.get('error'))}")
+                if args.floor:  # the echo floor on the same load, right after
+                    results.append(run_one(n, False, args, args.duration, args.warmup, log,
+                                           floor=True))
                 progress.update(1)
         progress.close()
         log(table(results))
+        if args.floor:
+            log(floor_report(results))
         if args.batched:  # scans: memory over the run too
             for r in results:
                 if "rss_series" in r:

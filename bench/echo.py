@@ -39,11 +39,13 @@ def main(argv: list[str] | None = None) -> None:
     keys = Keys(args.ns)
     session = zenoh.open(zenoh_config(args, serve=True))
     count = [0]
+    targets: set[str] = set()  # the targets answered, as a tracker's tracks
     stop = threading.Event()
     sub = session.declare_subscriber(keys.space("meas"), zenoh.handlers.FifoChannel(CHANNEL))
     status = session.declare_queryable(
-        keys.status, lambda q: q.reply(keys.status, pack({"meas_accepted": count[0],
-                                                          "tracks": 0, "queue": 0})))
+        keys.status, lambda q: q.reply(keys.status, pack({
+            "meas_accepted": count[0], "tracks": len(targets), "queue": 0,
+            "frames_published": 0, "frames_missed": 0})))
     token = session.liveliness().declare_token(keys.alive("echo"))
     block = zenoh.CongestionControl.BLOCK
     prefix = len(keys.space("meas")) - 2  # "<ns>/meas/"
@@ -62,6 +64,7 @@ def main(argv: list[str] | None = None) -> None:
             if pad:
                 reply["pad"] = pad
             put(keys.tracks(target), pack(reply), congestion_control=block)
+            targets.add(target)
             count[0] += 1
 
     worker = threading.Thread(target=work, daemon=True)
