@@ -161,7 +161,10 @@ def test_every_viewer_shows_the_union_of_the_instances_then_loses_a_killed_one(n
         assert len(library) > 0.5 * 30 * WINDOW, len(library)  # 30 Hz, a loaded machine misses some
         bad = [(f.t, len(f), f.instances) for f in library if set(f.id_list) != dep.ids
                or len(f) != TARGETS]
-        assert not bad, bad[:5]
+        # an instance missing from pictures: how many, and what its service logged
+        missing = sorted({f"shard-{k}" for k in range(n)} - {i for *_, f in bad for i in f})
+        assert not bad, (bad[:5], len(bad), {m: dep.shards[int(m[6:])].log()[-1500:]
+                                              for m in missing})
         ts = [f.t for f in library]
         assert all(b > a for a, b in zip(ts, ts[1:], strict=False)), "pictures out of order"
         for ids, count, line in runs:
