@@ -64,8 +64,8 @@ class Merge:
 
     def add(self, frame: Frame, wall: float, draw: bool = True) -> list[Frame]:
         """Hold a frame that came at `wall`; the pictures it completes, in order
-        (`draw` False: none yet; a late joiner adds every instance's reply, then calls
-        `ready` once, so that its first picture holds them all)."""
+        (`draw` False: none yet; a late joiner adds every instance's reply and frames,
+        then calls `join` once, so that its first picture holds them all)."""
         name = frame.instance
         if name in self.gone_names:
             return []
@@ -94,15 +94,27 @@ class Merge:
         """An instance's liveliness token came (again): its frames are taken."""
         self.gone_names.discard(name)
 
-    def gone(self, name: str, wall: float) -> list[Frame]:
+    def gone(self, name: str, wall: float, draw: bool = True) -> list[Frame]:
         """An instance's token went: the latest instant drawn again without it (when it
-        was in it), then what else is now complete."""
+        was in it), then what else is now complete (`draw` False: its frames dropped,
+        nothing drawn)."""
         self.gone_names.add(name)
         self.held.pop(name, None)
+        if not draw:
+            return []
         out = []
         if self.last is not None and name in self.last.instances:
             out.append(self._draw(self.t, self._taking_part(wall)))
         return out + self.ready(wall)
+
+    def join(self, wall: float) -> list[Frame]:
+        """A late joiner's first pictures, from what it holds (each instance's reply to
+        its query and the frames that came meanwhile, added with `draw` False): each
+        instance's newest frame kept, the pictures from them drawn."""
+        for q in self.held.values():
+            while len(q) > 1:
+                q.popleft()
+        return self.ready(wall)
 
     @property
     def instances(self) -> tuple[str, ...]:

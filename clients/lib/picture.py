@@ -20,9 +20,11 @@ if TYPE_CHECKING:
     from zenoh_track.clients.lib.session import Client
 
 
-# s: the longest a late joiner waits for every instance's latest frame (the get returns
-# as soon as all have answered; a busy instance answers behind the inputs before the
-# query, and 2 s was seen to leave one out on two loaded cores)
+# s: the longest a late joiner waits for every instance's latest frame. The wait ends when
+# every instance has answered its query, or as soon as every instance whose token is up
+# has a frame, by its reply or by its next frame on `frame` (a reply lost or late on the
+# way holds nothing up while the instance's frames flow). A busy instance answers behind
+# the inputs before the query, and 2 s was seen to leave one out on two loaded cores.
 JOIN_WAIT = 5.0
 
 class Picture:
@@ -50,24 +52,28 @@ class Picture:
         self.on_frame = on_frame
         self._latest: Frame | None = None
         self._closed = False
+        self._joining, self._answered = True, False  # until the first picture
         lock = threading.RLock()
         self._cond = threading.Condition(lock)  # readers wait on it for pictures
         self._wake = threading.Condition(lock)  # the hold's thread waits on it
         threading.Thread(target=self._hold, name="picture-hold", daemon=True).start()
         session = client.session
         # the tokens first (their history: the instances alive now), then a late
-        # joiner's picture: every instance's latest frame at once, before the
-        # subscription, so that every frame that follows is newer
+        # joiner's picture: every instance's latest frame, by the replies to one query
+        # and by the frames that come meanwhile, held undrawn (JOIN_WAIT); the pictures
+        # then start from each instance's newest
         self._subs = [session.liveliness().declare_subscriber(
-            self.keys.alive("*"), self._on_token, history=True)]
-        for reply in session.get(self.keys.frame, target=zenoh.QueryTarget.ALL,
-                                 consolidation=zenoh.ConsolidationMode.NONE,
-                                 timeout=JOIN_WAIT):
-            if reply.ok is not None:
-                self._on_frame(reply.ok, draw=False)
+            self.keys.alive("*"), self._on_token, history=True),
+            session.declare_subscriber(self.keys.frame, self._on_frame)]
+        session.get(self.keys.frame, zenoh.handlers.Callback(
+            self._on_reply, self._on_answered, indirect=False),
+            target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=JOIN_WAIT)
         with self._cond:
-            self._emit(self.merge.ready(time.monotonic()))
-        self._subs.append(session.declare_subscriber(self.keys.frame, self._on_frame))
+            self._cond.wait_for(lambda: self._answered or (
+                self.alive and self.alive <= set(self.merge.instances)), JOIN_WAIT)
+            self._joining = False
+            self._emit(self.merge.join(time.monotonic()))
 
     @property
     def serving(self) -> tuple[str, ...]:
@@ -83,9 +89,19 @@ class Picture:
                 self.merge.alive(name)
             else:
                 self.alive.discard(name)
-                self._emit(self.merge.gone(name, time.monotonic()))
+                self._emit(self.merge.gone(name, time.monotonic(), not self._joining))
+            self._cond.notify_all()  # a joiner waits for the live instances' frames
 
-    def _on_frame(self, sample: Any, draw: bool = True) -> None:
+    def _on_reply(self, reply: Any) -> None:
+        if reply.ok is not None:
+            self._on_frame(reply.ok)
+
+    def _on_answered(self) -> None:
+        with self._cond:
+            self._answered = True
+            self._cond.notify_all()
+
+    def _on_frame(self, sample: Any) -> None:
         try:
             frame = Frame.from_payload(sample.payload.to_bytes())
         except ValueError:
@@ -94,14 +110,18 @@ class Picture:
             return
         with self._cond:
             self.received += 1
-            self._emit(self.merge.add(frame, time.monotonic(), draw))
+            if self._joining:  # held for the first picture
+                self.merge.add(frame, time.monotonic(), draw=False)
+                self._cond.notify_all()
+            else:
+                self._emit(self.merge.add(frame, time.monotonic()))
 
     def _hold(self) -> None:
         """Draw an instant whose hold has ended while no frame came to draw it."""
         with self._cond:
             while not self._closed:
                 now = time.monotonic()
-                due = self.merge.deadline(now)
+                due = None if self._joining else self.merge.deadline(now)
                 if due is None:
                     self._wake.wait()
                 elif due > now:
