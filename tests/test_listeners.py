@@ -150,3 +150,62 @@ def test_the_feed_and_the_service_timestamp_what_they_put(service_factory):
     states = {i for k, i in got if "/tracks/" in k}
     assert len(meas) == 1 and len(states) == 1 and None not in meas | states
     assert meas != states  # two clocks' stamps: the feed's and the service's
+
+
+def test_a_realtime_worker_never_waits_for_the_subscribers_answer():
+    """The admin-space query goes by the router: with the router stopped, a
+    realtime `Listeners` (refresh > 0) returns at once from a look whose read is due, the
+    last answer holding; once the router runs again, the next answer is taken. A
+    lockstep one (refresh 0) waits for its answer, as a replay must."""
+    import os
+    import signal
+
+    from test_compose import ROOT, ROUTER
+
+    from zenoh_track.adapter.listeners import ADMIN_TIMEOUT, Listeners
+    from zenoh_track.clients import connect
+    from zenoh_track.wire import free_port
+    from zenoh_track.wire.session import admin_space
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = subprocess.Popen([sys.executable, "-c", ROUTER, str(ROOT / "deploy" /
+                                                                 "router.json5"), endpoint],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert router.stdout.readline().strip() == "ready"
+    conf = zenoh.Config()  # the service's: a peer of the router, its admin space readable
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    service = zenoh.open(admin_space(conf))
+    viewer = connect(endpoint, mode="client", ns="adm")
+    realtime = Listeners(service, "adm/tracks", refresh=0.1)
+    lockstep = Listeners(service, "adm/display", refresh=0.0)
+    try:
+        viewer.session.declare_subscriber("adm/tracks/x7", lambda s: None)
+        viewer.session.declare_subscriber("adm/display/x7", lambda s: None)
+        assert poll(lambda: realtime.look() and realtime.exprs == ("adm/tracks/x7",))
+        assert poll(lambda: lockstep.look() and lockstep.exprs == ("adm/display/x7",))
+        os.kill(router.pid, signal.SIGSTOP)
+        try:
+            t0 = time.monotonic()
+            assert realtime.look(now=time.monotonic() + 1.0)  # a read due, not answered
+            took = time.monotonic() - t0
+            assert took < ADMIN_TIMEOUT / 4, took
+            assert realtime.wants("x7") and not realtime.wants("x8")  # the last answer
+            t0 = time.monotonic()
+            lockstep.look()
+            waited = time.monotonic() - t0
+            assert waited >= ADMIN_TIMEOUT * 0.9, waited
+        finally:
+            os.kill(router.pid, signal.SIGCONT)
+        viewer.session.declare_subscriber("adm/tracks/y1", lambda s: None)
+        assert poll(lambda: realtime.look() and realtime.exprs == (
+            "adm/tracks/x7", "adm/tracks/y1"))
+        print(f"\nrouter stopped: a realtime look {took * 1e3:.2f} ms, a lockstep one "
+              f"{waited:.2f} s")
+    finally:
+        realtime.close()
+        lockstep.close()
+        viewer.close()
+        service.close()
+        stop(router)

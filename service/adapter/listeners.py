@@ -9,14 +9,21 @@ whether or not anybody listens. A `Listeners` watches one per-target key space
    matching listener says, as a subscriber comes or goes, whether any subscriber
    intersects the key space at all. No subscriber: no put, no encoding.
 2. When one does, which keys: the subscribers' key expressions are read from the
-   session's own admin space (`@/<zid>/*/subscriber/<space>/**`, a local query of about
-   0.1 ms), at once when the matching status turns on and then every `refresh` seconds
-   (a subscription added while others already listen is seen within that period; a
-   lockstep service reads them at every step, so nothing is missed in a replay). A
-   track is wanted when its key intersects one of them (`display/**` and `display/*`:
-   every track; `display/x7`: x7 only; `display/swarm-$*0`: the ids ending in 0).
-   Without an admin space (a configuration that disables it) every track is wanted
-   while anything matches: correct, only slower.
+   session's admin space (`@/<zid>/*/subscriber/<space>/**`), at once when the matching
+   status changes and then every `refresh` seconds (a subscription added while others
+   already listen is seen within that period). A track is wanted when its key
+   intersects one of them (`display/**` and `display/*`: every track; `display/x7`: x7
+   only; `display/swarm-$*0`: the ids ending in 0). Without an admin space (a
+   configuration that disables it) every track is wanted while anything matches:
+   correct, only slower.
+
+The query waits for the router's answer too (the session's own part comes at once):
+0.6 ms on a quiet machine, 0.2 to 0.6 s on two loaded cores, ADMIN_TIMEOUT with the
+router stopped. A realtime service (`refresh` > 0) reads by a thread of its own and
+takes each answer at its next look, so the worker never waits for one: while the
+first answer is on its way every track is wanted, later the last answer holds. A
+lockstep service reads at every step and waits for the answer, so that nothing is
+missed in a replay.
 
 Declaring a publisher per track instead would cost O(declared) per declaration in
 Zenoh (about 7 ms each at 10,000 declared, docs/performance.md).
@@ -31,7 +38,8 @@ from typing import Any
 import numpy as np
 import zenoh
 
-ADMIN_TIMEOUT = 1.0  # s: the local admin-space query normally answers in 0.1 ms
+ADMIN_TIMEOUT = 1.0  # s: the admin-space query normally answers in under 1 ms
+UNREAD = object()  # no answer waiting to be taken
 
 
 class Listeners:
@@ -53,6 +61,14 @@ class Listeners:
         self.memo: dict[str, bool] = {}
         self.mask: tuple[Any, int, np.ndarray] = (None, -1, np.zeros(0, bool))
         self.admin = f"@/{session.zid()}/*/subscriber/{self.prefix}/**"
+        # a realtime service's reader: `changes` counts the matching status's changes,
+        # each answer comes with the count it was asked at (an older one is read again)
+        self.changes, self.reading, self.closed = 0, False, False
+        self.asked_at = 0
+        self.answer: Any = UNREAD  # (changes asked at, exprs), under the lock
+        self.ask = threading.Event()
+        if refresh > 0:
+            threading.Thread(target=self._reader, name="listeners", daemon=True).start()
 
     def _on_matching(self, status: Any) -> None:
         with self.lock:
@@ -60,6 +76,8 @@ class Listeners:
             self.dirty = True
 
     def close(self) -> None:
+        self.closed = True
+        self.ask.set()
         self.listener.undeclare()
         self.probe.undeclare()
 
@@ -73,13 +91,44 @@ class Listeners:
         with self.lock:
             dirty = self.dirty or matching != self.matching
             self.matching, self.dirty = matching, False
+            answer, self.answer = self.answer, UNREAD
+        if dirty:
+            self.changes += 1
+        if answer is not UNREAD:
+            self.reading = False
         if not matching:
             self._set(())
             return False
-        if dirty or now - self.checked >= self.refresh:
-            self.checked = now
+        if self.refresh <= 0:  # lockstep: read now, at every step
             self._set(self._subscribers())
+            return True
+        if answer is not UNREAD:
+            asked_at, exprs = answer
+            if asked_at == self.changes:
+                self._set(exprs)
+                self.checked = now
+            else:  # asked before the latest change: read again now
+                self.checked = -np.inf
+        if dirty:
+            self.checked = -np.inf
+            if self.exprs == ():  # somebody listens, to keys not read yet
+                self._set(None)
+        if not self.reading and now - self.checked >= self.refresh:
+            self.reading, self.asked_at = True, self.changes
+            self.ask.set()
         return True
+
+    def _reader(self) -> None:
+        """A realtime service's reads of the admin space, one at a time, as asked."""
+        while True:
+            self.ask.wait()
+            self.ask.clear()
+            if self.closed:
+                return
+            asked_at = self.asked_at
+            exprs = self._subscribers()
+            with self.lock:
+                self.answer = (asked_at, exprs)
 
     def _subscribers(self) -> tuple[str, ...] | None:
         """Key expressions of the subscribers of this key space (None: no admin space)."""
