@@ -111,6 +111,7 @@ class Instance:
         self.client.close()
 
 
+@pytest.mark.slow
 def test_a_late_joiner_has_an_instance_whose_reply_is_lost_from_its_frames():
     """One instance answers the joiner's query, the other holds it unanswered: the first
     picture still holds both instances' tracks (the silent one's from its next frame on
