@@ -163,8 +163,10 @@ def test_every_viewer_shows_the_union_of_the_instances_then_loses_a_killed_one(n
                or len(f) != TARGETS]
         # an instance missing from pictures: how many, and what its service logged
         missing = sorted({f"shard-{k}" for k in range(n)} - {i for *_, f in bad for i in f})
-        assert not bad, (bad[:5], len(bad), {m: dep.shards[int(m[6:])].log()[-1500:]
-                                              for m in missing})
+        held = {name: (q[-1][0].t, round(time.monotonic() - q[-1][1], 2))
+                for name, q in pic.merge.held.items() if q}  # each one's newest t, its age
+        assert not bad, (bad[:5], len(bad), held, sorted(pic.alive),
+                         {m: dep.shards[int(m[6:])].log()[-1500:] for m in missing})
         ts = [f.t for f in library]
         assert all(b > a for a, b in zip(ts, ts[1:], strict=False)), "pictures out of order"
         for ids, count, line in runs:
