@@ -102,13 +102,9 @@ class Listeners:
         if self.refresh <= 0:  # lockstep: read now, at every step
             self._set(self._subscribers())
             return True
-        if answer is not UNREAD:
-            asked_at, exprs = answer
-            if asked_at == self.changes:
-                self._set(exprs)
-                self.checked = now
-            else:  # asked before the latest change: read again now
-                self.checked = -np.inf
+        if answer is not UNREAD and answer[0] == self.changes:  # else asked before the
+            self._set(answer[1])  # latest change, which made the next read due at once
+            self.checked = now
         if dirty:
             self.checked = -np.inf
             if self.exprs == ():  # somebody listens, to keys not read yet
