@@ -3,7 +3,9 @@
 The rows are cut into contiguous parts at multiples of the kernel's block, so every
 block holds the same rows whatever the number of threads and each row's result is the
 same to the bit (tests/test_imm_jit.py); a pass of fewer than `PARALLEL_ROWS` rows stays
-on the caller's thread.
+on the caller's thread. A pass on several threads is cut into `SHARES` parts a thread,
+each taken by whichever thread is free: a thread the machine's other work holds back
+does fewer of them, and the caller does not wait for its fixed share.
 """
 
 from __future__ import annotations
@@ -11,10 +13,12 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from itertools import count
 
 from .. import defaults
 
 _pool: tuple[int, ThreadPoolExecutor] | None = None  # (its threads, the pool)
+SHARES = 4  # parts a thread of a pass on several threads (each at least PARALLEL_ROWS)
 
 
 def cores() -> int:
@@ -38,16 +42,26 @@ def parts(k: int, block: int, threads: int) -> list[tuple[int, int]]:
 
 def over_rows(k: int, block: int, work: Callable[[int, int], None],
               threads: int | None = None) -> None:
-    """`work(lo, hi)` for every part of a pass of k rows, on as many threads as parts."""
+    """`work(lo, hi)` for every part of a pass of k rows: on one thread when it has one
+    part, else the parts taken in turn by this thread and up to `threads` - 1 others."""
     global _pool
-    ranges = parts(k, block, cores() if threads is None else threads)
-    if len(ranges) == 1:
-        work(*ranges[0])
+    threads = cores() if threads is None else threads
+    ranges = parts(k, block, threads * SHARES if threads > 1 else 1)
+    helpers = min(threads, len(ranges)) - 1
+    if helpers < 1:
+        for lo, hi in ranges:
+            work(lo, hi)
         return
-    if _pool is None or _pool[0] < len(ranges) - 1:
-        size = max(len(ranges) - 1, cores() - 1)
+    if _pool is None or _pool[0] < helpers:
+        size = max(helpers, cores() - 1)
         _pool = (size, ThreadPoolExecutor(max_workers=size, thread_name_prefix="rows"))
-    futures = [_pool[1].submit(work, lo, hi) for lo, hi in ranges[1:]]
-    work(*ranges[0])  # the caller's thread takes the first part
+    taken = count()  # its next() is atomic: each part goes to one thread
+
+    def share() -> None:
+        while (i := next(taken)) < len(ranges):
+            work(*ranges[i])
+
+    futures = [_pool[1].submit(share) for _ in range(helpers)]
+    share()
     for future in futures:
         future.result()
