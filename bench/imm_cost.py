@@ -5,6 +5,7 @@ row-major arrays), one pass of k rows at N tracks, in this process.
     python bench/imm_cost.py [--tracks 10000] [--sizes 1 64 312 1024 10000]
     python bench/imm_cost.py --before     # also the three modes before the manoeuvre modes
     python bench/imm_cost.py --before --turn-estimated 5   # and with the turn at its own rate
+    python bench/imm_cost.py --shares     # a realtime part on two threads, pieces or halves
 
 Tracks: a swarm of polar 3-D measurements, three updates each, then passes of k of them
 (best of 5 per size, thread CPU time). The first line gives how long the kernel took to
@@ -17,6 +18,8 @@ import argparse
 import copy
 import sys
 import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +62,14 @@ def main() -> None:
                         "nominal, CA), in the same run, and the ratio per row")
     p.add_argument("--turn-estimated", type=float, default=0.0, metavar="JERK",
                    help="also the default with the service's --imm-turn-estimated JERK")
+    p.add_argument("--shares", action="store_true",
+                   help="instead: the wall time of a realtime part (PART rows a thread) on "
+                        "two threads, cut in `blocks.SHARES` pieces a thread or in halves, "
+                        "alone and beside a process keeping one core busy")
     args = p.parse_args()
+    if args.shares:
+        shares(args.tracks)
+        return
     t0 = time.perf_counter()
     imm_jit.warm()
     print(f"# kernel compiled or loaded in {time.perf_counter() - t0:.2f} s; "
@@ -104,6 +114,58 @@ def run(imm: IMM, tracks: int, sizes: list[int]) -> dict[int, float]:
               f"{slow / k * 1e6:>8.2f} {slow / fast:>6.1f}")
         out[k] = fast / k
     return out
+
+def shares(tracks: int, passes: int = 400) -> None:
+    """Wall time of passes of 2 x PART rows on two threads, the default pieces (each
+    taken by whichever thread is free) against fixed halves (the helper's half waited
+    for), in turn, without and then with a busy process beside them."""
+    import subprocess
+
+    from zenoh_track.estimation import blocks
+    from zenoh_track.tracking.tracker import PART
+
+    imm_jit.warm()
+    imm, rng = ModeSet().imm(CompiledIMM), np.random.default_rng(0)
+    tracker = Tracker.from_config(filter=Filter(imm, defaults.Q_CV, CMKFConversion, "imm"))
+    for t in (0.0, 1.0, 2.0):
+        tracker.step(Labelled.of(swarm(tracks, t, rng)))
+    arrays, k = tracker.store.layout(3), 2 * PART
+    rows = arrays.live()[0][:k]
+    batch = MeasurementBatch.of(swarm(tracks, 3.0, rng)[:k], 3)
+    dt = batch.t - arrays.t[rows]
+    shared, pool = blocks.over_rows, ThreadPoolExecutor(1)
+
+    def halves(k: int, block: int, work: Callable[[int, int], None],
+               threads: int | None = None) -> None:
+        (lo, mid), (_, hi) = blocks.parts(k, block, 2)
+        helper = pool.submit(work, mid, hi)
+        work(lo, mid)
+        helper.result()
+
+    print(f"# a part of {k} rows on 2 threads, wall ms over {passes} passes each "
+          f"(pieces: {blocks.SHARES} a thread; halves: one fixed half a thread)")
+    print(f"{'beside':>10} {'cut':>7} {'mean':>7} {'p50':>7} {'p90':>7} {'p99':>7}")
+    for beside in ("nothing", "a busy core"):
+        busy = (subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                if beside != "nothing" else None)
+        times: dict[str, list[float]] = {"pieces": [], "halves": []}
+        try:
+            for _ in range(passes):
+                for cut, over_rows in (("pieces", shared), ("halves", halves)):
+                    blocks.over_rows = over_rows
+                    w0 = time.perf_counter()
+                    imm_jit.step(imm, arrays, rows, dt, batch, threads=2)
+                    times[cut].append(time.perf_counter() - w0)
+        finally:
+            blocks.over_rows = shared
+            if busy is not None:
+                busy.kill()
+                busy.wait()
+        for cut, w in times.items():
+            a = np.array(w) * 1e3
+            print(f"{beside:>10} {cut:>7} {a.mean():>7.2f} {np.median(a):>7.2f} "
+                  f"{np.percentile(a, 90):>7.2f} {np.percentile(a, 99):>7.2f}")
+
 
 if __name__ == "__main__":
     main()
