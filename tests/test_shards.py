@@ -165,8 +165,13 @@ def test_every_viewer_shows_the_union_of_the_instances_then_loses_a_killed_one(n
         missing = sorted({f"shard-{k}" for k in range(n)} - {i for *_, f in bad for i in f})
         held = {name: (q[-1][0].t, round(time.monotonic() - q[-1][1], 2))
                 for name, q in pic.merge.held.items() if q}  # each one's newest t, its age
-        assert not bad, (bad[:5], len(bad), held, sorted(pic.alive),
-                         {m: dep.shards[int(m[6:])].log()[-1500:] for m in missing})
+        # one line first (a long message is cut): what the merge held and whose tokens were up
+        assert not bad, (f"{len(bad)} of {len(library)} pictures lack {missing}, t="
+                         f"{bad[0][0] if bad else 0:.2f} to {bad[-1][0] if bad else 0:.2f}; "
+                         f"newest frame held and its age: {held}; alive: {sorted(pic.alive)}; "
+                         f"gone: {sorted(pic.merge.gone_names)}\n"
+                         + "\n".join(f"{m}: {dep.shards[int(m[6:])].log()[-1500:]}"
+                                     for m in missing))
         ts = [f.t for f in library]
         assert all(b > a for a, b in zip(ts, ts[1:], strict=False)), "pictures out of order"
         for ids, count, line in runs:
