@@ -51,8 +51,12 @@ class Listeners:
         self.lock = threading.Lock()
         self.matching = False
         self.dirty = True  # read the subscribers' key expressions at the next look
+        # indirect: Zenoh calls a matching listener holding its session's lock, which
+        # `look`'s read of the matching status takes too; called directly, the callback
+        # would wait there for the GIL that the reading thread holds (a deadlock that
+        # silenced the whole session)
         self.listener = self.probe.declare_matching_listener(
-            zenoh.handlers.Callback(self._on_matching, indirect=False))
+            zenoh.handlers.Callback(self._on_matching))
         self.exprs: tuple[str, ...] | None = ()  # None: unknown (every track wanted)
         self.everything = False
         self.compiled: list[zenoh.KeyExpr] = []
