@@ -51,10 +51,8 @@ class Listeners:
         self.lock = threading.Lock()
         self.matching = False
         self.dirty = True  # read the subscribers' key expressions at the next look
-        # indirect: Zenoh calls a matching listener holding its session's lock, which
-        # `look`'s read of the matching status takes too; called directly, the callback
-        # would wait there for the GIL that the reading thread holds (a deadlock that
-        # silenced the whole session)
+        # indirect: called directly on Zenoh's thread, the callback would wait there for
+        # the GIL while `look`, holding it, reads the matching status (a deadlock risk)
         self.listener = self.probe.declare_matching_listener(
             zenoh.handlers.Callback(self._on_matching))
         self.exprs: tuple[str, ...] | None = ()  # None: unknown (every track wanted)
