@@ -58,14 +58,13 @@ def pass_cost(sizes: list[int], log: Any, tracks: int = 10_000, reps: int = 40,
               full: bool = False) -> None:
     from zenoh_track.tracking.batches import Instant
     from zenoh_track.wire import Keys, free_port, pack, peer_config
-    from zenoh_track.wire.session import admin_space
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("listen/endpoints", f'["{ep}"]')
-    session = zenoh.open(admin_space(conf))  # as the service's: who listens to tracks/
+    session = zenoh.open(conf)
     feeder = zenoh.open(peer_config(ep))
     keys = Keys("pc")
     listened = keys.tracks("**" if full else "swarm-$*0")  # every track's, or a sample

@@ -260,7 +260,7 @@ def main(argv: list[str] | None = None) -> None:
     # kernels are compiled: a refused or unreachable router is said at once
     with stop.interrupting():
         session = open_session(args, serve=True, block=args.clock == "lockstep",
-                               admin=True, stamp=True)
+                               stamp=True)
     try:
         with stop.interrupting():  # stopped while starting: nothing taken, nothing to save
             svc, origin_answer = start(args, session, tracker, origin)

@@ -15,7 +15,10 @@ CLOCK = "realtime"  # or "lockstep"
 BLEND = 0.0  # s: absorb a correction over this period (0: plain prediction)
 BLEND_SPEED = 0.0  # m/s: absorb a correction at this speed (0: no speed limit)
 LAG = 0.0  # s: display instants lag the clock, smoothed when bracketed
-LISTENERS_REFRESH = 0.1  # s: how often a realtime service re-reads who subscribes display/, tracks/
+# s: how often a realtime service looks again who subscribes display/ and tracks/, and
+# how often it asks afresh which tracks' keys they take (so that one who left stops costing)
+LISTENERS_REFRESH = 0.1
+LISTENERS_RESET = 10.0
 # rows a realtime pass applies at most when more wait (batched scans put faster than they
 # are applied: a pass of each scan, not of all, and the frames due between them)
 PASS_ROWS = 16_384

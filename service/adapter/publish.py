@@ -144,9 +144,8 @@ class Publisher:
         listeners = self.track_listeners
         if listeners.everything or self.pub_states.matching_status.matching:
             return None
-        if listeners.none:
-            return []
-        return [i for i, k in enumerate(ids) if listeners.wants(k)]
+        rows = listeners.select(ids)
+        return None if rows is None else rows.tolist()
 
     @property
     def wants_states(self) -> bool:
@@ -176,9 +175,9 @@ class Publisher:
             return  # nobody listens to tracks/: nothing to encode
         known, keys = self.track_keys, self._keys
         for st in blocks:
-            if not listeners.everything:
-                pick = [i for i, k in enumerate(st.ids) if listeners.wants(k)]
-                if not pick:
+            pick = listeners.select(st.ids)
+            if pick is not None:
+                if not len(pick):
                     continue
                 st = st.select(pick)
             bodies = pack_tracks(st.t, st.ids, st.pos, st.vel, st.x, st.p, st.models, st.nis,
@@ -211,7 +210,7 @@ class Publisher:
         self.sender.put(frame)
         self.latest = (frame, snap)
         if self.wants_display and len(snap.ids):
-            rows = self.display_listeners.rows(snap.ids)
+            rows = self.display_listeners.select(snap.ids)
             if rows is not None:
                 snap = snap.select(rows)
             snap = snap.detailed()

@@ -118,14 +118,6 @@ def patient(conf: Any) -> Any:
     return conf
 
 
-def admin_space(conf: Any) -> Any:
-    """Zenoh's admin space, readable: the service reads from it which display/ and
-    tracks/ keys have subscribers (`service.listeners`)."""
-    conf.insert_json5("adminspace/enabled", "true")
-    conf.insert_json5("adminspace/permissions", '{"read": true, "write": false}')
-    return conf
-
-
 def stamping(conf: Any) -> Any:
     """Zenoh timestamps on: the session stamps what it publishes and every sample that
     reaches it without a stamp, on arrival. The service's realtime clock learns from
@@ -149,18 +141,15 @@ def stamp_ns(sample: Any) -> int | None:
 
 
 def open_session(args: argparse.Namespace, serve: bool = False, block: bool = False,
-                 admin: bool = False, stamp: bool = False, log: bool = False) -> Any:
+                 stamp: bool = False, log: bool = False) -> Any:
     """The session of a program's options, or one line on stderr and exit 2 (a port
     taken, a config that does not load, a router not reached within --connect-timeout or
     refusing the session: `cli.open_or_exit`, which names the cause). `log`: Zenoh's
     error log on stderr once the session is open.
     `block`: BLOCK puts wait for slow receivers (`patient`) unless a config file is given;
-    `admin`: the admin space readable (`admin_space`), `stamp`: samples timestamped
-    (`stamping`), each unless a config file is given."""
+    `stamp`: samples timestamped (`stamping`), each unless a config file is given."""
     def make() -> Any:
         conf = zenoh_config(args, serve)
-        if admin and not args.config:
-            admin_space(conf)
         if stamp and not args.config:
             stamping(conf)
         return patient(conf) if block and not args.config else conf
