@@ -18,7 +18,7 @@ LAG = 0.0  # s: display instants lag the clock, smoothed when bracketed
 # s: how often a realtime service looks again who subscribes display/ and tracks/, and
 # how often it asks afresh which tracks' keys they take (so that one who left stops costing)
 LISTENERS_REFRESH = 0.1
-LISTENERS_RESET = 10.0
+LISTENERS_RESET = 60.0
 # rows a realtime pass applies at most when more wait (batched scans put faster than they
 # are applied: a pass of each scan, not of all, and the frames due between them)
 PASS_ROWS = 16_384
