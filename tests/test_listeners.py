@@ -222,8 +222,9 @@ def test_the_tracks_wanted_are_those_a_subscriber_intersects():
                 subs.pop(e).undeclare()
             for e in set(exprs) - set(subs):
                 subs[e] = dep.viewer.session.declare_subscriber(e, lambda s: None)
-            assert poll(lambda exprs=exprs: shows(exprs), timeout=10), (exprs, seen)
-            assert listeners.everything == ("adm/display/**" in exprs)
+            every = "adm/display/**" in exprs
+            assert poll(lambda exprs=exprs, every=every: shows(exprs) and
+                        listeners.everything == every, timeout=10), (exprs, seen)
             assert len(listeners.held) <= PROBES
         # matched down to the ids one by one: the probes run out, the ids left undecided
         # are wanted
