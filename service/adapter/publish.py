@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
+from .. import defaults
 from ..tracking.batches import StepOutcome
 from ..tracking.display import Snapshot
 from ..tracking.noise_check import NoiseCheck
@@ -79,6 +80,11 @@ class Publisher:
         refresh = publishing.refresh
         self.display_listeners = Listeners(session, keys.display("").rstrip("/"), refresh)
         self.track_listeners = Listeners(session, keys.tracks("").rstrip("/"), refresh)
+        # a realtime service looks at most every `defaults.LISTENERS_LOOK` s (a matching
+        # status costs ~16 us, a busy step is not much longer); a lockstep one every step
+        self.look_every = min(refresh, defaults.LISTENERS_LOOK)
+        self.looked = -math.inf
+        self.states_wanted = False  # someone subscribes `states` (as of the last look)
         # key expressions of each track's display/ and tracks/ keys, made once per track;
         # plain session.put on them: zenoh declares cost O(declared) each, so a
         # publisher per target would make starting N tracks O(N^2) (bench/README.md)
@@ -120,9 +126,15 @@ class Publisher:
                              congestion_control=zenoh.CongestionControl.BLOCK, encoding=MSGPACK)
 
     def look(self) -> None:
-        """Bring the listeners of `display/` and `tracks/` up to date (once per step)."""
-        self.display_listeners.look()
-        self.track_listeners.look()
+        """Bring the listeners of `display/`, `tracks/` and `states` up to date (once per
+        step; cheap unless due)."""
+        now = time.monotonic()
+        if now - self.looked < self.look_every:
+            return
+        self.looked = now
+        self.display_listeners.look(now)
+        self.track_listeners.look(now)
+        self.states_wanted = self.pub_states.matching_status.matching
 
     def close(self) -> None:
         self.sender.close()
@@ -142,7 +154,7 @@ class Publisher:
         """Which of these tracks' states are to be put (`states` subscribed: all, None;
         else the indices of those someone listens to on `tracks/`)."""
         listeners = self.track_listeners
-        if listeners.everything or self.pub_states.matching_status.matching:
+        if listeners.everything or self.states_wanted:
             return None
         rows = listeners.select(ids)
         return None if rows is None else rows.tolist()
@@ -150,7 +162,7 @@ class Publisher:
     @property
     def wants_states(self) -> bool:
         """Whether anyone listens to `tracks/` or `states` (else no state is put)."""
-        return not self.track_listeners.none or self.pub_states.matching_status.matching
+        return not self.track_listeners.none or self.states_wanted
 
     def batch(self, sensor: str | list[str], ids: list[str], outcome: StepOutcome) -> None:
         """Count and report the outcome of labelled rows (`ids`: the rows' target ids,
@@ -167,7 +179,7 @@ class Publisher:
         tracks someone listens to."""
         if not blocks:
             return
-        if self.pub_states.matching_status.matching:
+        if self.states_wanted:
             for st in blocks:
                 self.pub_states.put(pack_states(st))
         listeners = self.track_listeners
