@@ -36,7 +36,6 @@ Zenoh (about 7 ms each at 10,000 declared, docs/performance.md).
 
 from __future__ import annotations
 
-import os
 import time
 from typing import Any
 
@@ -119,7 +118,7 @@ class Listeners:
             unknown = [i for i, g in zip(ids, got, strict=True) if g is None]
             unknown = [i for i in unknown if self._verdict(i) is None]
             if unknown:
-                self._descend(list(dict.fromkeys(unknown)), by_suffix=True)
+                self._descend(list(dict.fromkeys(unknown)))
             got = list(map(self.memo.get, ids))
         rows = np.flatnonzero(np.array(got, dtype=bool))
         self.mask = (ids, self.version, rows)
@@ -139,33 +138,40 @@ class Listeners:
         return got
 
     # ------------------------------------------------------------ the descent
-    def _descend(self, ids: list[str], by_suffix: bool) -> None:
-        """Probe what these ids have in common, `<prefix>$*<suffix>`; matched, split them
-        by the character that follows the prefix or precedes the suffix, in turn."""
-        memo, budget = self.memo, PROBES
-        groups = [(ids, by_suffix)]
+    def _descend(self, ids: list[str]) -> None:
+        """Probe `*`, then split the ids matched by the character that precedes what
+        they were matched for at the end (or follows it at the start) and probe each part,
+        `<prefix>$*<suffix>`: on the same side while a split there rules some out, else
+        on the other. The keys grow a character at a time, so that a key ruled out rules
+        out the ids to come that share it too."""
+        self.budget = PROBES
+        groups = [(ids, "", "", True)] if self._rule(ids, "", "") else []
         while groups:
-            ids, by_suffix = groups.pop()
-            if budget <= 0 or len(self.held) >= PROBES:  # no probe left: wanted
-                memo.update(dict.fromkeys(ids, True))
-                continue
-            budget -= 1
-            if len(ids) == 1:
-                memo[ids[0]] = self._probe(ids[0]) is not False
-                continue
-            p, s = common(ids)
-            matched = self._probe(f"{p}$*{s}" if p or s else "*")
-            if matched is None:
-                self.wide.append((p, s))
-            elif not matched:
-                self.out.append((p, s))
-            else:
-                parts = split(ids, p, s, by_suffix)
-                if len(parts) == 1:  # nothing parts them on this side
-                    parts, by_suffix = split(ids, p, s, not by_suffix), not by_suffix
-                groups.extend((g, not by_suffix) for g in parts)
-                continue
-            memo.update(dict.fromkeys(ids, bool(matched is None)))
+            ids, p, s, by_suffix = groups.pop()
+            parts = split(ids, p, s, by_suffix) if len(ids) > 1 else [(ids, ids[0], "")]
+            ruled = [self._rule(g, gp, gs) for g, gp, gs in parts]
+            side = by_suffix if False in ruled else not by_suffix
+            groups.extend((g, gp, gs, side) for (g, gp, gs), r in zip(parts, ruled,
+                                                                     strict=True) if r)
+
+    def _rule(self, ids: list[str], p: str, s: str) -> bool | None:
+        """Probe a group of ids, all `<p>$*<s>`: False, nobody wants them; True, matched,
+        to be split; None, wanted (an id matched, or no probe left)."""
+        memo = self.memo
+        if self.budget <= 0 or len(self.held) >= PROBES:  # no probe left: wanted
+            memo.update(dict.fromkeys(ids, True))
+            return None
+        self.budget -= 1
+        if len(ids) == 1 and len(ids[0]) == len(p) + len(s):  # the id itself
+            matched = self._probe(ids[0])
+            memo[ids[0]] = matched is not False
+            return None if matched is not False else False
+        matched = self._probe(f"{p}$*{s}" if p or s else "*")
+        if matched:
+            return True
+        (self.wide if matched is None else self.out).append((p, s))
+        memo.update(dict.fromkeys(ids, matched is None))
+        return matched
 
     def _probe(self, key: str) -> bool | None:
         """Whether a subscriber intersects `<prefix>/<key>` (None: no probe left, or the
@@ -191,24 +197,17 @@ def within(track_id: str, prefix: str, suffix: str) -> bool:
             and track_id.endswith(suffix))
 
 
-def common(ids: list[str]) -> tuple[str, str]:
-    """The longest prefix and then the longest suffix all these ids share, not
-    overlapping in the shortest."""
-    p = os.path.commonprefix([min(ids), max(ids)])
-    s = os.path.commonprefix([i[::-1] for i in ids])[::-1]
-    room = min(map(len, ids)) - len(p)
-    return p, s[len(s) - room:] if len(s) > room else s
-
-
-def split(ids: list[str], p: str, s: str, by_suffix: bool) -> list[list[str]]:
-    """These ids, which all are `<p>$*<s>`, by the character after `p` (or before `s`);
-    an id of just `p` and `s` alone."""
+def split(ids: list[str], p: str, s: str, by_suffix: bool
+          ) -> list[tuple[list[str], str, str]]:
+    """These ids, all `<p>$*<s>`, by the character before `s` (or after `p`), each
+    part with its grown suffix (or prefix); an id of just `p` and `s`, alone."""
     groups: dict[str, list[str]] = {}
-    at = len(p)
+    at, end = len(p), len(s)
     for i in ids:
-        if len(i) == at + len(s):
+        if len(i) == at + end:
             key = "\0" + i
         else:
-            key = i[-len(s) - 1] if by_suffix else i[at]
+            key = i[-end - 1] if by_suffix else i[at]
         groups.setdefault(key, []).append(i)
-    return list(groups.values())
+    return [(g, p, s) if k[0] == "\0" else (g, p, k + s) if by_suffix else (g, p + k, s)
+            for k, g in groups.items()]
