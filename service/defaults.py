@@ -19,7 +19,6 @@ LAG = 0.0  # s: display instants lag the clock, smoothed when bracketed
 # how often it asks afresh which tracks' keys they take (so that one who left stops costing)
 LISTENERS_REFRESH = 0.1
 LISTENERS_RESET = 60.0
-LISTENERS_LOOK = 0.01  # s: a realtime service looks whether anyone subscribes at most this often
 # rows a realtime pass applies at most when more wait (batched scans put faster than they
 # are applied: a pass of each scan, not of all, and the frames due between them)
 PASS_ROWS = 16_384

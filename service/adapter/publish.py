@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from .. import defaults
 from ..tracking.batches import StepOutcome
 from ..tracking.display import Snapshot
 from ..tracking.noise_check import NoiseCheck
@@ -80,10 +79,6 @@ class Publisher:
         refresh = publishing.refresh
         self.display_listeners = Listeners(session, keys.display("").rstrip("/"), refresh)
         self.track_listeners = Listeners(session, keys.tracks("").rstrip("/"), refresh)
-        # a realtime service looks at most every `defaults.LISTENERS_LOOK` s (a matching
-        # status costs ~16 us, a busy step is not much longer); a lockstep one every step
-        self.look_every = min(refresh, defaults.LISTENERS_LOOK)
-        self.looked = -math.inf
         self.states_wanted = False  # someone subscribes `states` (as of the last look)
         # key expressions of each track's display/ and tracks/ keys, made once per track;
         # plain session.put on them: zenoh declares cost O(declared) each, so a
@@ -127,11 +122,9 @@ class Publisher:
 
     def look(self) -> None:
         """Bring the listeners of `display/`, `tracks/` and `states` up to date (once per
-        step; cheap unless due)."""
+        step, so that a subscriber declared before an input is served with it; cheap
+        unless due)."""
         now = time.monotonic()
-        if now - self.looked < self.look_every:
-            return
-        self.looked = now
         self.display_listeners.look(now)
         self.track_listeners.look(now)
         self.states_wanted = self.pub_states.matching_status.matching
