@@ -10,19 +10,20 @@ key expression intersects the publisher's. Probes are publishers never put on:
 1. `<space>/**`: nobody listens to the key space: no put, no encoding (every step);
 2. `<space>/~`, a key no track takes: somebody listens to every key (`display/**`,
    `display/*`): every track wanted;
-3. otherwise a descent over what the ids have in common, a probe on
-   `<space>/<prefix>$*<suffix>` each: a group nobody's key expression intersects rules
-   out every id in it; a matched one is split by the character before its common
-   suffix, then by the one after its common prefix, in turn, down to the ids themselves
-   (`display/swarm-$*0`: the ids by their last character, then those ending in 0 by
-   their first ...; `display/interceptor-$*`: the ids that start with i; `display/x7`:
-   those that end in 7, then start with x). At most PROBES probes a descent, and as many
-   declared at once; an id left undecided is wanted.
+3. otherwise a descent over groups of ids, a probe on `<space>/<prefix>$*<suffix>` each,
+   the keys growing a character at a time: a group nobody's key expression intersects
+   rules out every id in it (and every id to come that shares its key); a matched one
+   is split by the character before its suffix (or after its prefix), on the same side
+   while a split there rules ids out, else on the other, down to the ids themselves
+   (`display/swarm-$*0`: the ids by their last character, ten probes;
+   `display/interceptor-$*`: by their last, then their first; `display/x7`: those that
+   end in 7, then x7). At most PROBES probes a descent, and as many held; an id left
+   undecided is wanted.
 
 The probes that ruled ids out stay declared and are looked at again every `refresh`
 seconds (0: every step, as a replay must), with the second one: a newcomer among the
-subscribers starts the descent afresh (about 100 ms at 100,000 ids, 13 ms at 10,000;
-an id the probes have ruled on costs a dictionary look-up). So does the passing of
+subscribers starts the descent afresh (about 0.1 s at 100,000 ids, 9 ms at 10,000; an
+id the probes have ruled on costs a dictionary look-up). So does the passing of
 `defaults.LISTENERS_RESET` seconds, so that a subscriber who left stops costing puts.
 
 The session's admin space, which lists the subscribers' key expressions, is not read:
