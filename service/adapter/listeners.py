@@ -62,13 +62,14 @@ class Listeners:
         self.none, self.everything = True, False
         self.version = 0  # changes whenever the wanted set may change
         self.looked = self.started = -np.inf  # monotonic times: probes looked at, descent
+        self.held: dict[str, Any] = {}  # probe key -> publisher, matched by nobody
         self._forget()
 
     def _forget(self) -> None:
         """Start the descent afresh (undeclaring the probes that ruled ids out)."""
-        for probe in getattr(self, "held", {}).values():
+        for probe in self.held.values():
             probe.undeclare()
-        self.held: dict[str, Any] = {}  # probe key -> publisher, matched by nobody
+        self.held = {}
         self.out: list[tuple[str, str]] = []  # (prefix, suffix) of ids nobody wants
         self.wide: list[tuple[str, str]] = []  # left undecided: their ids wanted
         self.memo: dict[str, bool] = {}  # each id's verdict
@@ -117,7 +118,7 @@ class Listeners:
         got = list(map(self.memo.get, ids))
         if None in got:  # ids the probes have not met
             unknown = [i for i, g in zip(ids, got, strict=True) if g is None]
-            unknown = [i for i in unknown if self._verdict(i) is None]
+            unknown = [i for i in unknown if self._ruled(i) is None]
             if unknown:
                 self._descend(list(dict.fromkeys(unknown)))
             got = list(map(self.memo.get, ids))
@@ -125,17 +126,16 @@ class Listeners:
         self.mask = (ids, self.version, rows)
         return rows
 
-    def _verdict(self, track_id: str) -> bool | None:
-        """Whether `track_id` is wanted, as far as the probes so far tell (None: unknown)."""
-        got = self.memo.get(track_id)
-        if got is None:  # an id the probes have not met: maybe among those they ruled on
-            if any(within(track_id, p, s) for p, s in self.out):
-                got = False
-            elif any(within(track_id, p, s) for p, s in self.wide):
-                got = True
-            else:
-                return None
-            self.memo[track_id] = got
+    def _ruled(self, track_id: str) -> bool | None:
+        """Whether an id the probes have not met is among those they ruled on, wanted or
+        not (None: neither)."""
+        if any(within(track_id, p, s) for p, s in self.out):
+            got = False
+        elif any(within(track_id, p, s) for p, s in self.wide):
+            got = True
+        else:
+            return None
+        self.memo[track_id] = got
         return got
 
     # ------------------------------------------------------------ the descent
@@ -175,12 +175,10 @@ class Listeners:
         return matched
 
     def _probe(self, key: str) -> bool | None:
-        """Whether a subscriber intersects `<prefix>/<key>` (None: no probe left, or the
-        key is not a valid key expression); a probe matched by nobody stays declared."""
+        """Whether a subscriber intersects `<prefix>/<key>` (None: the key is not a valid
+        key expression); a probe matched by nobody stays declared."""
         if key in self.held:
             return False
-        if len(self.held) >= PROBES:
-            return None
         try:
             probe = self.session.declare_publisher(f"{self.prefix}/{key}")
         except zenoh.ZError:  # an id Zenoh does not take as a chunk
