@@ -96,3 +96,37 @@ def test_a_slow_subscriber_makes_the_hand_over_wait_and_nothing_is_dropped():
         release.set()
         viewer.close()
         service.close()
+
+
+def test_drain_returns_once_everything_is_put_and_gives_up_at_its_timeout():
+    service, viewer = sessions()
+    try:
+        count = [0]
+        release = threading.Event()
+
+        def counted(_: zenoh.Sample) -> None:
+            release.wait(10)  # stalls until released
+            count[0] += 1
+
+        viewer.declare_subscriber("s/tracks/**", zenoh.handlers.Callback(counted,
+                                                                         indirect=False))
+        wait_matching(service, "s/tracks/**")
+        sender = TrackSender(service, MSGPACK)
+        keys = [zenoh.KeyExpr(f"s/tracks/t{i}") for i in range(100)]
+        for _ in range(5):  # more than Zenoh's queues and the socket hold
+            sender.put(keys, [b"x" * 60_000] * len(keys))
+        t0 = time.monotonic()
+        sender.drain(0.3)  # the subscriber stalls: the worker goes on after the timeout
+        assert time.monotonic() - t0 >= 0.3 and not sender.idle()
+        release.set()
+        sender.drain(30)
+        assert sender.idle() and sender.waiting == 0  # every put made
+        end = time.monotonic() + 30
+        while count[0] < 5 * len(keys) and time.monotonic() < end:
+            time.sleep(0.01)
+        assert count[0] == 5 * len(keys)
+        sender.close()
+    finally:
+        release.set()
+        viewer.close()
+        service.close()

@@ -6,9 +6,11 @@ a lockstep one puts them in line (`InlineFrameSender`, `InlineTrackSender`).
 A put with congestion control BLOCK waits as long as the slowest subscriber takes to read
 what is queued (a Python subscriber of `tracks/**` reads about 100,000 messages a second):
 the worker encodes the bodies and hands them over in order, and the sender puts them
-with the GIL released while Zenoh waits. Nothing is dropped: beyond
-`defaults.TRACKS_QUEUE` messages waiting, the worker waits too. docs/performance.md
-gives the figures.
+with the GIL released while Zenoh waits. After each step the worker waits for the sender
+to finish, until the next frame falls due at most (`TrackSender.drain`): the states go out
+before more input is taken, and the two threads do not pass the GIL to and fro at every
+put (bench/put_gil.py). Nothing is dropped: beyond `defaults.TRACKS_QUEUE` messages
+waiting, the worker waits too. docs/performance.md gives the figures.
 """
 
 from __future__ import annotations
@@ -140,6 +142,14 @@ class TrackSender:
         with self.cond:
             return not self.jobs
 
+    def drain(self, timeout: float) -> None:
+        """Wait up to `timeout` s for everything handed over to be put. The worker does so
+        after each step: its puts then hold the GIL uncontended, while beside a busy worker
+        each put, which releases the GIL, takes it back only when the worker lets go."""
+        with self.cond:
+            self.cond.wait_for(lambda: not self.jobs or self.closed
+                               or not self.thread.is_alive(), timeout)
+
     def close(self, timeout: float = 10.0) -> None:
         """Put what waits, then stop."""
         with self.cond:
@@ -167,6 +177,9 @@ class InlineTrackSender:
 
     def idle(self) -> bool:
         return True
+
+    def drain(self, timeout: float) -> None:
+        """Nothing waits."""
 
     def close(self) -> None:
         """Nothing waits."""

@@ -34,7 +34,7 @@ from .ingest import ClockMessage, Ingest, Input, LabelledScan, Plots, Query, Sin
 from .plan import SEES_ROWS, Answer, Apply, ApplyScan, Do, Frame, Plan, Refusals, Reject, Wait
 from .publish import Publisher
 from .queries import Queries
-from .schedule import IDLE_AFTER, IDLE_POLL, POLL, Frames
+from .schedule import DRAIN, IDLE_AFTER, IDLE_POLL, POLL, Frames
 from .state import StateFile
 from .steps import TrackerCalls
 
@@ -152,6 +152,8 @@ class TrackService:
                 self.last_input = time.monotonic()
             try:
                 self._process(batch)
+                if batch:  # the states handed over out before more input is taken
+                    self.out.drain(self.clock.timeout(time.time(), DRAIN))
                 if self.state is not None:
                     self.state.tick()
                 if time.monotonic() >= self.next_freeze and self.ingest.idle():
