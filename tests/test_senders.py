@@ -28,6 +28,22 @@ def wait_matching(session: zenoh.Session, key: str) -> None:
     probe.undeclare()
 
 
+def stalled_subscriber(service: zenoh.Session, viewer: zenoh.Session
+                       ) -> tuple[list[int], threading.Event]:
+    """A subscriber of `s/tracks/**` on `viewer` that stalls until the event is set: the
+    count of what it received and the event."""
+    count = [0]
+    release = threading.Event()
+
+    def slow(_: zenoh.Sample) -> None:
+        release.wait(10)
+        count[0] += 1
+
+    viewer.declare_subscriber("s/tracks/**", zenoh.handlers.Callback(slow, indirect=False))
+    wait_matching(service, "s/tracks/**")
+    return count, release
+
+
 def test_states_and_deletions_arrive_in_the_order_handed_over_and_close_puts_the_rest():
     service, viewer = sessions()
     try:
@@ -60,16 +76,9 @@ def test_states_and_deletions_arrive_in_the_order_handed_over_and_close_puts_the
 
 def test_a_slow_subscriber_makes_the_hand_over_wait_and_nothing_is_dropped():
     service, viewer = sessions()
+    release = threading.Event()
     try:
-        count = [0]
-        release = threading.Event()
-
-        def slow(_: zenoh.Sample) -> None:
-            release.wait(10)  # the subscriber stalls until released
-            count[0] += 1
-
-        viewer.declare_subscriber("s/tracks/**", zenoh.handlers.Callback(slow, indirect=False))
-        wait_matching(service, "s/tracks/**")
+        count, release = stalled_subscriber(service, viewer)
         sender = TrackSender(service, MSGPACK, limit=100)
         keys = [zenoh.KeyExpr(f"s/tracks/t{i}") for i in range(100)]
         body = b"x" * 60_000  # Zenoh's queues fill within a few of these
@@ -100,17 +109,9 @@ def test_a_slow_subscriber_makes_the_hand_over_wait_and_nothing_is_dropped():
 
 def test_drain_returns_once_everything_is_put_and_gives_up_at_its_timeout():
     service, viewer = sessions()
+    release = threading.Event()
     try:
-        count = [0]
-        release = threading.Event()
-
-        def counted(_: zenoh.Sample) -> None:
-            release.wait(10)  # stalls until released
-            count[0] += 1
-
-        viewer.declare_subscriber("s/tracks/**", zenoh.handlers.Callback(counted,
-                                                                         indirect=False))
-        wait_matching(service, "s/tracks/**")
+        count, release = stalled_subscriber(service, viewer)
         sender = TrackSender(service, MSGPACK)
         keys = [zenoh.KeyExpr(f"s/tracks/t{i}") for i in range(100)]
         for _ in range(5):  # more than Zenoh's queues and the socket hold
