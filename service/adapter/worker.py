@@ -152,7 +152,7 @@ class TrackService:
                 self.last_input = time.monotonic()
             try:
                 self._process(batch)
-                if batch:  # the states handed over out before more input is taken
+                if batch:  # the states handed over go out before more input is taken
                     self.out.drain(self.clock.timeout(time.time(), DRAIN))
                 if self.state is not None:
                     self.state.tick()
