@@ -16,7 +16,7 @@ BLEND = 0.0  # s: absorb a correction over this period (0: plain prediction)
 BLEND_SPEED = 0.0  # m/s: absorb a correction at this speed (0: no speed limit)
 LAG = 0.0  # s: display instants lag the clock, smoothed when bracketed
 # s: how often a realtime service looks again who subscribes display/ and tracks/, and
-# how often it asks afresh which tracks' keys they take (so that one who left stops costing)
+# how often it asks again about the tracks' keys it puts (so that one who left stops costing)
 LISTENERS_REFRESH = 0.1
 LISTENERS_RESET = 60.0
 # rows a realtime pass applies at most when more wait (batched scans put faster than they

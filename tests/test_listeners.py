@@ -193,7 +193,7 @@ def intersected(exprs: list[str], ids: list[str]) -> list[int]:
 def test_the_tracks_wanted_are_those_a_subscriber_intersects():
     """Zenoh's matching status, asked prefix by prefix: each subscriber as it comes (a
     newcomer under a prefix ruled out is seen at the next look), each one's leaving once
-    the descent starts afresh, every key at once for `**`; never an id missed, also when
+    the ids wanted are probed again, every key at once for `**`; never an id missed, also when
     the probes run out."""
     from zenoh_track.adapter.listeners import PROBES, Listeners
 
@@ -237,6 +237,35 @@ def test_the_tracks_wanted_are_those_a_subscriber_intersects():
         got = listeners.select(many).tolist()
         assert len(listeners.held) <= PROBES and len(truth) < len(got) < len(many)
     finally:
+        listeners.close()
+        dep.close()
+
+
+def test_a_recheck_asks_again_about_the_wanted_ids_only():
+    """The periodic recheck probes the ids that go out, not the ones ruled out: those
+    keep their verdict (a newcomer under them is seen by a held probe), and a subscriber
+    who left stops costing puts all the same."""
+    from zenoh_track.adapter.listeners import Listeners
+
+    dep = Deployment()
+    listeners = Listeners(dep.service, "adm/tracks", refresh=0.0, reset=3600.0)
+    ids = [f"swarm-{i:05d}" for i in range(2000)]
+    subs = [dep.viewer.session.declare_subscriber(e, lambda s: None)
+            for e in ("adm/tracks/swarm-$*00", "adm/tracks/swarm-$*50")]
+    try:
+        truth = intersected(["adm/display/swarm-$*00", "adm/display/swarm-$*50"], ids)
+        assert poll(lambda: listeners.look() and listeners.select(ids).tolist() == truth)
+        ruled_out = {i for i, got in listeners.memo.items() if not got}
+        assert len(ruled_out) == len(ids) - len(truth)
+        subs.pop().undeclare()  # the $*50 subscriber leaves: no probe sees it
+        listeners.reset = 0.0  # the recheck is due at the next look
+        listeners.look()
+        assert ruled_out <= {i for i, got in listeners.memo.items() if not got}
+        left = intersected(["adm/display/swarm-$*00"], ids)
+        assert poll(lambda: listeners.look() and listeners.select(ids).tolist() == left)
+    finally:
+        for sub in subs:
+            sub.undeclare()
         listeners.close()
         dep.close()
 
