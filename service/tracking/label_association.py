@@ -13,7 +13,10 @@ import numpy as np
 from ..wire import TIME_TOL
 from .batches import Labelled
 from .hypotheses import Hypotheses
-from .store import TrackStore
+from .store import Column, TrackArrays, TrackStore
+
+# the sensor of each labelled track's last update, by store row (0: none yet)
+LABEL_COLUMNS = {"sensor": Column(dtype=object, fresh=True, saved=False)}
 
 
 def wrong_dimension(dim: int, track_dim: int) -> str:
@@ -36,21 +39,42 @@ class LabelAssociator:
     which tracks a sensor missed, so `seen` stays empty: the tracks' status follows from
     their age. Remembers the sensor of each track's last update (`memory`)."""
 
+    columns = LABEL_COLUMNS
+
     def __init__(self) -> None:
-        self.last: dict[str, str] = {}  # track -> the sensor of its last update
+        self.pending: dict[str, str] = {}  # tracks to be started -> the sensor that starts them
 
-    def memory(self) -> dict[str, str]:
-        """A copy of what it remembers of the tracks (for a checkpoint)."""
-        return dict(self.last)
+    def memory(self, store: TrackStore) -> dict[str, str]:
+        """The sensor of each track's last update, by id (for a checkpoint)."""
+        self._settle(store)
+        out: dict[str, str] = {}
+        for arrays in store.layouts.values():
+            rows, ids = arrays.live()
+            out.update((i, s) for i, s in zip(ids, arrays.sensor[rows].tolist(), strict=True)
+                       if s)
+        return out
 
-    def remember(self, last: Mapping[str, str]) -> None:
-        """Take back what `memory` gave (a restored checkpoint)."""
-        self.last.update(last)
+    def remember(self, store: TrackStore, last: Mapping[str, str]) -> None:
+        """Take back what `memory` gave (a restored checkpoint): tracks not in the store
+        are left out."""
+        for track_id, sensor in last.items():
+            if (hit := store.where.get(track_id)) is not None:
+                hit[0].sensor[hit[1]] = sensor
 
     def forget(self, ids: Sequence[str]) -> None:
-        """Tracks deleted: drop what is kept of them."""
-        for track_id in ids:
-            self.last.pop(track_id, None)
+        """Tracks deleted: their rows are fresh when given again; a start pending for
+        them is dropped."""
+        if self.pending:
+            for track_id in ids:
+                self.pending.pop(track_id, None)
+
+    def _settle(self, store: TrackStore) -> None:
+        """The tracks the last association started (those that did start) take their
+        sensor."""
+        for track_id, sensor in self.pending.items():
+            if (hit := store.where.get(track_id)) is not None:
+                hit[0].sensor[hit[1]] = sensor
+        self.pending.clear()
 
     def split(self, scan: Labelled) -> list[tuple[list[int], Labelled]]:
         """The scan in parts in which each target appears at most once, keeping order: a
@@ -62,10 +86,11 @@ class LabelAssociator:
 
     def associate(self, store: TrackStore, part: Labelled) -> Hypotheses:
         """The rows of `part` (each target at most once) against the store's tracks."""
-        ids, sensors, t, dim = part.ids, part.sensors, part.batch.t, part.batch.dim
-        where, last = store.where, self.last
+        ids, sensors, dim = part.ids, part.sensors, part.batch.dim
+        if self.pending:
+            self._settle(store)
         arrays = store.layouts.get(dim)
-        hits = list(map(where.get, ids))
+        hits = list(map(store.where.get, ids))
         upd: list[int] = []
         rows: list[int] = []
         hyp = Hypotheses(dim)
@@ -83,24 +108,39 @@ class LabelAssociator:
                     rejected[i] = wrong_dimension(dim, hit[0].dim)
         ui, ri = np.array(upd, dtype=np.intp), np.array(rows, dtype=np.intp)
         if len(ri):
-            tt, mt = arrays.t[ri], t[ui]  # type: ignore[union-attr]
-            late = mt < tt - TIME_TOL
-            near = ~late & (mt <= tt + TIME_TOL)
-            if late.any() or near.any():
-                for j in np.flatnonzero(late | near).tolist():
-                    i = upd[j]
-                    if late[j]:
-                        rejected[i] = out_of_sequence(mt[j], tt[j])
-                    elif last.get(ids[i]) == sensors[i]:
-                        rejected[i] = duplicate(sensors[i], mt[j])
-                keep = np.array([i not in rejected for i in upd], dtype=bool)
-                ui, ri = ui[keep], ri[keep]
-        if not rejected:
-            last.update(zip(ids, sensors, strict=True))
-        else:
-            last.update((ids[i], sensors[i]) for i in (*ui.tolist(), *new))
+            ui, ri = self._in_turn(arrays, ui, ri, part, rejected)  # type: ignore[arg-type]
+            arrays.sensor[ri] = _objects(sensors)[ui]  # type: ignore[union-attr]
+        self.pending.update((ids[i], sensors[i]) for i in new)
         hyp.assign(ui, ri)
         return hyp
+
+    @staticmethod
+    def _in_turn(arrays: TrackArrays, ui: np.ndarray, ri: np.ndarray, part: Labelled,
+                 rejected: dict[int, str]) -> tuple[np.ndarray, np.ndarray]:
+        """The rows (part's ui, store's ri) less those out of sequence or duplicate
+        (the same sensor within `TIME_TOL` of the track's last update), which are
+        rejected."""
+        tt, mt = arrays.t[ri], part.batch.t[ui]
+        late = mt < tt - TIME_TOL
+        near = ~late & (mt <= tt + TIME_TOL)
+        if not (late.any() or near.any()):
+            return ui, ri
+        last = arrays.sensor
+        for j in np.flatnonzero(late | near).tolist():
+            i = int(ui[j])
+            if late[j]:
+                rejected[i] = out_of_sequence(mt[j], tt[j])
+            elif last[ri[j]] == part.sensors[i]:
+                rejected[i] = duplicate(part.sensors[i], mt[j])
+        keep = np.array([i not in rejected for i in ui.tolist()], dtype=bool)
+        return ui[keep], ri[keep]
+
+
+def _objects(values: Sequence[str]) -> np.ndarray:
+    """A list of strings as a 1-D object array (not a string array)."""
+    out = np.empty(len(values), dtype=object)
+    out[:] = values
+    return out
 
 
 def split_repeats(keys: Sequence[str]) -> list[list[int]]:

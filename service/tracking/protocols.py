@@ -15,7 +15,7 @@ import numpy as np
 from ..estimation.measurements import MeasurementBatch
 from .batches import Detections, Labelled, Unlabelled
 from .hypotheses import Hypotheses, Seen, WeightedUpdate
-from .store import TrackArrays, TrackStore
+from .store import Column, TrackArrays, TrackStore
 
 if TYPE_CHECKING:
     from .display import DisplayConfig, Snapshot
@@ -80,13 +80,16 @@ class Associator(Protocol[ScanT, PartT]):
 
 class LabelledAssociator(Associator[Labelled, Labelled], Protocol):
     """The associator of labelled measurements, which remembers something of each track
-    (the sensor of its last update) for a checkpoint."""
+    (the sensor of its last update) in its own per-row `columns` of the store, and by
+    id for a checkpoint."""
+
+    columns: Mapping[str, Column]
 
     def forget(self, ids: Sequence[str]) -> None: ...
 
-    def memory(self) -> dict[str, str]: ...
+    def memory(self, store: TrackStore) -> dict[str, str]: ...
 
-    def remember(self, last: Mapping[str, str]) -> None: ...
+    def remember(self, store: TrackStore, last: Mapping[str, str]) -> None: ...
 
 
 class ScanAssociator(Associator[Unlabelled, Detections], Protocol):

@@ -31,6 +31,7 @@ import numpy as np
 from .. import defaults
 from ..wire import TIME_TOL
 from .gating import Gating
+from .label_association import LABEL_COLUMNS
 from .life import LIFE_COLUMNS
 from .plot_association import scores
 from .protocols import Scene
@@ -224,8 +225,10 @@ def _best(g: Gating, score: np.ndarray, miss: float, rows: np.ndarray,
 
 
 def _kept(arrays: TrackArrays) -> list[str]:
-    """The columns a branch restores: all but the track's life (M of N, score)."""
-    return [name for name in arrays.shapes if name not in LIFE_COLUMNS and name != "alive"]
+    """The columns a branch restores: all but the track's life (M of N, score) and the
+    labelled association's (an unlabelled track's branches do not touch it)."""
+    return [name for name in arrays.shapes
+            if name not in LIFE_COLUMNS and name not in LABEL_COLUMNS and name != "alive"]
 
 
 def _put(arrays: TrackArrays, rows: np.ndarray, saved: list[dict[str, np.ndarray]]) -> None:

@@ -152,7 +152,7 @@ class Tracker:
         self.noise: NoiseMonitor = noise  # each sensor's stated noise against its measurements
         self.plot_speed = plot_speed
         self.store = TrackStore(self.updater.order, self.updater.fields,
-                                {**LIFE_COLUMNS, **DISPLAY_COLUMNS})
+                                {**LIFE_COLUMNS, **DISPLAY_COLUMNS, **associator.columns})
         self.numbers = TrackNumbers()
 
     @classmethod
@@ -401,7 +401,7 @@ class Tracker:
     def memory(self) -> dict[str, dict]:
         """What the tracker keeps beside the store: the track numbers given per sensor
         and the sensor of each labelled track's last update (JSON-serialisable)."""
-        return {"numbers": dict(self.numbers.last), "last": self.associator.memory()}
+        return {"numbers": dict(self.numbers.last), "last": self.associator.memory(self.store)}
 
     def restore(self, dim: int, ids: list[str], columns: Mapping[str, np.ndarray]) -> None:
         """Tracks of one layout back from a checkpoint: their ids and every per-row
@@ -416,8 +416,7 @@ class Tracker:
         """Take back what `memory` gave (after `restore`: the last sensors of tracks not
         restored are dropped)."""
         self.numbers.last.update(memory.get("numbers", {}))
-        self.associator.remember({k: v for k, v in memory.get("last", {}).items()
-                                  if k in self.store})
+        self.associator.remember(self.store, memory.get("last", {}))
 
     # ------------------------------------------------------------ queries
     def counts(self) -> dict[str, int]:

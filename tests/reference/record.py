@@ -51,7 +51,7 @@ def track(tracker: Tracker, measurements: Sequence[Measurement]
 
 def step(tracker: Tracker, scan: list[Outcome]) -> list[str]:
     """One scan of labelled records: associate each, update, delete, initiate."""
-    store, last = tracker.store, tracker.associator.last
+    store = tracker.store
     updates: dict[int, list[Outcome]] = {}
     new: dict[int, list[Outcome]] = {}
     for out in scan:
@@ -59,18 +59,17 @@ def step(tracker: Tracker, scan: list[Outcome]) -> list[str]:
         hit = store.where.get(m.target)
         if hit is None:
             new.setdefault(m.dim, []).append(out)
-            last[m.target] = m.sensor
             continue
         arrays, row = hit
         if arrays.dim != m.dim:
             out.reason = wrong_dimension(m.dim, arrays.dim)
         elif m.t < arrays.t[row] - TIME_TOL:
             out.reason = out_of_sequence(m.t, arrays.t[row])
-        elif m.t <= arrays.t[row] + TIME_TOL and last.get(m.target) == m.sensor:
+        elif m.t <= arrays.t[row] + TIME_TOL and arrays.sensor[row] == m.sensor:
             out.reason = duplicate(m.sensor, m.t)
         else:
             updates.setdefault(m.dim, []).append(out)
-            last[m.target] = m.sensor
+            arrays.sensor[row] = m.sensor
     for dim, outs in updates.items():
         arrays = store.layout(dim)
         rows = np.array([store.where[o.meas.target][1] for o in outs], dtype=int)
@@ -86,6 +85,8 @@ def step(tracker: Tracker, scan: list[Outcome]) -> list[str]:
             dim, MeasurementBatch.of([o.meas for o in outs], dim), [o.meas.target for o in outs])
         block = tracker.states(arrays, rows)
         for out, reason in zip(outs, reasons, strict=True):
+            if reason is None:
+                arrays.sensor[store.where[out.meas.target][1]] = out.meas.sensor
             out.reason, out.nis = reason, 0.0 if reason is None else np.nan
             out.states = block if reason is None else None
     return deleted
