@@ -248,7 +248,7 @@ def test_a_recheck_asks_again_about_the_wanted_ids_only():
     from zenoh_track.adapter.listeners import Listeners
 
     dep = Deployment()
-    listeners = Listeners(dep.service, "adm/tracks", refresh=0.0, reset=3600.0)
+    listeners = Listeners(dep.service, "adm/tracks", refresh=0.0, reset=0.5)
     ids = [f"swarm-{i:05d}" for i in range(2000)]
     subs = [dep.viewer.session.declare_subscriber(e, lambda s: None)
             for e in ("adm/tracks/swarm-$*00", "adm/tracks/swarm-$*50")]
@@ -258,8 +258,10 @@ def test_a_recheck_asks_again_about_the_wanted_ids_only():
         ruled_out = {i for i, got in listeners.memo.items() if not got}
         assert len(ruled_out) == len(ids) - len(truth)
         subs.pop().undeclare()  # the $*50 subscriber leaves: no probe sees it
-        listeners.reset = 0.0  # the recheck is due at the next look
-        listeners.look()
+        due = listeners.started + listeners.reset
+        assert poll(lambda: time.monotonic() >= due)
+        listeners.look()  # the recheck, before any select
+        assert listeners.started >= due
         assert ruled_out <= {i for i, got in listeners.memo.items() if not got}
         left = intersected(["adm/display/swarm-$*00"], ids)
         assert poll(lambda: listeners.look() and listeners.select(ids).tolist() == left)
