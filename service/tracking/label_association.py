@@ -71,9 +71,7 @@ class LabelAssociator:
     def _settle(self, store: TrackStore) -> None:
         """The tracks the last association started (those that did start) take their
         sensor."""
-        for track_id, sensor in self.pending.items():
-            if (hit := store.where.get(track_id)) is not None:
-                hit[0].sensor[hit[1]] = sensor
+        self.remember(store, self.pending)
         self.pending.clear()
 
     def split(self, scan: Labelled) -> list[tuple[list[int], Labelled]]:
@@ -109,7 +107,7 @@ class LabelAssociator:
         ui, ri = np.array(upd, dtype=np.intp), np.array(rows, dtype=np.intp)
         if len(ri):
             ui, ri = self._in_turn(arrays, ui, ri, part, rejected)  # type: ignore[arg-type]
-            arrays.sensor[ri] = _objects(sensors)[ui]  # type: ignore[union-attr]
+            arrays.sensor[ri] = np.array(sensors, dtype=object)[ui]  # type: ignore[union-attr]
         self.pending.update((ids[i], sensors[i]) for i in new)
         hyp.assign(ui, ri)
         return hyp
@@ -134,13 +132,6 @@ class LabelAssociator:
                 rejected[i] = duplicate(part.sensors[i], mt[j])
         keep = np.array([i not in rejected for i in ui.tolist()], dtype=bool)
         return ui[keep], ri[keep]
-
-
-def _objects(values: Sequence[str]) -> np.ndarray:
-    """A list of strings as a 1-D object array (not a string array)."""
-    out = np.empty(len(values), dtype=object)
-    out[:] = values
-    return out
 
 
 def split_repeats(keys: Sequence[str]) -> list[list[int]]:
