@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import gc
 import math
+import threading
 import time
 
 import zenoh
@@ -201,4 +202,45 @@ def test_batched_scans_taken_together_are_applied_a_pass_each_beyond_the_pass_bo
         assert svc.count.meas_accepted == 85 and len(svc.tracker) == 40
         svc.out.close()
     finally:
+        session.close()
+
+
+def test_a_worker_waiting_for_its_sender_publishes_the_frames_falling_due():
+    """After a step the worker waits up to `DRAIN` s for its `tracks/` sender; a
+    subscriber that stalls holds the sender up, and the display instants falling due
+    meanwhile still go out."""
+    from zenoh_track.adapter.schedule import DRAIN
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    session = zenoh.open(listen_config(ep))
+    viewer = zenoh.open(peer_config(ep))
+    release = threading.Event()
+    try:
+        keys = Keys("rt")
+        viewer.declare_subscriber(keys.tracks("**"), zenoh.handlers.Callback(
+            lambda _: release.wait(10), indirect=False))
+        svc = TrackService(session, keys, Tracker.from_config(), clock="realtime")
+        probe = session.declare_publisher(keys.tracks("x"))
+        end = time.monotonic() + 10
+        while not probe.matching_status.matching and time.monotonic() < end:
+            time.sleep(0.01)  # the service knows the stalled subscriber
+        probe.undeclare()
+        svc._process([Singles.one(keys.meas("r1", "a"), pack({"t": time.time(),
+                                                               "pos": [0.0, 1.0]}),
+                                  time.time())])  # the clock has its offset
+        sender = svc.out.track_sender
+        held = [zenoh.KeyExpr(keys.tracks(f"t{i}")) for i in range(100)]
+        for _ in range(5):  # more than Zenoh's queues and the socket hold
+            sender.put(held, [b"x" * 60_000] * len(held))
+        published = svc.count.frames_published
+        t0 = time.monotonic()
+        svc._drain()
+        assert time.monotonic() - t0 >= DRAIN * 0.9 and not sender.idle()
+        assert svc.count.frames_published - published >= int(DRAIN * 30)
+        release.set()
+        assert sender.drain(30)
+        svc.close()
+    finally:
+        release.set()
+        viewer.close()
         session.close()

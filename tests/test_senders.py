@@ -117,10 +117,10 @@ def test_drain_returns_once_everything_is_put_and_gives_up_at_its_timeout():
         for _ in range(5):  # more than Zenoh's queues and the socket hold
             sender.put(keys, [b"x" * 60_000] * len(keys))
         t0 = time.monotonic()
-        sender.drain(0.3)  # the subscriber stalls: the worker goes on after the timeout
-        assert time.monotonic() - t0 >= 0.3 and not sender.idle()
+        assert not sender.drain(0.3)  # the subscriber stalls: the worker goes on after
+        assert time.monotonic() - t0 >= 0.3 and not sender.idle()  # the timeout
         release.set()
-        sender.drain(30)
+        assert sender.drain(30)
         assert sender.idle() and sender.waiting == 0  # every put made
         end = time.monotonic() + 30
         while count[0] < 5 * len(keys) and time.monotonic() < end:

@@ -129,9 +129,10 @@ class Publisher:
         self.track_listeners.look(now)
         self.states_wanted = self.pub_states.matching_status.matching
 
-    def drain(self, timeout: float) -> None:
-        """Wait up to `timeout` s for the `tracks/` states handed over to be put."""
-        self.track_sender.drain(timeout)
+    def drain(self, timeout: float) -> bool:
+        """Wait up to `timeout` s for the `tracks/` states handed over to be put (True:
+        they were)."""
+        return self.track_sender.drain(timeout)
 
     def close(self) -> None:
         self.sender.close()

@@ -26,8 +26,8 @@ MAX_GAP_FRAMES = 30 * 600  # a lockstep jump longer than this is skipped, not re
 POLL = 0.001  # s: an idle worker looks in the measurement channels this often
 IDLE_POLL = 0.01  # s: ... and this often once nothing has come for IDLE_AFTER
 IDLE_AFTER = 10.0  # s: longer than a radar's scan period (a paused or absent feed)
-DRAIN = 0.05  # s: the longest a worker waits for its tracks/ sender after a step (less
-# when a frame falls due first)
+DRAIN = 0.05  # s: the longest a worker waits for its tracks/ sender after a step (the
+# frames falling due meanwhile published)
 # a pass over labelled rows (rows, pause between parts of a long update, or None): its
 # outcome, the deletions reported; then the outcome reported (`Report`)
 Pass = Callable[[Labelled, Callable[[StepOutcome], None] | None], StepOutcome]

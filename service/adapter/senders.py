@@ -7,10 +7,11 @@ A put with congestion control BLOCK waits as long as the slowest subscriber take
 what is queued (a Python subscriber of `tracks/**` reads about 100,000 messages a second):
 the worker encodes the bodies and hands them over in order, and the sender puts them
 with the GIL released while Zenoh waits. After each step the worker waits for the sender
-to finish, until the next frame falls due at most (`TrackSender.drain`): the states go out
-before more input is taken, and the two threads do not pass the GIL to and fro at every
-put (bench/put_gil.py). Nothing is dropped: beyond `defaults.TRACKS_QUEUE` messages
-waiting, the worker waits too. docs/performance.md gives the figures.
+to finish for up to `schedule.DRAIN` s, publishing the frames that fall due meanwhile
+(`TrackSender.drain`): the states go out before more input is taken, and the two threads
+do not pass the GIL to and fro at every put (bench/put_gil.py). Nothing is dropped:
+beyond `defaults.TRACKS_QUEUE` messages waiting, the worker waits too.
+docs/performance.md gives the figures.
 """
 
 from __future__ import annotations
@@ -75,7 +76,7 @@ class TrackSender:
     order handed over (a deletion never overtakes a state of the same track). `limit`:
     messages waiting beyond which `put` waits for the sender (never dropped)."""
 
-    SLICE = 256  # puts between two looks at the queue's lock (the waiting worker wakes)
+    SLICE = 256  # puts between two looks at the queue's lock (a `put` waiting for room wakes)
 
     def __init__(self, session: zenoh.Session, encoding: zenoh.Encoding,
                  limit: int = defaults.TRACKS_QUEUE) -> None:
@@ -83,6 +84,7 @@ class TrackSender:
         self.cond = threading.Condition()
         self.jobs: deque[tuple[list[Any], list[bytes] | None]] = deque()
         self.waiting = 0  # messages handed over, not yet put
+        self.blocked = 0  # threads waiting in `put` for room
         self.closed = False
         self.thread = threading.Thread(target=self._run, name="track-sender", daemon=True)
         self.thread.start()
@@ -100,7 +102,9 @@ class TrackSender:
             return
         with self.cond:
             while self.waiting >= self.limit and not self.closed and self.thread.is_alive():
-                self.cond.wait(0.1)  # the subscribers are that far behind: BLOCK here
+                self.blocked += 1  # the subscribers are that far behind: BLOCK here
+                self.cond.wait(0.1)
+                self.blocked -= 1
             self.jobs.append((keys, bodies))
             self.waiting += len(keys)
             self.cond.notify_all()
@@ -127,7 +131,8 @@ class TrackSender:
                             put(k, b, congestion_control=block, encoding=enc)
                     with self.cond:
                         self.waiting -= end - done
-                        self.cond.notify_all()
+                        if self.blocked:  # room for them (a drain waits for the job)
+                            self.cond.notify_all()
                     done = end
             except Exception:  # a closed session: nothing more to send
                 log.exception("tracks/ put failed")
@@ -142,13 +147,14 @@ class TrackSender:
         with self.cond:
             return not self.jobs
 
-    def drain(self, timeout: float) -> None:
-        """Wait up to `timeout` s for everything handed over to be put. The worker does so
-        after each step: its puts then hold the GIL uncontended, while beside a busy worker
-        each put, which releases the GIL, takes it back only when the worker lets go."""
+    def drain(self, timeout: float) -> bool:
+        """Wait up to `timeout` s for everything handed over to be put (True: it was). The
+        worker does so after each step: its puts then hold the GIL uncontended, while
+        beside a busy worker each put, which releases the GIL, takes it back only when the
+        worker lets go."""
         with self.cond:
-            self.cond.wait_for(lambda: not self.jobs or self.closed
-                               or not self.thread.is_alive(), timeout)
+            return self.cond.wait_for(lambda: not self.jobs or self.closed
+                                      or not self.thread.is_alive(), timeout)
 
     def close(self, timeout: float = 10.0) -> None:
         """Put what waits, then stop."""
@@ -178,8 +184,9 @@ class InlineTrackSender:
     def idle(self) -> bool:
         return True
 
-    def drain(self, timeout: float) -> None:
+    def drain(self, timeout: float) -> bool:
         """Nothing waits."""
+        return True
 
     def close(self) -> None:
         """Nothing waits."""

@@ -153,7 +153,7 @@ class TrackService:
             try:
                 self._process(batch)
                 if batch:  # the states handed over go out before more input is taken
-                    self.out.drain(self.clock.timeout(time.time(), DRAIN))
+                    self._drain()
                 if self.state is not None:
                     self.state.tick()
                 if time.monotonic() >= self.next_freeze and self.ingest.idle():
@@ -163,6 +163,16 @@ class TrackService:
                     self.next_freeze = time.monotonic() + FREEZE_EVERY
             except Exception:  # keep serving: one bad batch must not stop the service
                 log.exception("worker failed on a batch of %d inputs", len(batch))
+
+    def _drain(self) -> None:
+        """Wait up to `DRAIN` s for the states handed over to go out, the frames that fall
+        due meanwhile published (no input is taken until they are out: the sender's puts
+        then hold the GIL uncontended)."""
+        end = time.time() + DRAIN
+        while not self.out.drain(self.clock.timeout(now := time.time(), end - now)):
+            if time.time() >= end:
+                return
+            self._process([])  # a frame due: published at its instant
 
     # ------------------------------------------------------------ take
     def _process(self, batch: list[Input]) -> None:
