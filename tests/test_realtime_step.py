@@ -205,10 +205,10 @@ def test_batched_scans_taken_together_are_applied_a_pass_each_beyond_the_pass_bo
         session.close()
 
 
-def test_a_worker_waiting_for_its_sender_publishes_the_frames_falling_due():
-    """After a step the worker waits up to `DRAIN` s for its `tracks/` sender; a
-    subscriber that stalls holds the sender up, and the display instants falling due
-    meanwhile still go out."""
+def test_a_worker_waiting_for_its_sender_publishes_the_frame_falling_due_and_goes_on():
+    """After a step the worker waits for its `tracks/` sender, up to `DRAIN` s; a
+    subscriber that stalls holds the sender up: the display instant falling due meanwhile
+    goes out at once, and the worker does not wait beyond `DRAIN`."""
     from zenoh_track.adapter.schedule import DRAIN
 
     ep = f"tcp/127.0.0.1:{free_port()}"
@@ -235,8 +235,8 @@ def test_a_worker_waiting_for_its_sender_publishes_the_frames_falling_due():
         published = svc.count.frames_published
         t0 = time.monotonic()
         svc._drain()
-        assert time.monotonic() - t0 >= DRAIN * 0.9 and not sender.idle()
-        assert svc.count.frames_published - published >= int(DRAIN * 30)
+        assert svc.count.frames_published > published
+        assert time.monotonic() - t0 < DRAIN + 0.5 and not sender.idle()
         release.set()
         assert sender.drain(30)
         svc.close()

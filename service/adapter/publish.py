@@ -129,6 +129,10 @@ class Publisher:
         self.track_listeners.look(now)
         self.states_wanted = self.pub_states.matching_status.matching
 
+    def unsent(self) -> int:
+        """`tracks/` messages handed over, not yet put."""
+        return self.track_sender.waiting
+
     def drain(self, timeout: float) -> bool:
         """Wait up to `timeout` s for the `tracks/` states handed over to be put (True:
         they were)."""

@@ -168,6 +168,8 @@ class InlineTrackSender:
     """`TrackSender`'s puts and deletions made at once, on the caller's thread: a lockstep
     service's outputs, in line with everything else it puts (a function of its inputs)."""
 
+    waiting = 0  # nothing waits
+
     def __init__(self, session: zenoh.Session, encoding: zenoh.Encoding) -> None:
         self.session, self.encoding = session, encoding
 

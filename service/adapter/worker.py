@@ -165,14 +165,17 @@ class TrackService:
                 log.exception("worker failed on a batch of %d inputs", len(batch))
 
     def _drain(self) -> None:
-        """Wait up to `DRAIN` s for the states handed over to go out, the frames that fall
-        due meanwhile published (no input is taken until they are out: the sender's puts
-        then hold the GIL uncontended)."""
+        """Wait for the states handed over to go out (the sender's puts then hold the GIL
+        uncontended) while the sender keeps putting them, up to `DRAIN` s: a frame that
+        falls due meanwhile is published at its instant, and the wait ends there if nothing
+        was put since the last (a slow subscriber holds the sender up: the input goes on)."""
         end = time.time() + DRAIN
+        left = self.out.unsent()
         while not self.out.drain(self.clock.timeout(now := time.time(), end - now)):
-            if time.time() >= end:
-                return
             self._process([])  # a frame due: published at its instant
+            if time.time() >= end or self.out.unsent() >= left:
+                return
+            left = self.out.unsent()
 
     # ------------------------------------------------------------ take
     def _process(self, batch: list[Input]) -> None:
