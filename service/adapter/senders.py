@@ -7,10 +7,11 @@ A put with congestion control BLOCK waits as long as the slowest subscriber take
 what is queued (a Python subscriber of `tracks/**` reads about 100,000 messages a second):
 the worker encodes the bodies and hands them over in order, and the sender puts them
 with the GIL released while Zenoh waits. After each step the worker waits for the sender
-to finish for up to `schedule.DRAIN` s, publishing the frames that fall due meanwhile
-(`TrackSender.drain`): the states go out before more input is taken, and the two threads
-do not pass the GIL to and fro at every put (bench/put_gil.py). Nothing is dropped:
-beyond `defaults.TRACKS_QUEUE` messages waiting, the worker waits too.
+for up to `schedule.DRAIN` s while it keeps putting, publishing the frames that fall due
+meanwhile (`TrackService._drain`, with `TrackSender.drain`): the states go out before
+more input is taken, and the two threads do not pass the GIL to and fro at every put
+(bench/put_gil.py). Nothing is dropped: beyond `defaults.TRACKS_QUEUE` messages waiting,
+the worker waits too.
 docs/performance.md gives the figures.
 """
 

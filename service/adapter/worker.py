@@ -173,9 +173,10 @@ class TrackService:
         left = self.out.unsent()
         while not self.out.drain(self.clock.timeout(now := time.time(), end - now)):
             self._process([])  # a frame due: published at its instant
-            if time.time() >= end or self.out.unsent() >= left:
-                return
-            left = self.out.unsent()
+            unsent = self.out.unsent()
+            if unsent >= left or time.time() >= end:
+                return  # nothing put since the last look (held up), or DRAIN is over
+            left = unsent
 
     # ------------------------------------------------------------ take
     def _process(self, batch: list[Input]) -> None:
